@@ -1,0 +1,166 @@
+"""Robot bodies: a differential-drive disc carrying range finders, and the ready presets.
+
+Body frame: x forward, y to the left; sensor angles are counter-clockwise from forward, in
+the order the sensors are listed (that order is the order of ``read_sensors()``).
+
+Presets (``PRESETS``):
+
+* ``khepera2`` — 70 mm disc, wheel base 53 mm, 8 IR sensors at the real positions and facings
+  (``shared/reference/devices.md``), max wheel speed 127 units x 8 mm/s = 1.016 m/s, range
+  finders capped at the IR fade distance (0.12 m) with the Khepera II IR response.
+* ``khepera4`` — radius 70.4 mm, wheel base 105.4 mm, 8 IR sensors evenly spaced from forward
+  counter-clockwise on the rim; max range 0.25 m and max wheel speed 0.81 m/s are our
+  assumptions (not in the reference notes).
+* ``paper7`` — the paper's Figure 7 robot: a Khepera II-sized disc with 7 range finders on the
+  rim at -90°..+90° every 30° (right to left), max range 0.25 m, wheels capped at 0.2 m/s.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import WorldError
+from .ir import IR_FADE_M, IR_MODELS
+
+
+@dataclass(frozen=True, eq=False)
+class Body:
+    """A differential-drive robot with range finders.
+
+    Attributes
+    ----------
+    name : str
+        Preset or user name.
+    radius_m : float
+        Radius of the body's disc (collisions, contact).
+    wheel_base_m : float
+        Distance between the wheels.
+    max_wheel_mps : float
+        Wheel speeds saturate at ``±max_wheel_mps``.
+    sensor_angles_rad : float32[n_sensors]
+        Facing of each range finder, counter-clockwise from forward.
+    sensor_offsets_m : float64[n_sensors, 2]
+        Position of each range finder in the body frame (x forward, y left).
+    max_range_m : float
+        Range reported when nothing is hit.
+    ir_model : str or None
+        Name of an IR response (``sim_robot.ir.IR_MODELS``) for ``Arena.read_ir``, or None.
+    """
+
+    name: str
+    radius_m: float
+    wheel_base_m: float
+    max_wheel_mps: float
+    sensor_angles_rad: np.ndarray
+    sensor_offsets_m: np.ndarray
+    max_range_m: float
+    ir_model: str | None = None
+
+    @property
+    def n_sensors(self) -> int:
+        return int(self.sensor_angles_rad.shape[0])
+
+    def __post_init__(self) -> None:
+        angles = np.asarray(self.sensor_angles_rad, dtype=np.float32).reshape(-1)
+        offsets = np.asarray(self.sensor_offsets_m, dtype=np.float64)
+        object.__setattr__(self, "sensor_angles_rad", angles)
+        object.__setattr__(self, "sensor_offsets_m", offsets)
+        for key in ("radius_m", "wheel_base_m", "max_wheel_mps", "max_range_m"):
+            value = getattr(self, key)
+            if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
+                raise WorldError(f"robot.{key} must be a finite number > 0, got {value!r}")
+        if angles.size == 0:
+            raise WorldError("robot.sensor_angles_deg must list at least one sensor, got none")
+        if not np.all(np.isfinite(angles)):
+            raise WorldError("robot.sensor_angles_deg must be finite numbers")
+        if offsets.shape != (angles.size, 2) or not np.all(np.isfinite(offsets)):
+            raise WorldError(
+                f"robot.sensor_offsets_m must be {angles.size} finite [x, y] pairs "
+                f"(one per sensor), got shape {offsets.shape}"
+            )
+        if self.ir_model is not None and self.ir_model not in IR_MODELS:
+            raise WorldError(
+                f"robot.ir_model must be one of {sorted(IR_MODELS)} or 'none', "
+                f"got {self.ir_model!r}"
+            )
+
+    def replace(self, **changes) -> Body:
+        """A copy with some fields changed (validated again)."""
+        return dataclasses.replace(self, **changes)
+
+
+def rim_offsets(radius_m: float, angles_rad: np.ndarray) -> np.ndarray:
+    """Sensor positions on the rim of a disc, each facing outward along its angle."""
+    a = np.asarray(angles_rad, dtype=np.float64)
+    return np.stack([radius_m * np.cos(a), radius_m * np.sin(a)], axis=1)
+
+
+def custom_body(
+    sensor_angles_deg,
+    max_range_m: float,
+    radius_m: float = 0.035,
+    wheel_base_m: float = 0.053,
+    max_wheel_mps: float = 0.2,
+    sensor_offsets_m=None,
+    ir_model: str | None = None,
+    name: str = "custom",
+) -> Body:
+    """A body with range finders at user-chosen directions (on the rim unless placed)."""
+    angles = np.deg2rad(np.asarray(sensor_angles_deg, dtype=np.float64).reshape(-1))
+    offsets = rim_offsets(radius_m, angles) if sensor_offsets_m is None else sensor_offsets_m
+    return Body(
+        name=name,
+        radius_m=float(radius_m),
+        wheel_base_m=float(wheel_base_m),
+        max_wheel_mps=float(max_wheel_mps),
+        sensor_angles_rad=angles,
+        sensor_offsets_m=np.asarray(offsets, dtype=np.float64),
+        max_range_m=float(max_range_m),
+        ir_model=ir_model,
+    )
+
+
+def _khepera2() -> Body:
+    mm = 1e-3
+    positions = [(10, 24), (19, 17), (25, 6), (25, -6), (19, -17), (10, -24), (-24, -10), (-24, 10)]
+    facings_deg = [90, 45, 0, 0, -45, -90, 180, 180]
+    return custom_body(
+        facings_deg,
+        max_range_m=IR_FADE_M,
+        radius_m=0.035,
+        wheel_base_m=0.053,
+        max_wheel_mps=127 * 0.008,
+        sensor_offsets_m=np.array(positions, dtype=np.float64) * mm,
+        ir_model="khepera2",
+        name="khepera2",
+    )
+
+
+def _khepera4() -> Body:
+    return custom_body(
+        np.arange(8) * 45.0,
+        max_range_m=0.25,
+        radius_m=0.0704,
+        wheel_base_m=0.1054,
+        max_wheel_mps=0.81,
+        name="khepera4",
+    )
+
+
+def _paper7() -> Body:
+    return custom_body(np.arange(-90.0, 91.0, 30.0), max_range_m=0.25, name="paper7")
+
+
+PRESETS = {"khepera2": _khepera2, "khepera4": _khepera4, "paper7": _paper7}
+
+
+def preset(name: str) -> Body:
+    """A ready body by name: one of ``PRESETS``."""
+    try:
+        return PRESETS[name]()
+    except KeyError:
+        raise WorldError(f"robot.preset must be one of {sorted(PRESETS)}, got {name!r}") from None
