@@ -1,0 +1,75 @@
+"""Zenoh session set-up from the experiment's ``[bus]`` section.
+
+One function builds the Zenoh configuration; nothing else in the project
+touches Zenoh configuration keys. See ``reference/zenoh-notes.md`` for why the
+defaults are what they are (scouting off, explicit loopback endpoints, 1 s lease).
+"""
+
+from __future__ import annotations
+
+import json
+import socket
+
+import zenoh
+
+from hub.config import BusSection
+
+# Loop messages must not be dropped under load, and should leave at once.
+LOOP_PUBLISH = dict(
+    congestion_control=zenoh.CongestionControl.BLOCK,
+    express=True,
+    priority=zenoh.Priority.REAL_TIME,
+)
+# Telemetry: newest wins, never block the loop.
+TELEMETRY_PUBLISH = dict(congestion_control=zenoh.CongestionControl.DROP)
+
+
+def zenoh_config(bus: BusSection, *, listener: bool) -> zenoh.Config:
+    """Build the Zenoh configuration of one participant.
+
+    Parameters
+    ----------
+    bus : BusSection
+        The experiment's bus settings.
+    listener : bool
+        True for the hub, which listens on ``bus.listen``; False for an
+        endpoint, which listens nowhere and connects to ``bus.connect`` (or,
+        when empty, to where the hub listens).
+    """
+    cfg = zenoh.Config()
+
+    def put(key: str, value) -> None:
+        cfg.insert_json5(key, json.dumps(value))
+
+    put("mode", bus.mode)
+    put("scouting/multicast/enabled", bus.scouting)
+    put("scouting/gossip/enabled", bus.scouting)
+    put("transport/link/tx/lease", bus.lease_ms)
+    if listener:
+        put("listen/endpoints", list(bus.listen))
+        put("connect/endpoints", list(bus.connect) if bus.mode == "client" else [])
+    else:
+        put("listen/endpoints", [])
+        put("connect/endpoints", list(bus.connect or bus.listen))
+        # Keep trying until the hub is up, instead of failing at open().
+        put("connect/timeout_ms", -1)
+        put("connect/exit_on_failure", False)
+    return cfg
+
+
+def open_session(bus: BusSection, *, listener: bool) -> zenoh.Session:
+    """Open a Zenoh session for one participant (caller must close it)."""
+    return zenoh.open(zenoh_config(bus, listener=listener))
+
+
+def free_tcp_port(host: str = "127.0.0.1") -> int:
+    """A TCP port that is free on ``host`` right now (for local runs and tests)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
+        sock.bind((host, 0))
+        return sock.getsockname()[1]
+
+
+def payload_bytes(sample) -> bytes:
+    """The payload of a Zenoh sample or query as bytes (empty if none)."""
+    payload = sample.payload
+    return b"" if payload is None else payload.to_bytes()

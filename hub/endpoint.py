@@ -1,0 +1,164 @@
+"""The endpoint base class: what every participant of the loop does on the bus.
+
+A subclass supplies the model or the device: :meth:`Endpoint.describe` and
+:meth:`Endpoint.step` (plus, for devices, :meth:`Endpoint.on_input_timeout` and
+:meth:`Endpoint.close`). :meth:`Endpoint.serve` does the rest: opens the
+session, declares the liveliness token and the ``describe`` queryable, receives
+the input of each step, validates it, calls ``step``, publishes the output, and
+counts and drops what is malformed, out of order or from the far future. It
+shuts down cleanly on SIGINT/SIGTERM, always closing the Zenoh session.
+"""
+
+from __future__ import annotations
+
+import abc
+import dataclasses
+import logging
+import queue
+import signal
+import threading
+import time
+from collections import Counter
+
+from hub.bus import LOOP_PUBLISH, open_session, payload_bytes
+from hub.config import BusSection
+from hub.protocol import (
+    INPUT_TYPE,
+    OUTPUT_TYPE,
+    Description,
+    Keys,
+    Message,
+    ProtocolError,
+)
+
+log = logging.getLogger(__name__)
+
+# An input this many steps ahead of the last one is dropped as "future".
+FUTURE_HORIZON_STEPS = 1000
+
+
+class Endpoint(abc.ABC):
+    """A body or culture served on the bus.
+
+    Parameters
+    ----------
+    id : str
+        Which body or culture this is (``nv/<s>/<role>/<id>/...``).
+    input_timeout_s : float
+        With no input for this long, :meth:`on_input_timeout` is called once
+        (a device body stops its motors there).
+    """
+
+    role: str = ""  # "body" or "culture", set by subclasses
+    kind: str = ""  # e.g. "sim_robot", "sim_network", "khepera"
+
+    def __init__(self, id: str = "0", *, input_timeout_s: float = 1.0):
+        if self.role not in INPUT_TYPE:
+            raise TypeError(f"{type(self).__name__}.role must be 'body' or 'culture'")
+        self.id = str(id)
+        self.input_timeout_s = input_timeout_s
+        self.dropped: Counter[str] = Counter()
+        self.last_step = -1
+        self._stop = threading.Event()
+
+    # ------------------------------------------------------------ for subclasses
+
+    @abc.abstractmethod
+    def describe(self) -> Description:
+        """What this endpoint is: its kind and geometry (channels or sensors)."""
+
+    @abc.abstractmethod
+    def step(self, message: Message) -> Message:
+        """Apply one step's input, advance one loop period, return the output.
+
+        ``message`` is a validated :class:`~hub.protocol.MotorCommand` (body)
+        or :class:`~hub.protocol.Stimulation` (culture); the returned
+        :class:`~hub.protocol.SensorReading` or
+        :class:`~hub.protocol.SpikeBatch` must carry the same ``step``.
+        """
+
+    def on_input_timeout(self) -> None:
+        """No input for ``input_timeout_s``: make the device safe. Default: nothing."""
+
+    def close(self) -> None:
+        """Stop the device and release it. Default: nothing."""
+
+    # ------------------------------------------------------------ serving
+
+    def description(self) -> Description:
+        """:meth:`describe` with this endpoint's drop counters attached."""
+        return dataclasses.replace(self.describe(), counters=dict(self.dropped))
+
+    def request_stop(self) -> None:
+        """Ask :meth:`serve` to return (thread-safe; used by signal handlers)."""
+        self._stop.set()
+
+    def handle(self, raw: bytes) -> Message | None:
+        """Validate one raw input and step on it; None if it was dropped."""
+        try:
+            message = INPUT_TYPE[self.role].decode(raw)
+        except ProtocolError as exc:
+            self._drop(exc.kind, str(exc))
+            return None
+        if message.step <= self.last_step:
+            self._drop("stale", f"step {message.step} after step {self.last_step}")
+            return None
+        if message.step > self.last_step + FUTURE_HORIZON_STEPS:
+            self._drop("future", f"step {message.step} far ahead of step {self.last_step}")
+            return None
+        self.last_step = message.step
+        output = self.step(message)
+        if not isinstance(output, OUTPUT_TYPE[self.role]) or output.step != message.step:
+            raise TypeError(
+                f"{type(self).__name__}.step must return a {OUTPUT_TYPE[self.role].__name__} "
+                f"for step {message.step}"
+            )
+        return output
+
+    def _drop(self, kind: str, detail: str) -> None:
+        if not self.dropped[kind]:
+            log.warning("%s/%s dropped a message (%s): %s", self.role, self.id, kind, detail)
+        self.dropped[kind] += 1
+
+    def serve(self, bus: BusSection, *, install_signals: bool = True) -> int:
+        """Serve on the bus until stopped; return the exit status (0 on a clean stop)."""
+        if install_signals:
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                signal.signal(sig, lambda *_: self.request_stop())
+        keys = Keys(bus.session)
+        inbox: queue.SimpleQueue = queue.SimpleQueue()
+        session = open_session(bus, listener=False)
+        try:
+            session.declare_subscriber(
+                keys.input(self.role, self.id), lambda s: inbox.put(payload_bytes(s))
+            )
+            session.declare_queryable(keys.describe(self.role, self.id), inbox.put)
+            publisher = session.declare_publisher(keys.output(self.role, self.id), **LOOP_PUBLISH)
+            session.liveliness().declare_token(keys.alive(self.role, self.id))
+            log.info("%s/%s (%s) ready on session %s", self.role, self.id, self.kind, bus.session)
+            last_input = time.monotonic()
+            timed_out = False
+            while not self._stop.is_set():
+                try:
+                    item = inbox.get(timeout=0.05)
+                except queue.Empty:
+                    if not timed_out and time.monotonic() - last_input > self.input_timeout_s:
+                        timed_out = True
+                        self.on_input_timeout()
+                    continue
+                if isinstance(item, bytes):
+                    output = self.handle(item)
+                    if output is not None:
+                        publisher.put(output.encode())
+                        last_input, timed_out = time.monotonic(), False
+                else:  # a describe query
+                    item.reply(item.key_expr, self.description().encode())
+                    item.drop()
+        finally:
+            try:
+                self.close()
+            finally:
+                session.close()
+        if self.dropped:
+            log.info("%s/%s dropped: %s", self.role, self.id, dict(self.dropped))
+        return 0

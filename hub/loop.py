@@ -1,0 +1,576 @@
+"""The hub: the timing-authoritative step loop of ARCHITECTURE.md.
+
+At step k the hub sends the body its motor command (decoded from the culture's
+spikes of step k−1) and the culture its stimulation (coded from the body's
+sensors of step k−1), then collects both replies for step k. In ``lockstep``
+mode the next step starts when both are in; in ``realtime`` mode steps start
+on a wall-clock schedule and a reply that misses its deadline is late: the
+configured policy stands in for it and it is counted.
+
+All Zenoh callbacks only enqueue; everything else, recording included, runs on
+the loop's thread, so the loop has one order of events and no locks.
+"""
+
+from __future__ import annotations
+
+import logging
+import queue
+import time
+from collections import Counter, defaultdict
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import zenoh
+
+from hub.bus import LOOP_PUBLISH, TELEMETRY_PUBLISH, open_session, payload_bytes
+from hub.config import ExperimentConfig
+from hub.protocol import (
+    OUTPUT_TYPE,
+    ROLES,
+    ControlReply,
+    ControlRequest,
+    Description,
+    HubStatus,
+    Message,
+    MotorCommand,
+    ProtocolError,
+    SensorReading,
+    SpikeBatch,
+    Stimulation,
+)
+from hub.record import Recorder, host, utc_now, versions, write_manifest
+from hub.schemes import SchemeContext, load_scheme
+
+log = logging.getLogger(__name__)
+
+# A realtime step whose start lags its schedule by more than this share of a
+# period is counted late (its window is visibly shortened).
+LATE_START_SHARE = 0.25
+
+
+class HubError(RuntimeError):
+    """A run could not start or had to stop; the message says why."""
+
+
+class EndpointDied(HubError):
+    def __init__(self, role: str, id: str, step: int):
+        super().__init__(f"{role}/{id} died at step {step} (its liveliness token vanished)")
+        self.role, self.id, self.step = role, id, step
+
+
+@dataclass
+class Progress:
+    """What a progress display needs, given after each step."""
+
+    step: int
+    n_steps: int
+    t_s: float
+    wall_s: float
+    steps_per_s: float
+    late_steps: int
+    state: str
+
+
+@dataclass
+class RunResult:
+    outcome: str  # completed | stopped | interrupted | fault
+    reason: str
+    steps: int
+    timing: dict
+    counts: dict
+    run_dir: Path | None = None
+    descriptions: dict[str, Description] = field(default_factory=dict)
+
+    @property
+    def ok(self) -> bool:
+        return self.outcome in ("completed", "stopped", "interrupted")
+
+
+class Hub:
+    """Runs one experiment: waits for its endpoints, steps the loop, records it.
+
+    Parameters
+    ----------
+    cfg : ExperimentConfig
+        The validated experiment.
+    run_dir : Path or None
+        Where to write the record and manifest (None: record nothing).
+    progress : callable or None
+        Called with a :class:`Progress` a few times a second.
+    """
+
+    def __init__(
+        self,
+        cfg: ExperimentConfig,
+        run_dir: Path | None = None,
+        progress: Callable[[Progress], None] | None = None,
+    ):
+        self.cfg = cfg
+        self.keys = cfg.bus.keys
+        self.run_dir = Path(run_dir) if run_dir else None
+        self.progress = progress
+        self.ids = {role: cfg.endpoint(role).id for role in ROLES}
+        self.inbox: queue.SimpleQueue = queue.SimpleQueue()
+        self.state = "waiting"
+        self.k = 0
+        self.alive: set[tuple[str, str]] = set()
+        self.late: Counter[str] = Counter()
+        self.missed: dict[str, set[int]] = defaultdict(set)
+        self.dropped: dict[str, Counter[str]] = defaultdict(Counter)
+        self.late_steps = 0
+        self.replies: dict[str, Message] = {}
+        self.descriptions: dict[str, Description] = {}
+        self._stop_reason: str | None = None
+        self._pause_started: float | None = None
+        self._paused_s = 0.0
+        self._t_start = 0.0
+        self._next_status = 0.0
+        n = cfg.n_steps
+        self.lateness_s = np.full(n, np.nan)
+        self.step_wall_s = np.full(n, np.nan)
+        self.recorder: Recorder | None = None
+
+    # ================================================================ public
+
+    def request_stop(self, reason: str = "interrupted") -> None:
+        """Stop after the current step (thread- and signal-safe)."""
+        self.inbox.put(("stop", reason))
+
+    def run(self) -> RunResult:
+        """Run the experiment to its end, a stop, or a fault; always close up."""
+        cfg = self.cfg
+        manifest = {
+            "format": "neuvision-run",
+            "v": 1,
+            "name": cfg.experiment.name,
+            "seed": cfg.experiment.seed,
+            "config_source": cfg.source,
+            "config": cfg.to_dict(),
+            "versions": versions(),
+            "hosts": {"hub": host()},
+            "start_utc": utc_now(),
+            "outcome": "running",
+        }
+        if self.run_dir and cfg.record.enabled:
+            self.recorder = Recorder(self.run_dir, flush_s=cfg.record.flush_s)
+            write_manifest(self.run_dir, manifest)
+        session = open_session(cfg.bus, listener=True)
+        outcome, reason = "completed", ""
+        try:
+            self._declare(session)
+            self._wait_for_endpoints()
+            self._describe_all(session)
+            self._build_schemes()
+            self._record_event("start", mode=cfg.loop.mode, n_steps=cfg.n_steps)
+            self._steps()
+            if self._stop_reason:
+                outcome = "interrupted" if self._stop_reason == "interrupted" else "stopped"
+                reason = self._stop_reason
+        except HubError as exc:
+            outcome, reason = "fault", str(exc)
+            log.error("%s", exc)
+            self._record_event("fault", reason=reason)
+        finally:
+            self._safe_stop_body()
+            self.state = "stopped"
+            self._publish_status()
+            timing, counts = self.timing(), self.counts()
+            if self.recorder:
+                self._record_event("end", outcome=outcome, reason=reason)
+                self.recorder.close()
+                manifest.update(
+                    end_utc=utc_now(),
+                    outcome=outcome,
+                    reason=reason,
+                    steps=self.k_done,
+                    timing=timing,
+                    counts=counts,
+                    endpoints={
+                        r: {"kind": d.kind, "id": d.id} for r, d in self.descriptions.items()
+                    },
+                )
+                write_manifest(self.run_dir, manifest)
+            session.close()
+        return RunResult(
+            outcome, reason, self.k_done, timing, counts, self.run_dir, self.descriptions
+        )
+
+    # ================================================================ the loop
+
+    def _steps(self) -> None:
+        """The Jacobi step loop (ARCHITECTURE.md, "The loop")."""
+        period_s = self.cfg.loop.period_ms / 1e3
+        self.k_done = 0
+        self.state = "running"
+        self._t_start = time.monotonic()
+        prev: dict[str, Message | None] = {"body": None, "culture": None}
+        for k in range(self.cfg.n_steps):
+            if not self._await_start(k, period_s):
+                return
+            self.k, self.replies = k, {}
+            t0 = time.monotonic()
+            self._send("body", self._motor_for(k, prev["culture"]))
+            self._send("culture", self._stim_for(k, prev["body"]))
+            late = self._collect(k, self._deadline(k, period_s))
+            prev = {role: self.replies.get(role) for role in ROLES}
+            self.step_wall_s[k] = time.monotonic() - t0
+            self.late_steps += late or self.lateness_s[k] > LATE_START_SHARE * period_s
+            self.k_done = k + 1
+            self._tick()
+
+    def _motor_for(self, k: int, spikes: SpikeBatch | None) -> MotorCommand:
+        if k == 0:
+            return MotorCommand.stop(0)
+        if spikes is not None:
+            self.last_motor = self._checked(self.decoder(spikes, k), MotorCommand, k)
+        elif self.cfg.policy.missing_spikes == "stop_robot":
+            self.last_motor = MotorCommand.stop(k)
+        else:  # hold
+            m = self.last_motor
+            self.last_motor = MotorCommand(k, m.left_mps, m.right_mps, m.v_mps, m.omega_rad_s)
+        return self.last_motor
+
+    def _stim_for(self, k: int, sensors: SensorReading | None) -> Stimulation:
+        if k == 0:
+            return Stimulation(step=0)
+        if sensors is not None:
+            self.last_sensors = sensors
+        elif self.cfg.policy.missing_sensors == "zero_stim" or self.last_sensors is None:
+            return Stimulation(step=k)
+        return self._checked(self.coder(self.last_sensors, k), Stimulation, k)
+
+    @staticmethod
+    def _checked(message, kind, k):
+        if not isinstance(message, kind) or message.step != k:
+            raise HubError(f"scheme returned {message!r}, expected a {kind.__name__} for step {k}")
+        return message
+
+    # ================================================================ timing
+
+    def _deadline(self, k: int, period_s: float) -> float:
+        if self.cfg.loop.mode == "lockstep":
+            return time.monotonic() + self.cfg.loop.reply_timeout_s
+        return self._scheduled(k, period_s) + self.cfg.loop.deadline_s
+
+    def _scheduled(self, k: int, period_s: float) -> float:
+        return self._t_start + self._paused_s + k * period_s
+
+    def _await_start(self, k: int, period_s: float) -> bool:
+        """Handle events until step k may start; False if the run must end."""
+        realtime = self.cfg.loop.mode == "realtime"
+        while True:
+            self._drain()
+            if self._stop_reason:
+                return False
+            if self.state == "paused":
+                self._next_event(time.monotonic() + 0.1)
+                continue
+            now = time.monotonic()
+            target = self._scheduled(k, period_s) if realtime else now
+            if now >= target:
+                if realtime:
+                    self.lateness_s[k] = now - target
+                return True
+            self._next_event(target)
+
+    def _collect(self, k: int, deadline: float) -> bool:
+        """Take in events until both replies of step k are in or the deadline passes.
+
+        Returns True if a reply missed its deadline (the policy stands in for it).
+        """
+        while len(self.replies) < len(ROLES) and time.monotonic() < deadline:
+            self._next_event(deadline)
+        missing = [r for r in ROLES if r not in self.replies]
+        for role in missing:
+            self.missed[role].add(k)
+            self._record_event("missed", role=role, step=k)
+        return bool(missing)
+
+    def _next_event(self, until: float) -> bool:
+        """Handle one event, waiting at most until ``until``; False if none came."""
+        timeout = min(until - time.monotonic(), self._next_status - time.monotonic())
+        try:
+            item = self.inbox.get(timeout=max(timeout, 0.0))
+        except queue.Empty:
+            self._tick()
+            return False
+        self._handle(item)
+        return True
+
+    def _drain(self) -> None:
+        while True:
+            try:
+                item = self.inbox.get_nowait()
+            except queue.Empty:
+                return
+            self._handle(item)
+
+    def _tick(self) -> None:
+        now = time.monotonic()
+        if now >= self._next_status:
+            self._next_status = now + 1.0 / self.cfg.loop.status_hz
+            self._publish_status()
+            if self.progress:
+                self.progress(self._progress())
+        if self.recorder:
+            self.recorder.tick()
+
+    # ================================================================ events
+
+    def _handle(self, item: tuple) -> None:
+        kind = item[0]
+        if kind == "rx":
+            self._on_reply(*item[1:])
+        elif kind == "alive":
+            self._on_liveliness(*item[1:])
+        elif kind == "control":
+            self._on_control(item[1])
+        elif kind == "stop":
+            self._stop_reason = self._stop_reason or item[1]
+
+    def _on_reply(self, role: str, raw: bytes, t_wall_ns: int) -> None:
+        key = self.keys.output(role, self.ids[role])
+        if self.recorder:
+            self.recorder.message("rx", key, raw, t_wall_ns)
+        try:
+            message = OUTPUT_TYPE[role].decode(raw)
+            self._check_against_description(role, message)
+        except ProtocolError as exc:
+            return self._drop(role, exc.kind, str(exc))
+        step = message.step
+        if self.state == "waiting":
+            self._drop(role, "early", f"reply for step {step} before the run started")
+        elif step == self.k and step not in self.missed[role]:
+            if role in self.replies:
+                return self._drop(role, "duplicate", f"second reply for step {step}")
+            self.replies[role] = message
+        elif step in self.missed[role]:
+            self.late[role] += 1
+            self.missed[role].discard(step)
+            self._record_event("late", role=role, step=step, at_step=self.k)
+        elif step <= self.k:
+            self._drop(role, "stale", f"reply for step {step} during step {self.k}")
+        else:
+            self._drop(role, "future", f"reply for step {step} during step {self.k}")
+
+    def _check_against_description(self, role: str, message: Message) -> None:
+        desc = self.descriptions.get(role)
+        if desc is None:
+            return
+        if role == "body":
+            if message.ranges_m.size != desc.n_sensors:
+                raise ProtocolError(
+                    "array",
+                    f"ranges_m has {message.ranges_m.size} values, body has {desc.n_sensors}",
+                )
+            if message.ranges_m.size and message.ranges_m.max() > desc.max_range_m * (1 + 1e-6):
+                raise ProtocolError("range", f"ranges_m exceeds max_range_m {desc.max_range_m}")
+        elif message.channel.size and not np.isin(message.channel, desc.channel).all():
+            raise ProtocolError("range", "spikes on channels the culture does not have")
+
+    def _drop(self, role: str, kind: str, detail: str) -> None:
+        if not self.dropped[role][kind]:
+            log.warning("dropped a %s message (%s): %s", role, kind, detail)
+            self._record_event("dropped", role=role, kind=kind, detail=detail)
+        self.dropped[role][kind] += 1
+
+    def _on_liveliness(self, key: str, present: bool) -> None:
+        parsed = self.keys.parse_alive(key)
+        if parsed is None:
+            return
+        was = parsed in self.alive
+        (self.alive.add if present else self.alive.discard)(parsed)
+        if was == present:
+            return
+        self._record_event("alive" if present else "dead", role=parsed[0], id=parsed[1])
+        required = parsed[0] in ROLES and self.ids[parsed[0]] == parsed[1]
+        if not present and required and self.state in ("running", "paused"):
+            log.error("%s/%s died at step %d", *parsed, self.k)
+            if self.cfg.policy.endpoint_death == "stop":
+                raise EndpointDied(*parsed, self.k)
+
+    def _on_control(self, query) -> None:
+        try:
+            request = ControlRequest.decode(payload_bytes(query))
+        except ProtocolError as exc:
+            self._drop("control", exc.kind, str(exc))
+            return self._reply(query, ControlReply(ok=False, state=self.state, reason=str(exc)))
+        self._record_event("control", cmd=request.cmd)
+        ok, reason, data = True, "", None
+        if request.cmd == "pause":
+            ok = self.state == "running"
+            if ok:
+                self.state, self._pause_started = "paused", time.monotonic()
+        elif request.cmd == "resume":
+            ok = self.state == "paused"
+            if ok:
+                self._paused_s += time.monotonic() - self._pause_started
+                self.state = "running"
+        elif request.cmd == "stop":
+            self._stop_reason = self._stop_reason or "stopped by control"
+        elif request.cmd == "config":
+            data = self.cfg.to_dict()
+        data = data if data is not None else self._status().to_dict()
+        if not ok:
+            reason = f"cannot {request.cmd} while {self.state}"
+        self._reply(query, ControlReply(ok=ok, state=self.state, reason=reason, data=data))
+
+    def _reply(self, query, reply: ControlReply) -> None:
+        query.reply(query.key_expr, reply.encode())
+        query.drop()
+
+    # ================================================================ set-up
+
+    def _declare(self, session: zenoh.Session) -> None:
+        put = self.inbox.put
+        self.publishers = {
+            role: session.declare_publisher(self.keys.input(role, i), **LOOP_PUBLISH)
+            for role, i in self.ids.items()
+        }
+        self.status_pub = session.declare_publisher(self.keys.hub_status, **TELEMETRY_PUBLISH)
+        for role, i in self.ids.items():
+            session.declare_subscriber(
+                self.keys.output(role, i),
+                lambda s, role=role: put(("rx", role, payload_bytes(s), time.time_ns())),
+            )
+        session.liveliness().declare_subscriber(
+            self.keys.alive_all,
+            lambda s: put(("alive", str(s.key_expr), s.kind == zenoh.SampleKind.PUT)),
+            history=True,
+        )
+        session.declare_queryable(self.keys.hub_control, lambda q: put(("control", q)))
+        session.liveliness().declare_token(self.keys.alive("hub", "0"))
+
+    def _wait_for_endpoints(self) -> None:
+        needed = {(role, i) for role, i in self.ids.items()}
+        deadline = time.monotonic() + self.cfg.loop.wait_timeout_s
+        while not needed <= self.alive:
+            if self._stop_reason:
+                raise HubError(f"stopped while waiting for endpoints ({self._stop_reason})")
+            if time.monotonic() >= deadline:
+                missing = ", ".join(f"{r}/{i}" for r, i in sorted(needed - self.alive))
+                raise HubError(
+                    f"endpoint(s) {missing} did not appear on session {self.cfg.bus.session!r} "
+                    f"within {self.cfg.loop.wait_timeout_s} s (listening on "
+                    f"{', '.join(self.cfg.bus.listen)})"
+                )
+            self._next_event(min(deadline, time.monotonic() + 0.1))
+
+    def _describe_all(self, session: zenoh.Session) -> None:
+        for role, i in self.ids.items():
+            key = self.keys.describe(role, i)
+            desc = None
+            for reply in session.get(key, timeout=5.0):
+                if reply.ok is None:
+                    continue
+                raw = payload_bytes(reply.ok)
+                if self.recorder:
+                    self.recorder.message("rx", key, raw)
+                try:
+                    desc = Description.decode(raw)
+                except ProtocolError as exc:
+                    raise HubError(f"{role}/{i} sent an invalid description: {exc}") from None
+            if desc is None or desc.role != role or desc.id != i:
+                raise HubError(f"{role}/{i} did not describe itself on {key}")
+            self.descriptions[role] = desc
+            self._record_event("described", role=role, id=i, kind=desc.kind)
+
+    def _build_schemes(self) -> None:
+        cfg = self.cfg
+        common = dict(
+            body=self.descriptions["body"],
+            culture=self.descriptions["culture"],
+            period_ms=cfg.loop.period_ms,
+            seed=cfg.experiment.seed,
+        )
+        self.coder = load_scheme(cfg.coding.scheme, "coding")(
+            SchemeContext(params=cfg.coding.params, section="coding", **common)
+        )
+        self.decoder = load_scheme(cfg.decoding.scheme, "decoding")(
+            SchemeContext(params=cfg.decoding.params, section="decoding", **common)
+        )
+        self.last_motor = MotorCommand.stop(0)
+        self.last_sensors: SensorReading | None = None
+
+    # ================================================================ output
+
+    def _send(self, role: str, message: Message) -> None:
+        raw = message.encode()
+        self.publishers[role].put(raw)
+        if self.recorder:
+            self.recorder.message("tx", self.keys.input(role, self.ids[role]), raw)
+
+    def _safe_stop_body(self) -> None:
+        """Whatever ended the run, leave the robot stopped."""
+        publishers = getattr(self, "publishers", None)
+        if publishers and ("body", self.ids["body"]) in self.alive:
+            self._send("body", MotorCommand.stop(getattr(self, "k_done", 0)))
+
+    def _record_event(self, name: str, **details) -> None:
+        if self.recorder:
+            self.recorder.event(name, **details)
+
+    def _status(self) -> HubStatus:
+        wall = time.monotonic() - self._t_start if self._t_start else 0.0
+        done = getattr(self, "k_done", 0)
+        return HubStatus(
+            step=self.k,
+            t_s=done * self.cfg.loop.period_ms / 1e3,
+            mode=self.cfg.loop.mode,
+            state=self.state,
+            late=dict(self.late),
+            missing={r: len(s) for r, s in self.missed.items()},
+            dropped={r: sum(c.values()) for r, c in self.dropped.items()},
+            alive=sorted(f"{r}/{i}" for r, i in self.alive),
+            wall_s=wall,
+            steps_per_s=done / wall if wall > 0 else 0.0,
+            extra={"late_steps": self.late_steps},
+        )
+
+    def _publish_status(self) -> None:
+        if hasattr(self, "status_pub"):
+            self.status_pub.put(self._status().encode())
+
+    def _progress(self) -> Progress:
+        s = self._status()
+        return Progress(
+            s.step, self.cfg.n_steps, s.t_s, s.wall_s, s.steps_per_s, self.late_steps, s.state
+        )
+
+    # ================================================================ summaries
+
+    k_done = 0
+
+    def timing(self) -> dict:
+        """Loop timing figures of the run so far (wall time, lateness, late steps)."""
+        n = self.k_done
+        wall = time.monotonic() - self._t_start if self._t_start else 0.0
+        out = {
+            "mode": self.cfg.loop.mode,
+            "period_ms": self.cfg.loop.period_ms,
+            "steps": n,
+            "wall_s": wall,
+            "steps_per_s": n / wall if wall > 0 else 0.0,
+            "x_realtime": n * self.cfg.loop.period_ms / 1e3 / wall if wall > 0 else 0.0,
+            "late_steps": int(self.late_steps),
+            "late_share": self.late_steps / n if n else 0.0,
+        }
+        step_ms = self.step_wall_s[:n] * 1e3
+        if n:
+            out["step_ms_median"] = float(np.median(step_ms))
+            out["step_ms_p99"] = float(np.percentile(step_ms, 99))
+        late_ms = self.lateness_s[:n] * 1e3
+        if n and self.cfg.loop.mode == "realtime":
+            out["lateness_ms_median"] = float(np.nanmedian(late_ms))
+            out["lateness_ms_p99"] = float(np.nanpercentile(late_ms, 99))
+            out["lateness_ms_max"] = float(np.nanmax(late_ms))
+        return out
+
+    def counts(self) -> dict:
+        return {
+            "late": dict(self.late),
+            "missing": {r: len(s) for r, s in self.missed.items()},
+            "dropped": {r: dict(c) for r, c in self.dropped.items()},
+        }

@@ -1,0 +1,90 @@
+"""The coding/decoding interface: how sensors become stimulation and spikes motion.
+
+A scheme is named in the experiment file as ``module:function``. The function
+is a *factory*: called once, before step 0, with a :class:`SchemeContext`, it
+returns the per-step callable::
+
+    coder   = factory(ctx)   ;  coder(sensors: SensorReading, step) -> Stimulation
+    decoder = factory(ctx)   ;  decoder(spikes: SpikeBatch, step)   -> MotorCommand
+
+The factory validates ``ctx.params`` (raising :class:`~hub.config.ConfigError`
+naming ``coding.params.<key>``) and may keep state in the callable it returns
+(a decoder's averaging window, say). Coders and decoders are plain functions of
+messages: they can be tested with no bus. The hub calls the coder with the
+body's reading of step k−1 to stimulate at step k, and the decoder with the
+culture's spikes of step k−1 to drive at step k.
+"""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+from hub.config import ConfigError
+from hub.protocol import Description, MotorCommand, SensorReading, SpikeBatch, Stimulation
+
+Coder = Callable[[SensorReading, int], Stimulation]
+Decoder = Callable[[SpikeBatch, int], MotorCommand]
+
+
+@dataclass(frozen=True)
+class SchemeContext:
+    """What a scheme may know: both endpoints' descriptions and its parameters."""
+
+    body: Description
+    culture: Description
+    params: dict = field(default_factory=dict)
+    period_ms: float = 10.0
+    seed: int = 0
+    section: str = "coding"  # for error messages: "<section>.params.<key>"
+
+    def param(self, name: str, default, *, kind=float, ge=None, gt=None, le=None):
+        """A validated parameter: ``params[name]`` or ``default``."""
+        value = self.params.get(name, default)
+        dotted = f"{self.section}.params.{name}"
+        if kind is float and isinstance(value, int) and not isinstance(value, bool):
+            value = float(value)
+        if not isinstance(value, kind) or (kind is not bool and isinstance(value, bool)):
+            raise ConfigError(f"{dotted} must be a {kind.__name__}, got {value!r}")
+        if gt is not None and not value > gt:
+            raise ConfigError(f"{dotted} must be > {gt}, got {value}")
+        if ge is not None and not value >= ge:
+            raise ConfigError(f"{dotted} must be >= {ge}, got {value}")
+        if le is not None and not value <= le:
+            raise ConfigError(f"{dotted} must be <= {le}, got {value}")
+        return value
+
+    def check_params(self, known: set[str]) -> None:
+        """Reject parameters the scheme does not know, by dotted name."""
+        for name in self.params:
+            if name not in known:
+                raise ConfigError(
+                    f"{self.section}.params.{name} is not a parameter of this scheme; "
+                    f"known: {', '.join(sorted(known)) or 'none'}"
+                )
+
+
+def load_scheme(spec: str, section: str) -> Callable[[SchemeContext], Callable]:
+    """Import the factory named ``module:function`` (error names ``<section>.scheme``)."""
+    module_name, _, attr = spec.partition(":")
+    try:
+        module = importlib.import_module(module_name)
+    except ImportError as exc:
+        raise ConfigError(f"{section}.scheme: cannot import {module_name!r}: {exc}") from None
+    factory = getattr(module, attr, None)
+    if not callable(factory):
+        raise ConfigError(f"{section}.scheme: {module_name} has no callable {attr!r}")
+    return factory
+
+
+def no_stimulation(ctx: SchemeContext) -> Coder:
+    """Never stimulate: the blind control of the paper (spontaneous activity only)."""
+    ctx.check_params(set())
+    return lambda sensors, step: Stimulation(step=step)
+
+
+def stopped(ctx: SchemeContext) -> Decoder:
+    """Always stand still, whatever the culture does."""
+    ctx.check_params(set())
+    return lambda spikes, step: MotorCommand.stop(step)
