@@ -1,0 +1,350 @@
+"""Network configuration: frozen dataclasses holding every default once, and a TOML loader.
+
+`load_config` reads a TOML file whose tables mirror these dataclasses; an unknown key, a value
+of the wrong type or out of range raises `ConfigError` naming the dotted key.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import tomllib
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from sim_network.neurons import IZHIKEVICH_TYPES
+
+NEURON_MODELS = ("izhikevich", "lif", "hh")
+CHANNEL_KINDS = ("neurons", "mea")
+
+
+class ConfigError(ValueError):
+    """A configuration value is missing, unknown, of the wrong type or out of range."""
+
+
+@dataclass(frozen=True)
+class LayoutConfig:
+    """Neurons on a rows × cols grid, one per square cell of side `spacing_um`."""
+
+    rows: int = 32
+    cols: int = 32
+    spacing_um: float = 50.0
+    inhibitory_fraction: float = 0.2
+
+
+@dataclass(frozen=True)
+class LifConfig:
+    """Leaky integrate-and-fire parameters (current in model units, R·I in mV)."""
+
+    tau_m_ms: float = 20.0
+    v_rest_mv: float = -65.0
+    v_reset_mv: float = -65.0
+    v_threshold_mv: float = -50.0
+    resistance: float = 1.0
+    refractory_ms: float = 2.0
+
+
+@dataclass(frozen=True)
+class HhConfig:
+    """Hodgkin–Huxley (squid axon, rest near -65 mV); current in µA/cm² model units."""
+
+    g_na: float = 120.0
+    g_k: float = 36.0
+    g_leak: float = 0.3
+    e_na_mv: float = 50.0
+    e_k_mv: float = -77.0
+    e_leak_mv: float = -54.387
+    c_m: float = 1.0
+    substep_ms: float = 0.025
+
+
+@dataclass(frozen=True)
+class NeuronConfig:
+    """Which neuron model, and which Izhikevich type for each population."""
+
+    model: str = "izhikevich"
+    excitatory_type: str = "RS"
+    inhibitory_type: str = "FS"
+    # Izhikevich (2003) heterogeneity: c, d of excitatory and a, b of inhibitory cells spread
+    # by r² / r with r ~ U(0, 1), scaled by this factor (0 = identical cells of the named type).
+    heterogeneity: float = 0.0
+    lif: LifConfig = field(default_factory=LifConfig)
+    hh: HhConfig = field(default_factory=HhConfig)
+
+
+@dataclass(frozen=True)
+class ConnectivityConfig:
+    """Distance-dependent random connectivity, P = p_c_max · exp(-d / d_pc_um), d ≤ cutoff_um."""
+
+    p_c_max: float = 0.5
+    d_pc_um: float = 200.0
+    cutoff_um: float = 1000.0
+    weight_exc_mv: tuple[float, float] = (0.0, 6.0)
+    weight_inh_mv: tuple[float, float] = (-6.0, 0.0)
+    synaptic_delay_ms: float = 2.0
+    speed_m_s: tuple[float, float] = (0.1, 1.14)
+    allow_self: bool = False
+
+
+@dataclass(frozen=True)
+class DepressionConfig:
+    """Short-term synaptic depression per presynaptic neuron (Tsodyks–Markram resources).
+
+    Each spike uses a fraction `u` of the neuron's resources x (weights are scaled by x);
+    x recovers to 1 with time constant `tau_rec_ms`. `u = 0` turns depression off.
+    """
+
+    u: float = 0.0
+    tau_rec_ms: float = 1000.0
+
+
+@dataclass(frozen=True)
+class NoiseConfig:
+    """Random background current: each neuron draws N(mean, sd) every `interval_ms`, held.
+
+    The current process does not depend on `dt_ms` (dt must divide `interval_ms`).
+    """
+
+    mean: float = 0.0
+    sd: float = 3.0
+    interval_ms: float = 1.0
+
+
+@dataclass(frozen=True)
+class StimulationConfig:
+    """Conversion of pulse amplitude in µA to model current units (the one place of this fact)."""
+
+    model_current_per_ua: float = 0.2
+
+
+@dataclass(frozen=True)
+class StdpConfig:
+    """Pair-based STDP on excitatory synapses (nearest-neighbour-free trace rule)."""
+
+    enabled: bool = False
+    a_plus_mv: float = 0.05
+    a_minus_mv: float = 0.055
+    tau_plus_ms: float = 20.0
+    tau_minus_ms: float = 20.0
+    w_max_mv: float = 10.0
+
+
+@dataclass(frozen=True)
+class MeaConfig:
+    """Virtual MEA: electrode grid centred on the culture (8 × 8 without corners by default)."""
+
+    rows: int = 8
+    cols: int = 8
+    pitch_um: float = 200.0
+    drop_corners: bool = True
+    record_radius_um: float = 50.0
+    stim_radius_um: float = 50.0
+
+
+@dataclass(frozen=True)
+class NetworkConfig:
+    """Everything that defines a simulated culture, with the defaults in one place."""
+
+    dt_ms: float = 0.1
+    channels: str = "neurons"
+    layout: LayoutConfig = field(default_factory=LayoutConfig)
+    neurons: NeuronConfig = field(default_factory=NeuronConfig)
+    connectivity: ConnectivityConfig = field(default_factory=ConnectivityConfig)
+    depression: DepressionConfig = field(default_factory=DepressionConfig)
+    noise: NoiseConfig = field(default_factory=NoiseConfig)
+    stimulation: StimulationConfig = field(default_factory=StimulationConfig)
+    stdp: StdpConfig = field(default_factory=StdpConfig)
+    mea: MeaConfig = field(default_factory=MeaConfig)
+
+    def __post_init__(self) -> None:
+        validate(self)
+
+    @property
+    def n_neurons(self) -> int:
+        """Number of neurons (rows × cols)."""
+        return self.layout.rows * self.layout.cols
+
+
+def _require(ok: bool, key: str, message: str, value: Any) -> None:
+    if not ok:
+        raise ConfigError(f"{key} {message}, got {value!r}")
+
+
+def validate(cfg: NetworkConfig) -> None:
+    """Check ranges and choices; raise `ConfigError` naming the dotted key."""
+    _require(0.01 <= cfg.dt_ms <= 1.0, "dt_ms", "must be in [0.01, 1]", cfg.dt_ms)
+    _require(
+        cfg.channels in CHANNEL_KINDS, "channels", f"must be one of {CHANNEL_KINDS}", cfg.channels
+    )
+    lay = cfg.layout
+    _require(lay.rows >= 1, "layout.rows", "must be >= 1", lay.rows)
+    _require(lay.cols >= 1, "layout.cols", "must be >= 1", lay.cols)
+    _require(lay.spacing_um > 0, "layout.spacing_um", "must be > 0", lay.spacing_um)
+    _require(
+        0.0 <= lay.inhibitory_fraction <= 1.0,
+        "layout.inhibitory_fraction",
+        "must be in [0, 1]",
+        lay.inhibitory_fraction,
+    )
+    neu = cfg.neurons
+    _require(
+        neu.model in NEURON_MODELS, "neurons.model", f"must be one of {NEURON_MODELS}", neu.model
+    )
+    for key in ("excitatory_type", "inhibitory_type"):
+        name = getattr(neu, key)
+        _require(
+            name in IZHIKEVICH_TYPES,
+            f"neurons.{key}",
+            f"must be one of {tuple(IZHIKEVICH_TYPES)}",
+            name,
+        )
+    _require(
+        0.0 <= neu.heterogeneity <= 1.0,
+        "neurons.heterogeneity",
+        "must be in [0, 1]",
+        neu.heterogeneity,
+    )
+    lif = neu.lif
+    _require(lif.tau_m_ms > 0, "neurons.lif.tau_m_ms", "must be > 0", lif.tau_m_ms)
+    _require(
+        lif.v_threshold_mv > lif.v_reset_mv,
+        "neurons.lif.v_threshold_mv",
+        "must be > neurons.lif.v_reset_mv",
+        lif.v_threshold_mv,
+    )
+    _require(lif.resistance > 0, "neurons.lif.resistance", "must be > 0", lif.resistance)
+    _require(lif.refractory_ms >= 0, "neurons.lif.refractory_ms", "must be >= 0", lif.refractory_ms)
+    hh = neu.hh
+    _require(hh.c_m > 0, "neurons.hh.c_m", "must be > 0", hh.c_m)
+    _require(
+        0 < hh.substep_ms <= 0.05, "neurons.hh.substep_ms", "must be in (0, 0.05]", hh.substep_ms
+    )
+    for key in ("g_na", "g_k", "g_leak"):
+        _require(getattr(hh, key) >= 0, f"neurons.hh.{key}", "must be >= 0", getattr(hh, key))
+    con = cfg.connectivity
+    _require(0.0 <= con.p_c_max <= 1.0, "connectivity.p_c_max", "must be in [0, 1]", con.p_c_max)
+    _require(con.d_pc_um > 0, "connectivity.d_pc_um", "must be > 0", con.d_pc_um)
+    _require(con.cutoff_um >= 0, "connectivity.cutoff_um", "must be >= 0", con.cutoff_um)
+    _range_ok(con.weight_exc_mv, "connectivity.weight_exc_mv", sign=+1)
+    _range_ok(con.weight_inh_mv, "connectivity.weight_inh_mv", sign=-1)
+    _require(
+        con.synaptic_delay_ms >= 0,
+        "connectivity.synaptic_delay_ms",
+        "must be >= 0",
+        con.synaptic_delay_ms,
+    )
+    _range_ok(con.speed_m_s, "connectivity.speed_m_s", sign=+1)
+    _require(con.speed_m_s[0] > 0, "connectivity.speed_m_s", "must be > 0", con.speed_m_s)
+    dep = cfg.depression
+    _require(0.0 <= dep.u <= 1.0, "depression.u", "must be in [0, 1]", dep.u)
+    _require(dep.tau_rec_ms > 0, "depression.tau_rec_ms", "must be > 0", dep.tau_rec_ms)
+    noi = cfg.noise
+    _require(noi.sd >= 0, "noise.sd", "must be >= 0", noi.sd)
+    _require(noi.interval_ms > 0, "noise.interval_ms", "must be > 0", noi.interval_ms)
+    ratio = noi.interval_ms / cfg.dt_ms
+    _require(
+        abs(ratio - round(ratio)) < 1e-6 and round(ratio) >= 1,
+        "noise.interval_ms",
+        f"must be a whole multiple of dt_ms={cfg.dt_ms}",
+        noi.interval_ms,
+    )
+    sti = cfg.stimulation
+    _require(
+        sti.model_current_per_ua >= 0,
+        "stimulation.model_current_per_ua",
+        "must be >= 0",
+        sti.model_current_per_ua,
+    )
+    st = cfg.stdp
+    for key in ("a_plus_mv", "a_minus_mv"):
+        _require(getattr(st, key) >= 0, f"stdp.{key}", "must be >= 0", getattr(st, key))
+    for key in ("tau_plus_ms", "tau_minus_ms", "w_max_mv"):
+        _require(getattr(st, key) > 0, f"stdp.{key}", "must be > 0", getattr(st, key))
+    mea = cfg.mea
+    _require(mea.rows >= 1, "mea.rows", "must be >= 1", mea.rows)
+    _require(mea.cols >= 1, "mea.cols", "must be >= 1", mea.cols)
+    _require(mea.pitch_um > 0, "mea.pitch_um", "must be > 0", mea.pitch_um)
+    _require(
+        mea.record_radius_um >= 0, "mea.record_radius_um", "must be >= 0", mea.record_radius_um
+    )
+    _require(mea.stim_radius_um >= 0, "mea.stim_radius_um", "must be >= 0", mea.stim_radius_um)
+
+
+def _range_ok(pair: tuple[float, float], key: str, sign: int) -> None:
+    lo, hi = pair
+    _require(lo <= hi, key, "must be [low, high] with low <= high", list(pair))
+    if sign > 0:
+        _require(lo >= 0, key, "must be >= 0", list(pair))
+    else:
+        _require(hi <= 0, key, "must be <= 0", list(pair))
+
+
+def _coerce(value: Any, typ: Any, key: str) -> Any:
+    """Convert a TOML value to the annotated field type, or raise naming the key."""
+    if dataclasses.is_dataclass(typ):
+        if not isinstance(value, dict):
+            raise ConfigError(f"{key} must be a table, got {value!r}")
+        return _build(typ, value, key + ".")
+    origin = typing.get_origin(typ)
+    if origin is tuple:
+        args = typing.get_args(typ)
+        if not isinstance(value, list | tuple) or len(value) != len(args):
+            raise ConfigError(f"{key} must be a list of {len(args)} numbers, got {value!r}")
+        return tuple(
+            _coerce(v, a, f"{key}[{i}]") for i, (v, a) in enumerate(zip(value, args, strict=True))
+        )
+    if typ is bool:
+        if not isinstance(value, bool):
+            raise ConfigError(f"{key} must be true or false, got {value!r}")
+        return value
+    if typ is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ConfigError(f"{key} must be an integer, got {value!r}")
+        return value
+    if typ is float:
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise ConfigError(f"{key} must be a number, got {value!r}")
+        return float(value)
+    if typ is str:
+        if not isinstance(value, str):
+            raise ConfigError(f"{key} must be a string, got {value!r}")
+        return value
+    raise ConfigError(f"{key} has unsupported type {typ!r}")  # pragma: no cover
+
+
+def _build(cls: type, data: dict, prefix: str) -> Any:
+    hints = typing.get_type_hints(cls)
+    names = {f.name for f in dataclasses.fields(cls)}
+    for key in data:
+        if key not in names:
+            raise ConfigError(f"{prefix}{key} is not a known key")
+    kwargs = {name: _coerce(value, hints[name], prefix + name) for name, value in data.items()}
+    return cls(**kwargs)
+
+
+def config_from_dict(data: dict) -> NetworkConfig:
+    """Build a validated `NetworkConfig` from nested plain values (as read from TOML)."""
+    return _build(NetworkConfig, data, "")
+
+
+def config_to_dict(cfg: NetworkConfig) -> dict:
+    """Nested plain values of a config (tuples as lists), the inverse of `config_from_dict`."""
+
+    def plain(obj: Any) -> Any:
+        if dataclasses.is_dataclass(obj):
+            return {f.name: plain(getattr(obj, f.name)) for f in dataclasses.fields(obj)}
+        if isinstance(obj, tuple):
+            return [plain(v) for v in obj]
+        return obj
+
+    return plain(cfg)
+
+
+def load_config(path: str | Path) -> NetworkConfig:
+    """Read a network TOML file; a top-level `[network]` table is used when present."""
+    with open(path, "rb") as fh:
+        data = tomllib.load(fh)
+    if "network" in data and isinstance(data["network"], dict):
+        data = data["network"]
+    return config_from_dict(data)

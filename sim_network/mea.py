@@ -1,0 +1,66 @@
+"""Virtual multi-electrode array: electrodes that record and stimulate nearby neurons.
+
+Default: the 60-electrode 8 × 8 grid without its corners, 200 µm pitch, centred on the
+culture. An electrode records every spike of each neuron within `record_radius_um` (a neuron
+near two electrodes appears on both) and a pulse on an electrode is delivered, at full
+amplitude, to every neuron within `stim_radius_um`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from sim_network.config import MeaConfig
+from sim_network.layout import Layout
+
+
+@dataclass(frozen=True)
+class Mea:
+    """Electrode positions and the two neuron↔electrode maps in CSR form."""
+
+    x_um: np.ndarray  # float32[e]
+    y_um: np.ndarray  # float32[e]
+    rec_indptr: np.ndarray  # int64[n + 1]: electrodes recording neuron i
+    rec_electrode: np.ndarray  # uint32
+    stim_indptr: np.ndarray  # int64[e + 1]: neurons stimulated by electrode j
+    stim_neuron: np.ndarray  # int64
+
+    @property
+    def n_electrodes(self) -> int:
+        """Number of electrodes."""
+        return int(self.x_um.size)
+
+
+def electrode_positions(cfg: MeaConfig, centre_x_um: float, centre_y_um: float):
+    """Electrode (x, y) in µm, row-major, corners dropped when configured."""
+    r, c = np.meshgrid(np.arange(cfg.rows), np.arange(cfg.cols), indexing="ij")
+    r = r.ravel()
+    c = c.ravel()
+    if cfg.drop_corners and cfg.rows > 1 and cfg.cols > 1:
+        corner = ((r == 0) | (r == cfg.rows - 1)) & ((c == 0) | (c == cfg.cols - 1))
+        r, c = r[~corner], c[~corner]
+    x = centre_x_um + (c - (cfg.cols - 1) / 2.0) * cfg.pitch_um
+    y = centre_y_um + (r - (cfg.rows - 1) / 2.0) * cfg.pitch_um
+    return x.astype(np.float32), y.astype(np.float32)
+
+
+def _csr(owner: np.ndarray, member: np.ndarray, n_owner: int):
+    order = np.argsort(owner, kind="stable")
+    indptr = np.zeros(n_owner + 1, dtype=np.int64)
+    np.cumsum(np.bincount(owner, minlength=n_owner), out=indptr[1:])
+    return indptr, member[order]
+
+
+def build_mea(cfg: MeaConfig, layout: Layout) -> Mea:
+    """Place the electrodes on the culture centre and map neurons within the radii."""
+    ex, ey = electrode_positions(cfg, layout.width_um / 2.0, layout.height_um / 2.0)
+    dx = layout.x_um[:, None].astype(np.float64) - ex[None, :]
+    dy = layout.y_um[:, None].astype(np.float64) - ey[None, :]
+    dist = np.hypot(dx, dy)  # n × e; e is small (60), so this stays cheap
+    neuron, electrode = np.nonzero(dist <= cfg.record_radius_um)
+    rec_indptr, rec_electrode = _csr(neuron, electrode.astype(np.uint32), layout.n)
+    neuron, electrode = np.nonzero(dist <= cfg.stim_radius_um)
+    stim_indptr, stim_neuron = _csr(electrode, neuron.astype(np.int64), ex.size)
+    return Mea(ex, ey, rec_indptr, rec_electrode, stim_indptr, stim_neuron)

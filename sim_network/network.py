@@ -1,0 +1,365 @@
+"""The `Network`: builds a culture from a config and seed, runs it, saves and restores it.
+
+Time is counted in whole steps of `dt_ms` from 0; a spike found in step k (time k·dt to
+(k+1)·dt) gets the time (k+1)·dt. Pulses are scheduled on absolute steps: a pulse given to
+`run()` starts at step round(onset/dt) after the call's first step and lasts round(width/dt)
+steps; whatever part of it lies beyond the end of the call (including an onset beyond the
+call) is carried over into the following calls. So chunking never changes the result.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from sim_network import kernels
+from sim_network.config import NetworkConfig, config_from_dict, config_to_dict
+from sim_network.connectivity import Synapses, build_synapses, delay_steps
+from sim_network.layout import EXCITATORY, Layout, build_layout
+from sim_network.mea import Mea, build_mea
+from sim_network.neurons import MODEL_IDS, build_params, initial_state, izhikevich_substeps
+from sim_network.records import Channels, PulseError, Pulses, Spikes
+
+_STATE_VERSION = 1
+_NEVER = -(2**40)  # "last spike" of a neuron that has not fired yet (depression fully recovered)
+
+
+class Network:
+    """A simulated culture; `run()` advances it and returns the spikes in channel space.
+
+    Parameters
+    ----------
+    cfg : NetworkConfig
+        The model; validated on construction.
+    seed : int
+        Seeds the layout, connectivity, heterogeneity and the noise stream. The same config and
+        seed give bit-identical spikes, whether run whole or in chunks of any size.
+    """
+
+    def __init__(self, cfg: NetworkConfig, seed: int = 0):
+        if not isinstance(cfg, NetworkConfig):
+            raise TypeError(f"cfg must be a NetworkConfig, got {type(cfg).__name__}")
+        self.cfg = cfg
+        self.seed = int(seed)
+        rng = np.random.default_rng([self.seed, 0x5E7])
+        self.layout: Layout = build_layout(cfg.layout, rng)
+        self.synapses: Synapses = build_synapses(self.layout, cfg.connectivity, rng)
+        self.params = build_params(cfg, self.layout.cell_type, rng)
+        self.mea: Mea | None = build_mea(cfg.mea, self.layout) if cfg.channels == "mea" else None
+        self._noise_seed = np.uint64(
+            int(np.random.SeedSequence([self.seed, 0x0153]).generate_state(1, np.uint64)[0])
+        )
+        self._derive()
+        self._reset_state()
+
+    # ------------------------------------------------------------------ set-up
+    def _derive(self) -> None:
+        """Arrays derived from config and synapses (not state); rebuilt after `load`."""
+        cfg = self.cfg
+        n = self.layout.n
+        self._model = MODEL_IDS[cfg.neurons.model]
+        self._dt = float(cfg.dt_ms)
+        self._n_sub = izhikevich_substeps(self._dt)
+        self._noise_steps = round(cfg.noise.interval_ms / self._dt)
+        self._delay = delay_steps(self.synapses.delay_ms, self._dt)
+        self._n_slots = int(self._delay.max()) + 1 if self._delay.size else 2
+        self._pre = self.synapses.pre()
+        self._is_exc = (self.layout.cell_type == EXCITATORY).astype(np.bool_)
+        in_order = np.argsort(self.synapses.post, kind="stable")
+        self._in_syn = in_order.astype(np.int64)
+        self._in_indptr = np.zeros(n + 1, dtype=np.int64)
+        np.cumsum(np.bincount(self.synapses.post, minlength=n), out=self._in_indptr[1:])
+        st = cfg.stdp
+        self._stdp = (
+            bool(st.enabled),
+            st.a_plus_mv,
+            st.a_minus_mv,
+            math.exp(-self._dt / st.tau_plus_ms),
+            math.exp(-self._dt / st.tau_minus_ms),
+            st.w_max_mv,
+        )
+        self._dep_tau_steps = cfg.depression.tau_rec_ms / self._dt
+        self._stim_cur = np.zeros(n)
+        self._out_neuron = np.zeros(max(4 * n, 4096), dtype=np.int32)
+        self._out_step = np.zeros(self._out_neuron.size, dtype=np.int64)
+        self._pulse_current_per_ua = cfg.stimulation.model_current_per_ua
+        self._neuron_spikes = Spikes.concat([])
+
+    def _reset_state(self) -> None:
+        n = self.layout.n
+        self.step = 0
+        self.v, self.aux = initial_state(self.cfg, self.params)
+        self.ring = np.zeros((self._n_slots, n), dtype=np.float64)
+        self.noise_cur = np.zeros(n)
+        self.dep_x = np.ones(n)
+        self.dep_last = np.full(n, _NEVER, dtype=np.int64)
+        self.x_pre = np.zeros(n)
+        self.y_post = np.zeros(n)
+        self.weight = self.synapses.weight_mv.copy()
+        self._pending = _PendingPulses.empty()
+
+    # ------------------------------------------------------------------ public view
+    @property
+    def t_ms(self) -> float:
+        """Current simulated time (ms): steps done × dt."""
+        return self.step * self._dt
+
+    @property
+    def n_neurons(self) -> int:
+        """Number of neurons."""
+        return self.layout.n
+
+    @property
+    def channels(self) -> Channels:
+        """The channel layout: the neurons themselves, or the virtual MEA's electrodes."""
+        if self.mea is None:
+            return Channels(
+                channel=np.arange(self.layout.n, dtype=np.uint32),
+                x_um=self.layout.x_um.copy(),
+                y_um=self.layout.y_um.copy(),
+                cell_type=self.layout.cell_type.copy(),
+                kind="neuron",
+            )
+        return Channels(
+            channel=np.arange(self.mea.n_electrodes, dtype=np.uint32),
+            x_um=self.mea.x_um.copy(),
+            y_um=self.mea.y_um.copy(),
+            cell_type=None,
+            kind="electrode",
+        )
+
+    @property
+    def neuron_spikes(self) -> Spikes:
+        """Neuron-level spikes of the most recent `run()` (`channel` holds the neuron index)."""
+        return self._neuron_spikes
+
+    def potentials(self) -> np.ndarray:
+        """Membrane potential snapshot (mV), float32[n_neurons]."""
+        return self.v.astype(np.float32)
+
+    # ------------------------------------------------------------------ running
+    def run(self, duration_ms: float, pulses: Pulses | None = None) -> Spikes:
+        """Advance by `duration_ms` (whole steps); return the spikes in channel space.
+
+        Parameters
+        ----------
+        duration_ms : float
+            Simulated time to advance; must be a non-negative multiple of `dt_ms`.
+        pulses : Pulses, optional
+            Current pulses in channel space, onsets relative to the start of this call. Parts
+            beyond the end of the call (or onsets beyond it) are carried into the next calls.
+
+        Returns
+        -------
+        Spikes
+            Channel spikes with absolute times, sorted by time. Neuron-level spikes of the
+            same call are in `neuron_spikes`.
+        """
+        n_steps = self._steps_of(duration_ms)
+        if pulses is not None and len(pulses):
+            self._add_pulses(pulses)
+        k0 = self.step
+        k1 = k0 + n_steps
+        self._pending = self._pending.alive_after(k0)
+        pend = self._pending
+        st = self._stdp
+        n_out = 0
+        neurons: list[np.ndarray] = []
+        steps: list[np.ndarray] = []
+        k = k0
+        while k < k1:
+            done, n_out = kernels.advance(
+                self._model, k1 - k, k, self._dt, self._n_sub,
+                self.v, self.aux, self.params, self.ring,
+                self.synapses.indptr, self.synapses.post, self.weight, self._delay,
+                self.cfg.depression.u, self._dep_tau_steps, self.dep_x, self.dep_last,
+                self.cfg.noise.mean, self.cfg.noise.sd, self._noise_steps, self._noise_seed,
+                self.noise_cur,
+                pend.neuron, pend.current, pend.start, pend.end, self._stim_cur,
+                st[0], st[1], st[2], st[3], st[4], st[5], self.x_pre, self.y_post,
+                self._in_indptr, self._in_syn, self._pre, self._is_exc,
+                self._out_neuron, self._out_step, 0,
+            )  # fmt: skip
+            k += done
+            self.step = k
+            neurons.append(self._out_neuron[:n_out].copy())
+            steps.append(self._out_step[:n_out].copy())
+        if len(neurons) == 1:
+            neuron, step = neurons[0], steps[0]
+        else:
+            neuron = np.concatenate(neurons) if neurons else np.zeros(0, np.int32)
+            step = np.concatenate(steps) if steps else np.zeros(0, np.int64)
+        t_ms = (step + 1).astype(np.float64) * self._dt
+        self._neuron_spikes = Spikes(neuron.astype(np.uint32), t_ms)
+        if self.mea is None:
+            return self._neuron_spikes
+        return self._to_electrodes(neuron, t_ms)
+
+    def _steps_of(self, duration_ms: float) -> int:
+        duration_ms = float(duration_ms)
+        if not math.isfinite(duration_ms) or duration_ms < 0:
+            raise ValueError(f"duration_ms must be finite and >= 0, got {duration_ms}")
+        n = round(duration_ms / self._dt)
+        if abs(n * self._dt - duration_ms) > 1e-6 * max(1.0, duration_ms):
+            raise ValueError(
+                f"duration_ms must be a multiple of dt_ms={self._dt}, got {duration_ms}"
+            )
+        return n
+
+    def _add_pulses(self, pulses: Pulses) -> None:
+        n_channels = self.layout.n if self.mea is None else self.mea.n_electrodes
+        if np.any(pulses.channel >= n_channels):
+            bad = int(pulses.channel[pulses.channel >= n_channels][0])
+            raise PulseError(f"pulses.channel {bad} out of range (network has {n_channels})")
+        start = self.step + np.rint(pulses.onset_ms.astype(np.float64) / self._dt).astype(np.int64)
+        end = start + np.rint(pulses.width_ms.astype(np.float64) / self._dt).astype(np.int64)
+        current = pulses.amplitude_ua.astype(np.float64) * self._pulse_current_per_ua
+        channel = pulses.channel.astype(np.int64)
+        if self.mea is not None:
+            counts = np.diff(self.mea.stim_indptr)[channel]
+            idx = np.concatenate(
+                [np.arange(self.mea.stim_indptr[c], self.mea.stim_indptr[c + 1]) for c in channel]
+            )
+            neuron = self.mea.stim_neuron[idx.astype(np.int64)]
+            start, end, current = (np.repeat(a, counts) for a in (start, end, current))
+        else:
+            neuron = channel
+        self._pending = self._pending.merged(_PendingPulses(neuron, current, start, end))
+
+    def _to_electrodes(self, neuron: np.ndarray, t_ms: np.ndarray) -> Spikes:
+        mea = self.mea
+        counts = np.diff(mea.rec_indptr)[neuron]
+        if counts.sum() == 0:
+            return Spikes(np.zeros(0, np.uint32), np.zeros(0, np.float64))
+        starts = np.repeat(mea.rec_indptr[neuron] - np.cumsum(counts) + counts, counts)
+        idx = starts + np.arange(counts.sum())
+        return Spikes(mea.rec_electrode[idx], np.repeat(t_ms, counts))
+
+    # ------------------------------------------------------------------ state
+    def get_state(self) -> dict[str, np.ndarray]:
+        """Everything that evolves during `run()`, as copies of plain arrays."""
+        return {
+            "step": np.array(self.step, dtype=np.int64),
+            "v": self.v.copy(),
+            "aux": self.aux.copy(),
+            "ring": self.ring.copy(),
+            "noise_cur": self.noise_cur.copy(),
+            "dep_x": self.dep_x.copy(),
+            "dep_last": self.dep_last.copy(),
+            "x_pre": self.x_pre.copy(),
+            "y_post": self.y_post.copy(),
+            "weight": self.weight.copy(),
+            "pulse_neuron": self._pending.neuron.copy(),
+            "pulse_current": self._pending.current.copy(),
+            "pulse_start": self._pending.start.copy(),
+            "pulse_end": self._pending.end.copy(),
+        }
+
+    def set_state(self, state: dict[str, np.ndarray]) -> None:
+        """Restore what `get_state` returned (of a network with the same config and seed)."""
+        for key in (
+            "v",
+            "aux",
+            "ring",
+            "noise_cur",
+            "dep_x",
+            "dep_last",
+            "x_pre",
+            "y_post",
+            "weight",
+        ):
+            cur = getattr(self, key)
+            new = np.asarray(state[key])
+            if new.shape != cur.shape:
+                raise ValueError(f"state.{key} has shape {new.shape}, expected {cur.shape}")
+            setattr(self, key, new.astype(cur.dtype, copy=True))
+        self.step = int(state["step"])
+        self._pending = _PendingPulses(
+            np.asarray(state["pulse_neuron"], np.int64),
+            np.asarray(state["pulse_current"], np.float64),
+            np.asarray(state["pulse_start"], np.int64),
+            np.asarray(state["pulse_end"], np.int64),
+        )
+
+    def save(self, path: str | Path) -> None:
+        """Write config, seed, connectivity and state to one `.npz` file."""
+        syn = self.synapses
+        meta = {"version": _STATE_VERSION, "seed": self.seed, "config": config_to_dict(self.cfg)}
+        np.savez(
+            path,
+            meta=np.array(json.dumps(meta)),
+            syn_indptr=syn.indptr,
+            syn_post=syn.post,
+            syn_weight_mv=syn.weight_mv,
+            syn_delay_ms=syn.delay_ms,
+            syn_distance_um=syn.distance_um,
+            cell_type=self.layout.cell_type,
+            params=self.params,
+            **self.get_state(),
+        )
+
+    @classmethod
+    def load(cls, path: str | Path) -> Network:
+        """Rebuild a network saved by `save`; running on gives the spikes it would have given."""
+        with np.load(path, allow_pickle=False) as data:
+            meta = json.loads(str(data["meta"]))
+            if meta.get("version") != _STATE_VERSION:
+                raise ValueError(f"{path}: state version {meta.get('version')} is not supported")
+            cfg = config_from_dict(meta["config"])
+            net = cls.__new__(cls)
+            net.cfg = cfg
+            net.seed = int(meta["seed"])
+            rng = np.random.default_rng([net.seed, 0x5E7])
+            net.layout = build_layout(cfg.layout, rng)
+            net.layout.cell_type[:] = data["cell_type"]
+            net.synapses = Synapses(
+                data["syn_indptr"], data["syn_post"], data["syn_weight_mv"],
+                data["syn_delay_ms"], data["syn_distance_um"],
+            )  # fmt: skip
+            net.params = data["params"].copy()
+            net.mea = build_mea(cfg.mea, net.layout) if cfg.channels == "mea" else None
+            net._noise_seed = np.uint64(
+                int(np.random.SeedSequence([net.seed, 0x0153]).generate_state(1, np.uint64)[0])
+            )
+            net._derive()
+            net._reset_state()
+            net.set_state({k: data[k] for k in data.files})
+        return net
+
+
+class _PendingPulses:
+    """Pulses in neuron space on absolute steps [start, end), kept sorted by start."""
+
+    __slots__ = ("neuron", "current", "start", "end")
+
+    def __init__(self, neuron, current, start, end):
+        self.neuron = np.ascontiguousarray(neuron, dtype=np.int64)
+        self.current = np.ascontiguousarray(current, dtype=np.float64)
+        self.start = np.ascontiguousarray(start, dtype=np.int64)
+        self.end = np.ascontiguousarray(end, dtype=np.int64)
+
+    @classmethod
+    def empty(cls) -> _PendingPulses:
+        z = np.zeros(0, dtype=np.int64)
+        return cls(z, np.zeros(0), z, z)
+
+    def alive_after(self, k: int) -> _PendingPulses:
+        """Drop pulses that ended before step k (keeps the per-step kernel loop short)."""
+        if self.end.size == 0 or self.end.min() > k:
+            return self
+        keep = self.end > k
+        return _PendingPulses(
+            self.neuron[keep], self.current[keep], self.start[keep], self.end[keep]
+        )
+
+    def merged(self, other: _PendingPulses) -> _PendingPulses:
+        """Both sets, stably sorted by start step (older pulses first among equal starts)."""
+        neuron = np.concatenate([self.neuron, other.neuron])
+        current = np.concatenate([self.current, other.current])
+        start = np.concatenate([self.start, other.start])
+        end = np.concatenate([self.end, other.end])
+        order = np.argsort(start, kind="stable")
+        return _PendingPulses(neuron[order], current[order], start[order], end[order])

@@ -1,0 +1,149 @@
+"""Plain records crossing the library boundary: pulses in, spikes out, the channel layout."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+class PulseError(ValueError):
+    """A stimulation pulse is malformed (lengths differ, negative width, unknown channel...)."""
+
+
+@dataclass(frozen=True)
+class Pulses:
+    """Monophasic current pulses in channel space, as parallel arrays of equal length.
+
+    `onset_ms` is relative to the start of the `Network.run` call that receives them.
+    """
+
+    channel: np.ndarray  # uint32[k]
+    amplitude_ua: np.ndarray  # float32[k]
+    width_ms: np.ndarray  # float32[k]
+    onset_ms: np.ndarray  # float32[k]
+
+    def __post_init__(self) -> None:
+        arrays = {}
+        for name, dtype in (
+            ("channel", np.uint32),
+            ("amplitude_ua", np.float32),
+            ("width_ms", np.float32),
+            ("onset_ms", np.float32),
+        ):
+            raw = np.asarray(getattr(self, name))
+            if raw.ndim != 1:
+                raw = raw.reshape(-1)
+            if name == "channel" and raw.size:
+                whole = raw.dtype.kind in "iu" or np.all(np.mod(raw, 1) == 0)
+                if not whole or np.any(raw < 0):
+                    raise PulseError(f"pulses.channel must be non-negative integers, got {raw!r}")
+            arrays[name] = raw.astype(dtype)
+            object.__setattr__(self, name, arrays[name])
+        n = arrays["channel"].size
+        for name, arr in arrays.items():
+            if arr.size != n:
+                raise PulseError(f"pulses.{name} has length {arr.size}, expected {n}")
+        for name in ("amplitude_ua", "width_ms", "onset_ms"):
+            if not np.all(np.isfinite(arrays[name])):
+                raise PulseError(f"pulses.{name} must be finite")
+        if np.any(arrays["width_ms"] < 0):
+            raise PulseError("pulses.width_ms must be >= 0")
+        if np.any(arrays["onset_ms"] < 0):
+            raise PulseError("pulses.onset_ms must be >= 0")
+
+    def __len__(self) -> int:
+        return int(self.channel.size)
+
+    @classmethod
+    def empty(cls) -> Pulses:
+        """No pulses."""
+        return cls(np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0))
+
+    @classmethod
+    def single(
+        cls, channels, amplitude_ua: float, width_ms: float, onset_ms: float = 0.0
+    ) -> Pulses:
+        """The same pulse into each of `channels` at one onset."""
+        ch = np.atleast_1d(np.asarray(channels))
+        k = ch.size
+        return cls(ch, np.full(k, amplitude_ua), np.full(k, width_ms), np.full(k, onset_ms))
+
+
+@dataclass(frozen=True)
+class Spikes:
+    """Spikes sorted by time: `channel` (uint32) and absolute simulated time `t_ms` (float64)."""
+
+    channel: np.ndarray
+    t_ms: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.channel.size)
+
+    @classmethod
+    def concat(cls, parts: list[Spikes]) -> Spikes:
+        """Join spike records of consecutive runs."""
+        if not parts:
+            return cls(np.zeros(0, np.uint32), np.zeros(0, np.float64))
+        return cls(
+            np.concatenate([p.channel for p in parts]), np.concatenate([p.t_ms for p in parts])
+        )
+
+
+@dataclass(frozen=True)
+class Channels:
+    """Channel layout: ids, positions (µm), cell type (neurons only), and their kind."""
+
+    channel: np.ndarray  # uint32[n]
+    x_um: np.ndarray  # float32[n]
+    y_um: np.ndarray  # float32[n]
+    cell_type: np.ndarray | None  # uint8[n] (0 exc, 1 inh) when kind == "neuron"
+    kind: str  # "neuron" | "electrode"
+
+    def __len__(self) -> int:
+        return int(self.channel.size)
+
+
+@dataclass(frozen=True)
+class PeriodicStimulus:
+    """A pulse train into chosen channels: `count` pulses every `period_ms` from `start_ms`.
+
+    The paper's validation protocol is `PeriodicStimulus([n], 100.0, 10.0, 5000.0, start_ms, count)`
+    (10 ms, 100 µA, 0.2 Hz). Times are absolute simulated times.
+    """
+
+    channels: tuple[int, ...]
+    amplitude_ua: float
+    width_ms: float
+    period_ms: float
+    start_ms: float = 0.0
+    count: int = 1
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "channels", tuple(int(c) for c in np.atleast_1d(self.channels)))
+        if not self.channels:
+            raise PulseError("PeriodicStimulus.channels must not be empty")
+        if self.width_ms < 0:
+            raise PulseError(f"PeriodicStimulus.width_ms must be >= 0, got {self.width_ms}")
+        if self.period_ms <= 0:
+            raise PulseError(f"PeriodicStimulus.period_ms must be > 0, got {self.period_ms}")
+        if self.count < 0:
+            raise PulseError(f"PeriodicStimulus.count must be >= 0, got {self.count}")
+        if self.start_ms < 0:
+            raise PulseError(f"PeriodicStimulus.start_ms must be >= 0, got {self.start_ms}")
+
+    def onsets_ms(self) -> np.ndarray:
+        """Absolute onset time of every pulse of the train."""
+        return self.start_ms + self.period_ms * np.arange(self.count, dtype=np.float64)
+
+    def pulses_between(self, t0_ms: float, t1_ms: float) -> Pulses:
+        """Pulses with onset in [t0_ms, t1_ms), onsets relative to t0_ms (for `run` at t0_ms)."""
+        on = self.onsets_ms()
+        on = on[(on >= t0_ms - 1e-9) & (on < t1_ms - 1e-9)]
+        k = len(self.channels)
+        return Pulses(
+            channel=np.tile(np.array(self.channels, dtype=np.uint32), on.size),
+            amplitude_ua=np.full(on.size * k, self.amplitude_ua),
+            width_ms=np.full(on.size * k, self.width_ms),
+            onset_ms=np.repeat(np.maximum(on - t0_ms, 0.0), k),
+        )
