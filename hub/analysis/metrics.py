@@ -1,0 +1,231 @@
+"""The whole offline analysis of one record, and its summary metrics as a JSON-ready dict.
+
+``analyze(...)`` runs every detector once and keeps the intermediate results (bursts, network
+bursts, CATs, PSTH) for the figures; ``compute_metrics(...)`` returns just the metrics dict.
+
+Metric keys (NaN becomes ``None`` so the dict is valid JSON):
+
+==========================  ==================================================================
+``duration_s``              record length ``t_stop_ms - t_start_ms`` in seconds
+``n_channels``, ``n_spikes``
+``mfr_hz``, ``mfr_sd_hz``   mean and s.d. over channels of each channel's firing rate (MFR)
+``mfr_exc_hz``, ``mfr_inh_hz``  mean rate over excitatory / inhibitory channels (if cell types)
+``n_bursts``, ``mbr_per_min``   bursts, and bursts per minute per channel averaged over all
+                            channels (MBR; silent channels count as 0)
+``n_network_bursts``, ``mnbr_per_min``  network bursts and network bursts per minute (MNBR)
+``nb_duration_ms``, ``nb_duration_sd_ms``  mean and s.d. of network-burst duration
+``nb_participation``        mean fraction of channels taking part in a network burst
+``isi_median_ms``           median inter-spike interval within channels
+``ibi_mean_ms``, ``ibi_cv``  mean and coefficient of variation of the intervals between
+                            network-burst starts (IBI)
+``psth_peak_ms``            PSTH peak latency after the stimuli (only with ``stim_ms``)
+``n_evoked_nb``             network bursts starting within ``evoked_max_latency_ms`` of a
+                            stimulus (only with ``stim_ms``)
+``cat_spread``              CAT regularity over all network bursts (only with positions);
+                            with ``stim_ms`` also ``cat_spread_evoked`` and
+                            ``cat_spread_spontaneous``
+==========================  ==================================================================
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from hub.analysis.bursts import BurstParams, bursting_rate_per_min, detect_bursts
+from hub.analysis.center_of_activity import Cat, cat_spread, center_of_activity_trajectories
+from hub.analysis.network_bursts import (
+    NetworkBurstParams,
+    NetworkBursts,
+    detect_network_bursts,
+    evoked_mask,
+    inter_burst_intervals_ms,
+)
+from hub.analysis.spikes import (
+    EXCITATORY,
+    INHIBITORY,
+    AnalysisInputError,
+    Psth,
+    check_span,
+    check_spikes,
+    firing_rates_hz,
+    isi_ms,
+    psth,
+)
+
+
+@dataclass(frozen=True)
+class AnalysisParams:
+    """Every analysis parameter in one place (defaults follow the paper)."""
+
+    bursts: BurstParams = field(default_factory=BurstParams)
+    network_bursts: NetworkBurstParams = field(default_factory=NetworkBurstParams)
+    psth_window_ms: tuple[float, float] = (0.0, 300.0)
+    psth_bin_ms: float = 5.0
+    psth_min_latency_ms: float = 0.0
+    evoked_max_latency_ms: float = 200.0
+    cat_time_scale_ms: float = 50.0
+    cat_step_ms: float = 5.0
+    cat_n_points: int = 20
+    rate_bin_ms: float = 10.0
+
+    @classmethod
+    def from_dict(cls, d: dict | None) -> AnalysisParams:
+        """Build from a config mapping such as a TOML ``[analysis]`` table.
+
+        Nested tables ``bursts`` and ``network_bursts`` hold the fields of ``BurstParams`` and
+        ``NetworkBurstParams``; unknown keys raise ``AnalysisInputError`` naming the key.
+        """
+        d = dict(d or {})
+        kw = {}
+        sub = {"bursts": BurstParams, "network_bursts": NetworkBurstParams}
+        names = {f.name for f in dataclasses.fields(cls)}
+        for key, value in d.items():
+            if key not in names:
+                raise AnalysisInputError(f"analysis.{key} is not a known parameter")
+            if key in sub:
+                allowed = {f.name for f in dataclasses.fields(sub[key])}
+                for k in value:
+                    if k not in allowed:
+                        raise AnalysisInputError(f"analysis.{key}.{k} is not a known parameter")
+                kw[key] = sub[key](**value)
+            elif key == "psth_window_ms":
+                kw[key] = tuple(float(v) for v in value)
+            else:
+                kw[key] = value
+        return cls(**kw)
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+@dataclass
+class AnalysisResult:
+    """Everything ``analyze`` computed: the metrics dict and the pieces that figures need."""
+
+    metrics: dict
+    rates_hz: np.ndarray
+    bursts: np.ndarray
+    network_bursts: NetworkBursts
+    cats: list[Cat] | None = None
+    psth: Psth | None = None
+    evoked: np.ndarray | None = None
+
+
+def _clean(x):
+    """Plain Python float/int for JSON, NaN -> None."""
+    if isinstance(x, (int, np.integer)):
+        return int(x)
+    x = float(x)
+    return None if math.isnan(x) else x
+
+
+def _mean_sd(values: np.ndarray) -> tuple[float, float]:
+    if values.size == 0:
+        return float("nan"), float("nan")
+    return float(values.mean()), float(values.std())
+
+
+def analyze(
+    channel,
+    t_ms,
+    n_channels: int,
+    t_start_ms: float,
+    t_stop_ms: float,
+    cell_type=None,
+    x_um=None,
+    y_um=None,
+    stim_ms=None,
+    params: AnalysisParams | None = None,
+) -> AnalysisResult:
+    """Run the full offline analysis of spikes in ``[t_start_ms, t_stop_ms)``.
+
+    Spikes outside the span are ignored. ``cell_type`` (0 exc, 1 inh per channel), positions
+    ``x_um``/``y_um`` (per channel) and stimulus times ``stim_ms`` are optional and enable the
+    metrics that need them.
+    """
+    p = params or AnalysisParams()
+    ch, t = check_spikes(channel, t_ms, n_channels)
+    duration_ms = check_span(t_start_ms, t_stop_ms)
+    inside = (t >= t_start_ms) & (t < t_stop_ms)
+    if not inside.all():
+        ch, t = ch[inside], t[inside]
+
+    rates = firing_rates_hz(ch, t, n_channels, t_start_ms, t_stop_ms)
+    bursts = detect_bursts(ch, t, p.bursts)
+    nbs = detect_network_bursts(bursts, n_channels, p.network_bursts)
+    mfr, mfr_sd = _mean_sd(rates)
+    nb_dur, nb_dur_sd = _mean_sd(nbs.duration_ms)
+    ibi = inter_burst_intervals_ms(nbs)
+    ibi_mean, ibi_sd = _mean_sd(ibi)
+    isis = isi_ms(ch, t)
+    m = {
+        "duration_s": duration_ms / 1000.0,
+        "n_channels": int(n_channels),
+        "n_spikes": int(t.size),
+        "mfr_hz": mfr,
+        "mfr_sd_hz": mfr_sd,
+        "n_bursts": int(bursts.size),
+        "mbr_per_min": float(bursting_rate_per_min(bursts, n_channels, duration_ms).mean()),
+        "n_network_bursts": len(nbs),
+        "mnbr_per_min": len(nbs) / (duration_ms / 60_000.0),
+        "nb_duration_ms": nb_dur,
+        "nb_duration_sd_ms": nb_dur_sd,
+        "nb_participation": float(nbs.n_channels.mean() / n_channels) if len(nbs) else math.nan,
+        "isi_median_ms": float(np.median(isis)) if isis.size else math.nan,
+        "ibi_mean_ms": ibi_mean,
+        "ibi_cv": ibi_sd / ibi_mean if ibi.size and ibi_mean > 0 else math.nan,
+    }
+    if cell_type is not None:
+        ct = np.asarray(cell_type)
+        if ct.shape != (n_channels,):
+            raise AnalysisInputError(
+                f"cell_type must have one entry per channel ({n_channels}), got shape {ct.shape}"
+            )
+        m["mfr_exc_hz"] = _mean_sd(rates[ct == EXCITATORY])[0]
+        m["mfr_inh_hz"] = _mean_sd(rates[ct == INHIBITORY])[0]
+
+    result = AnalysisResult(m, rates, bursts, nbs)
+    if stim_ms is not None:
+        stim = np.asarray(stim_ms, dtype=np.float64)
+        result.psth = psth(ch, t, stim, n_channels, p.psth_window_ms, p.psth_bin_ms)
+        m["psth_peak_ms"] = result.psth.peak_latency_ms(p.psth_min_latency_ms)
+        result.evoked = evoked_mask(nbs, stim, p.evoked_max_latency_ms)
+        m["n_evoked_nb"] = int(result.evoked.sum())
+    if x_um is not None and y_um is not None:
+        cats = center_of_activity_trajectories(
+            ch, t, x_um, y_um, nbs, p.cat_time_scale_ms, p.cat_step_ms
+        )
+        result.cats = cats
+        m["cat_spread"] = cat_spread(cats, p.cat_n_points)
+        if result.evoked is not None:
+            ev = result.evoked
+            m["cat_spread_evoked"] = cat_spread(
+                [c for c, e in zip(cats, ev, strict=True) if e], p.cat_n_points
+            )
+            m["cat_spread_spontaneous"] = cat_spread(
+                [c for c, e in zip(cats, ev, strict=True) if not e], p.cat_n_points
+            )
+    result.metrics = {k: _clean(v) for k, v in m.items()}
+    return result
+
+
+def compute_metrics(
+    channel,
+    t_ms,
+    n_channels: int,
+    t_start_ms: float,
+    t_stop_ms: float,
+    cell_type=None,
+    x_um=None,
+    y_um=None,
+    stim_ms=None,
+    params: AnalysisParams | None = None,
+) -> dict:
+    """The metrics dict of ``analyze`` (JSON-ready; see the module docstring for the keys)."""
+    return analyze(
+        channel, t_ms, n_channels, t_start_ms, t_stop_ms, cell_type, x_um, y_um, stim_ms, params
+    ).metrics

@@ -1,0 +1,145 @@
+"""Network bursts: at least a fraction of all channels bursting at the same time (paper: 30 %).
+
+Definition used here (and, identically, by the online detector in ``online.py``):
+
+1. Each single-channel burst covers the closed interval ``[start_ms, end_ms]``. The bursting count
+   ``B(t)`` is the number of bursts covering time ``t``.
+2. A network-burst *segment* is a maximal interval where ``B(t) >= ceil(min_fraction *
+   n_channels)`` (at least 1). Segments whose gap (next start minus previous end) is
+   ``<= merge_gap_ms`` are merged into one network burst.
+3. A network burst's participating channels are those with a burst overlapping its
+   ``[start_ms, end_ms]`` (so they include channels that burst during a merged gap).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from hub.analysis.bursts import BURST_DTYPE
+from hub.analysis.spikes import AnalysisInputError
+
+
+@dataclass(frozen=True)
+class NetworkBurstParams:
+    """Thresholds of the network-burst definition."""
+
+    min_fraction: float = 0.30
+    merge_gap_ms: float = 10.0
+
+    def __post_init__(self):
+        if not 0.0 < self.min_fraction <= 1.0:
+            raise AnalysisInputError(
+                f"network_bursts.min_fraction must be in (0, 1], got {self.min_fraction}"
+            )
+        if not self.merge_gap_ms >= 0.0:
+            raise AnalysisInputError(
+                f"network_bursts.merge_gap_ms must be >= 0, got {self.merge_gap_ms}"
+            )
+
+    def min_channels(self, n_channels: int) -> int:
+        """Number of simultaneously bursting channels that makes a network burst."""
+        if n_channels < 1:
+            raise AnalysisInputError(f"n_channels must be >= 1, got {n_channels}")
+        return max(1, math.ceil(self.min_fraction * n_channels - 1e-9))
+
+
+@dataclass(frozen=True)
+class NetworkBursts:
+    """Network bursts of a record, sorted by start; ``channels[i]`` are the participants of i."""
+
+    start_ms: np.ndarray
+    end_ms: np.ndarray
+    channels: list[np.ndarray] = field(default_factory=list)
+
+    def __len__(self) -> int:
+        return int(self.start_ms.size)
+
+    @property
+    def duration_ms(self) -> np.ndarray:
+        return self.end_ms - self.start_ms
+
+    @property
+    def n_channels(self) -> np.ndarray:
+        """Number of participating channels of each network burst."""
+        return np.array([c.size for c in self.channels], dtype=np.int64)
+
+    def select(self, mask) -> NetworkBursts:
+        """The network bursts where boolean ``mask`` is true."""
+        idx = np.flatnonzero(np.asarray(mask, dtype=bool))
+        return NetworkBursts(self.start_ms[idx], self.end_ms[idx], [self.channels[i] for i in idx])
+
+    @classmethod
+    def empty(cls) -> NetworkBursts:
+        return cls(np.empty(0), np.empty(0), [])
+
+
+def detect_network_bursts(
+    bursts: np.ndarray, n_channels: int, params: NetworkBurstParams | None = None
+) -> NetworkBursts:
+    """Network bursts from single-channel bursts (a ``BURST_DTYPE`` array)."""
+    p = params or NetworkBurstParams()
+    threshold = p.min_channels(n_channels)
+    if bursts.dtype != BURST_DTYPE:
+        raise AnalysisInputError(f"bursts must have dtype BURST_DTYPE, got {bursts.dtype}")
+    if bursts.size == 0:
+        return NetworkBursts.empty()
+    if int(bursts["channel"].max()) >= n_channels:
+        raise AnalysisInputError(
+            f"bursts.channel must be < n_channels={n_channels}, got {bursts['channel'].max()}"
+        )
+    nb = bursts.size
+    times = np.concatenate([bursts["start_ms"], bursts["end_ms"]])
+    kind = np.concatenate([np.zeros(nb, np.int8), np.ones(nb, np.int8)])  # starts before ends
+    order = np.lexsort((kind, times))
+    times, kind = times[order], kind[order]
+    count = np.cumsum(np.where(kind == 0, 1, -1))
+    before = count - np.where(kind == 0, 1, -1)
+    up = np.flatnonzero((kind == 0) & (count == threshold) & (before == threshold - 1))
+    down = np.flatnonzero((kind == 1) & (count == threshold - 1) & (before == threshold))
+    seg_start, seg_end = times[up], times[down]  # up/down alternate, starting with an up
+    if seg_start.size == 0:
+        return NetworkBursts.empty()
+    # merge segments separated by a gap <= merge_gap_ms
+    new = np.ones(seg_start.size, dtype=bool)
+    new[1:] = seg_start[1:] - seg_end[:-1] > p.merge_gap_ms
+    first = np.flatnonzero(new)
+    last = np.append(first[1:] - 1, seg_start.size - 1)
+    start_ms, end_ms = seg_start[first], seg_end[last]
+    return NetworkBursts(start_ms, end_ms, _participants(bursts, start_ms, end_ms))
+
+
+def _participants(bursts: np.ndarray, start_ms: np.ndarray, end_ms: np.ndarray) -> list:
+    """Channels with a burst overlapping each ``[start_ms[i], end_ms[i]]``."""
+    order = np.argsort(bursts["start_ms"], kind="stable")
+    b_start = bursts["start_ms"][order]
+    b_end = bursts["end_ms"][order]
+    b_ch = bursts["channel"][order]
+    longest = float((b_end - b_start).max())
+    lo = np.searchsorted(b_start, start_ms - longest, side="left")
+    hi = np.searchsorted(b_start, end_ms, side="right")
+    out = []
+    for i in range(start_ms.size):
+        sl = slice(lo[i], hi[i])
+        out.append(np.unique(b_ch[sl][b_end[sl] >= start_ms[i]]).astype(np.uint32))
+    return out
+
+
+def inter_burst_intervals_ms(network_bursts: NetworkBursts) -> np.ndarray:
+    """IBI: intervals between the starts of consecutive network bursts (ms)."""
+    return np.diff(network_bursts.start_ms)
+
+
+def evoked_mask(
+    network_bursts: NetworkBursts, stim_ms, max_latency_ms: float = 200.0
+) -> np.ndarray:
+    """True for network bursts that start within ``[s, s + max_latency_ms]`` of a stimulus s."""
+    stim = np.sort(np.asarray(stim_ms, dtype=np.float64).ravel())
+    if stim.size == 0 or len(network_bursts) == 0:
+        return np.zeros(len(network_bursts), dtype=bool)
+    idx = np.searchsorted(stim, network_bursts.start_ms, side="right") - 1
+    ok = idx >= 0
+    latency = network_bursts.start_ms - stim[np.maximum(idx, 0)]
+    return ok & (latency <= max_latency_ms)

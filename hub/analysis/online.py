@@ -1,0 +1,253 @@
+"""Online ("on the fly") burst and network-burst detection on a live spike stream.
+
+``OnlineBurstDetector.feed(channel, t_ms, until_ms)`` takes one window of spikes at a time and
+returns the bursts and network bursts that became *complete* with it. Over a whole stream
+(ending with ``flush()``) it reports exactly the bursts of ``bursts.detect_bursts`` and the
+network bursts of ``network_bursts.detect_network_bursts`` on the same spikes.
+
+When is an event complete? With a watermark ``W`` (every spike before ``W`` has been fed):
+
+- a spike's core status is final once ``W - t > window_ms`` (no later spike can join its run);
+- a burst is complete once its following spike is final and cannot join it, or once
+  ``W > end_ms + isi_limit`` with no spike in between;
+- every burst starting before ``S`` is known, where ``S`` is the earliest of ``W``, the start of
+  any open burst and the earliest non-final spike; the bursting count is final before ``S``, so
+  a network burst is complete once ``end_ms + merge_gap_ms < S``.
+
+The delay from a burst's last spike to its report is thus about ``window_ms + max_isi_ms`` (40 ms
+by default); a network burst follows its last participating burst's report.
+Cost is a few Python operations per spike (fine for the hub's live stream; offline analysis of
+recorded runs should use the vectorised functions).
+"""
+
+from __future__ import annotations
+
+import heapq
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from hub.analysis.bursts import BURST_DTYPE, BurstParams, sort_bursts
+from hub.analysis.network_bursts import NetworkBurstParams, NetworkBursts
+from hub.analysis.spikes import AnalysisInputError, check_spikes
+
+
+@dataclass(frozen=True)
+class Burst:
+    """One complete single-channel burst."""
+
+    channel: int
+    start_ms: float
+    end_ms: float
+    n_spikes: int
+
+
+@dataclass(frozen=True)
+class NetworkBurst:
+    """One complete network burst and its participating channels (sorted)."""
+
+    start_ms: float
+    end_ms: float
+    channels: tuple[int, ...]
+
+    @property
+    def duration_ms(self) -> float:
+        return self.end_ms - self.start_ms
+
+
+class _Channel:
+    """Per-channel stream state: non-final spikes and the open burst."""
+
+    __slots__ = ("queue", "open_start", "open_last", "open_n")
+
+    def __init__(self):
+        self.queue: deque[list] = deque()  # [t_ms, is_core] of spikes whose core status may change
+        self.open_start: float | None = None
+        self.open_last = 0.0
+        self.open_n = 0
+
+
+class OnlineBurstDetector:
+    """Incremental burst and network-burst detector; see the module docstring."""
+
+    def __init__(
+        self,
+        n_channels: int,
+        burst_params: BurstParams | None = None,
+        network_params: NetworkBurstParams | None = None,
+    ):
+        if int(n_channels) < 1:
+            raise AnalysisInputError(f"n_channels must be >= 1, got {n_channels}")
+        self.n_channels = int(n_channels)
+        self.burst_params = burst_params or BurstParams()
+        self.network_params = network_params or NetworkBurstParams()
+        self._m = int(self.burst_params.min_spikes)
+        self._window = float(self.burst_params.window_ms)
+        self._isi = self.burst_params.isi_limit_ms
+        self._gap = float(self.network_params.merge_gap_ms)
+        self._threshold = self.network_params.min_channels(self.n_channels)
+        self._channels: dict[int, _Channel] = {}  # only channels with queued spikes or open burst
+        self._watermark = -np.inf
+        # network-burst sweep state
+        self._events: list[tuple[float, int, int]] = []  # heap of (time, 0 start | 1 end, channel)
+        self._count = 0
+        self._active: dict[int, int] = {}  # channel -> number of its bursts covering now
+        self._cand: list | None = None  # [start_ms, end_ms or None while above, set(channels)]
+        self._pending: set[int] = set()  # channels starting a burst in a candidate's gap
+        self._bursts: list[Burst] = []
+        self._network_bursts: list[NetworkBurst] = []
+
+    # ------------------------------------------------------------------ public API
+    def feed(self, channel, t_ms, until_ms: float | None = None) -> list:
+        """Add one window of spikes (absolute ms, sorted by time) and return completed events.
+
+        ``until_ms`` is the end of the window: the caller promises that every spike before it has
+        now been fed. Without it, the latest spike time fed is used. Returns ``Burst`` and
+        ``NetworkBurst`` records in order of completion.
+        """
+        ch, t = check_spikes(channel, t_ms, self.n_channels)
+        if t.size and t[0] < self._watermark:
+            raise AnalysisInputError(
+                f"t_ms must not go back before the previous window end {self._watermark}, "
+                f"got {t[0]}"
+            )
+        out: list = []
+        for c, tt in zip(ch.tolist(), t.tolist(), strict=True):
+            self._add_spike(c, tt)
+        w = until_ms if until_ms is not None else (float(t[-1]) if t.size else self._watermark)
+        if t.size and w < t[-1]:
+            raise AnalysisInputError(f"until_ms must be >= the last spike time {t[-1]}, got {w}")
+        self._advance(max(w, self._watermark), out)
+        return out
+
+    def advance(self, until_ms: float) -> list:
+        """Tell the detector that no spike before ``until_ms`` is still to come (no new spikes)."""
+        return self.feed(np.empty(0, np.uint32), np.empty(0), until_ms)
+
+    def flush(self) -> list:
+        """End of stream: complete everything still open and return it."""
+        out: list = []
+        self._advance(np.inf, out)
+        return out
+
+    @property
+    def bursts(self) -> np.ndarray:
+        """All bursts reported so far, as a ``BURST_DTYPE`` array sorted like ``detect_bursts``."""
+        arr = np.array(
+            [(b.channel, b.start_ms, b.end_ms, b.n_spikes) for b in self._bursts], dtype=BURST_DTYPE
+        )
+        return sort_bursts(arr)
+
+    @property
+    def network_bursts(self) -> NetworkBursts:
+        """All network bursts reported so far."""
+        nbs = self._network_bursts
+        return NetworkBursts(
+            np.array([n.start_ms for n in nbs], dtype=np.float64),
+            np.array([n.end_ms for n in nbs], dtype=np.float64),
+            [np.array(n.channels, dtype=np.uint32) for n in nbs],
+        )
+
+    # ------------------------------------------------------------------ bursts
+    def _add_spike(self, c: int, t: float) -> None:
+        st = self._channels.get(c)
+        if st is None:
+            st = self._channels[c] = _Channel()
+        q = st.queue
+        q.append([t, False])
+        m = self._m
+        # Spikes of the run ending here are all non-final (a final spike is > window_ms earlier).
+        if len(q) >= m and t - q[-m][0] <= self._window:
+            for i in range(1, m + 1):
+                q[-i][1] = True
+
+    def _advance(self, w: float, out: list) -> None:
+        self._watermark = w
+        safe = w  # every burst starting before `safe` is known after this pass
+        done = []
+        for c, st in self._channels.items():
+            q = st.queue
+            while q and w - q[0][0] > self._window:
+                t, core = q.popleft()
+                self._finalize_spike(c, st, t, core, out)
+            if st.open_start is not None and w - st.open_last > self._isi:
+                if not q or q[0][0] - st.open_last > self._isi:
+                    self._close(c, st, out)
+            if st.open_start is not None:
+                safe = min(safe, st.open_start)
+            if q:
+                safe = min(safe, q[0][0])
+            elif st.open_start is None:
+                done.append(c)
+        for c in done:
+            del self._channels[c]
+        self._sweep(safe, out)
+
+    def _finalize_spike(self, c: int, st: _Channel, t: float, core: bool, out: list) -> None:
+        if core:
+            if st.open_start is not None and t - st.open_last <= self._isi:
+                st.open_last = t
+                st.open_n += 1
+                return
+            self._close(c, st, out)
+            st.open_start, st.open_last, st.open_n = t, t, 1
+        else:
+            self._close(c, st, out)
+
+    def _close(self, c: int, st: _Channel, out: list) -> None:
+        if st.open_start is None:
+            return
+        if st.open_n >= self._m:
+            b = Burst(c, st.open_start, st.open_last, st.open_n)
+            self._bursts.append(b)
+            out.append(b)
+            heapq.heappush(self._events, (b.start_ms, 0, c))
+            heapq.heappush(self._events, (b.end_ms, 1, c))
+        st.open_start = None
+        st.open_n = 0
+
+    # ------------------------------------------------------------------ network bursts
+    def _sweep(self, safe: float, out: list) -> None:
+        """Run the bursting-count sweep over all events before ``safe``."""
+        ev = self._events
+        while ev and ev[0][0] < safe:
+            t, kind, c = heapq.heappop(ev)
+            cand = self._cand
+            if cand is not None and cand[1] is not None and t - cand[1] > self._gap:
+                self._emit(out)
+                cand = None
+            if kind == 0:
+                self._count += 1
+                self._active[c] = self._active.get(c, 0) + 1
+                if cand is None:
+                    if self._count == self._threshold:
+                        self._cand = [t, None, set(self._active)]
+                elif cand[1] is None:
+                    cand[2].add(c)
+                else:  # inside a candidate's gap
+                    self._pending.add(c)
+                    if self._count == self._threshold:
+                        cand[1] = None
+                        cand[2] |= self._pending
+                        self._pending = set()
+            else:
+                self._count -= 1
+                n = self._active[c] - 1
+                if n:
+                    self._active[c] = n
+                else:
+                    del self._active[c]
+                if cand is not None and cand[1] is None and self._count == self._threshold - 1:
+                    cand[1] = t
+        cand = self._cand
+        if cand is not None and cand[1] is not None and safe - cand[1] > self._gap:
+            self._emit(out)
+
+    def _emit(self, out: list) -> None:
+        start, end, chans = self._cand
+        nb = NetworkBurst(start, end, tuple(sorted(chans)))
+        self._network_bursts.append(nb)
+        out.append(nb)
+        self._cand = None
+        self._pending = set()
