@@ -2,10 +2,10 @@
 
 import numpy as np
 import pytest
-from analysis_synth import merge
 
 from hub.analysis.bursts import BURST_DTYPE, BurstParams, bursting_rate_per_min, detect_bursts
 from hub.analysis.spikes import AnalysisInputError
+from tests.analysis.analysis_synth import merge
 
 
 def test_planted_burst_is_found_with_start_end_and_count():

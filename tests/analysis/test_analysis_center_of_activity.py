@@ -2,7 +2,6 @@
 
 import numpy as np
 import pytest
-from analysis_synth import merge
 
 from hub.analysis.center_of_activity import (
     Cat,
@@ -11,6 +10,7 @@ from hub.analysis.center_of_activity import (
     center_of_activity_trajectories,
 )
 from hub.analysis.network_bursts import NetworkBursts
+from tests.analysis.analysis_synth import merge
 
 # a 3 x 3 grid, 100 um pitch: channel c at (100 * (c % 3), 100 * (c // 3))
 X_UM = 100.0 * (np.arange(9) % 3)

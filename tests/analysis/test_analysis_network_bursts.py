@@ -2,7 +2,6 @@
 
 import numpy as np
 import pytest
-from analysis_synth import merge, network_burst, sparse_background
 
 from hub.analysis.bursts import detect_bursts
 from hub.analysis.network_bursts import (
@@ -12,6 +11,7 @@ from hub.analysis.network_bursts import (
     inter_burst_intervals_ms,
 )
 from hub.analysis.spikes import AnalysisInputError
+from tests.analysis.analysis_synth import merge, network_burst, sparse_background
 
 
 def test_planted_network_burst_has_known_time_duration_and_participants():

@@ -2,12 +2,12 @@
 
 import numpy as np
 import pytest
-from analysis_synth import merge, network_burst, sparse_background
 
 from hub.analysis.bursts import BurstParams, detect_bursts
 from hub.analysis.network_bursts import NetworkBurstParams, detect_network_bursts
 from hub.analysis.online import Burst, NetworkBurst, OnlineBurstDetector
 from hub.analysis.spikes import AnalysisInputError
+from tests.analysis.analysis_synth import merge, network_burst, sparse_background
 
 
 def _random_record(rng, n_channels, t_stop_ms):

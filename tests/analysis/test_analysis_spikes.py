@@ -2,7 +2,6 @@
 
 import numpy as np
 import pytest
-from analysis_synth import merge
 
 from hub.analysis.spikes import (
     AnalysisInputError,
@@ -12,6 +11,7 @@ from hub.analysis.spikes import (
     isi_ms,
     psth,
 )
+from tests.analysis.analysis_synth import merge
 
 
 def test_firing_rates_per_channel_over_the_span():

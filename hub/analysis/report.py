@@ -1,0 +1,105 @@
+"""A self-contained ``report.html``: metrics, run config, timing and figures in one file.
+
+Images are embedded as base64 ``data:`` URIs (PNG, or SVG when only an SVG is given), so the
+file can be mailed or archived alone. When a figure exists as both ``name.png`` and
+``name.svg``, the PNG is embedded once and the pair counts as one figure.
+"""
+
+from __future__ import annotations
+
+import base64
+import datetime as _dt
+import html
+import json
+from pathlib import Path
+
+from hub.analysis.spikes import AnalysisInputError
+
+_MIME = {".png": "image/png", ".svg": "image/svg+xml"}
+
+_CSS = """
+body { font-family: system-ui, sans-serif; margin: 2em auto; max-width: 1100px; color: #222; }
+h1 { font-size: 1.5em; } h2 { font-size: 1.2em; margin-top: 1.6em; border-bottom: 1px solid #ccc; }
+table { border-collapse: collapse; } td, th { padding: 2px 10px; border-bottom: 1px solid #eee; }
+td.num { text-align: right; font-variant-numeric: tabular-nums; }
+pre { background: #f6f6f6; padding: 0.8em; overflow-x: auto; font-size: 0.85em; }
+figure { margin: 1em 0; } figure img { max-width: 100%; border: 1px solid #ddd; }
+figcaption { font-size: 0.85em; color: #555; }
+"""
+
+
+def _fmt(value) -> str:
+    if value is None:
+        return "—"
+    if isinstance(value, float):
+        return f"{value:.4g}"
+    return html.escape(str(value))
+
+
+def _table(rows: dict) -> str:
+    body = "".join(
+        f"<tr><th style='text-align:left'>{html.escape(str(k))}</th>"
+        f"<td class='num'>{_fmt(v)}</td></tr>"
+        for k, v in rows.items()
+    )
+    return f"<table>{body}</table>"
+
+
+def _pick_figures(figures) -> list[Path]:
+    """One file per figure stem, preferring PNG; keeps the given order."""
+    chosen: dict[tuple[Path, str], Path] = {}
+    for f in figures:
+        p = Path(f)
+        if p.suffix.lower() not in _MIME:
+            raise AnalysisInputError(f"figures must be .png or .svg files, got {p}")
+        if not p.is_file():
+            raise AnalysisInputError(f"figure file {p} does not exist")
+        key = (p.parent, p.stem)
+        if key not in chosen or p.suffix.lower() == ".png":
+            chosen[key] = p
+    return list(chosen.values())
+
+
+def write_report(
+    path,
+    metrics: dict,
+    config: dict,
+    figures,
+    title: str = "NeuVision run report",
+    timing: dict | None = None,
+) -> Path:
+    """Write the self-contained HTML report and return its path.
+
+    Parameters
+    ----------
+    path : output file (``report.html``); its folder is created if needed.
+    metrics : the metrics dict (e.g. from ``metrics.compute_metrics``); shown as a table.
+    config : the run's config (any JSON-able mapping); shown as formatted JSON.
+    figures : paths of PNG/SVG figure files, embedded in the given order.
+    timing : optional mapping (e.g. wall time, steps, late replies) shown as a table.
+    """
+    out = Path(path)
+    parts = [
+        "<!DOCTYPE html><html><head><meta charset='utf-8'>",
+        f"<title>{html.escape(title)}</title><style>{_CSS}</style></head><body>",
+        f"<h1>{html.escape(title)}</h1>",
+        f"<p>Written {_dt.datetime.now(_dt.UTC).isoformat(timespec='seconds')}.</p>",
+        "<h2>Metrics</h2>",
+        _table(metrics),
+    ]
+    if timing:
+        parts += ["<h2>Timing</h2>", _table(timing)]
+    parts.append("<h2>Figures</h2>")
+    for fig in _pick_figures(figures):
+        data = base64.b64encode(fig.read_bytes()).decode("ascii")
+        mime = _MIME[fig.suffix.lower()]
+        name = html.escape(fig.stem)
+        parts.append(
+            f"<figure><img alt='{name}' src='data:{mime};base64,{data}'>"
+            f"<figcaption>{name}</figcaption></figure>"
+        )
+    cfg = json.dumps(config, indent=2, sort_keys=True, default=str)
+    parts += ["<h2>Configuration</h2>", f"<pre>{html.escape(cfg)}</pre>", "</body></html>"]
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text("\n".join(parts), encoding="utf-8")
+    return out

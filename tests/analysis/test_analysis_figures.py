@@ -1,0 +1,100 @@
+"""Every figure is written as non-empty PNG and SVG, or drawn into a given Axes; the report
+embeds them."""
+
+import base64
+import json
+
+import numpy as np
+import pytest
+from matplotlib.figure import Figure
+
+from hub.analysis import figures
+from hub.analysis.metrics import analyze
+from hub.analysis.report import write_report
+from hub.analysis.spikes import AnalysisInputError, instantaneous_rate, isi_ms, psth
+from tests.analysis.analysis_synth import merge, network_burst, sparse_background
+
+N = 16
+X_UM = 50.0 * (np.arange(N) % 4)
+Y_UM = 50.0 * (np.arange(N) // 4)
+CELL_TYPE = np.array([0, 0, 0, 1] * 4, dtype=np.uint8)
+
+
+@pytest.fixture(scope="module")
+def record():
+    bg = sparse_background(N, 20_000.0, rate_hz=3.0)
+    nbs = [network_burst(range(10), s, 70.0) for s in (2_000.0, 9_000.0, 15_000.0)]
+    ch, t = merge(bg, *nbs)
+    res = analyze(ch, t, N, 0.0, 20_000.0, CELL_TYPE, X_UM, Y_UM, stim_ms=[1_950.0])
+    return ch, t, res
+
+
+def _check(paths):
+    assert [p.suffix for p in paths] == [".png", ".svg"]
+    for p in paths:
+        assert p.stat().st_size > 500
+
+
+def test_all_figures_write_png_and_svg(tmp_path, record):
+    ch, t, res = record
+    _check(figures.plot_raster(ch, t, tmp_path / "raster", CELL_TYPE, res.network_bursts))
+    v = np.random.default_rng(0).uniform(-70, 30, (3, N))
+    _check(figures.plot_potentials(v, (4, 4), tmp_path / "potentials.png", t_ms=[0, 5, 10]))
+    pre, post = np.meshgrid(np.arange(N), np.arange(N))
+    pre, post = pre.ravel(), post.ravel()
+    w = np.random.default_rng(1).uniform(0, 1, pre.size)
+    _check(figures.plot_connectivity(pre, post, X_UM, Y_UM, tmp_path / "conn", w, CELL_TYPE))
+    _check(
+        figures.plot_connectivity(
+            pre, post, X_UM, Y_UM, tmp_path / "conn5", w, CELL_TYPE, neuron=5, direction="in"
+        )
+    )
+    series = {
+        pop: instantaneous_rate(ch, t, N, 0.0, 20_000.0, 10.0, pop, CELL_TYPE)
+        for pop in ("all", "exc", "inh")
+    }
+    _check(figures.plot_rates(series, tmp_path / "rate"))
+    _check(figures.plot_isi_histogram(isi_ms(ch, t), tmp_path / "isi"))
+    _check(figures.plot_ibi_histogram(np.diff(res.network_bursts.start_ms), tmp_path / "ibi"))
+    _check(figures.plot_psth(psth(ch, t, [1_950.0], N), tmp_path / "psth"))
+    _check(figures.plot_cats(res.cats[:1], X_UM, Y_UM, tmp_path / "cat1", CELL_TYPE, [0, 1]))
+    _check(figures.plot_cats(res.cats, X_UM, Y_UM, tmp_path / "cats", CELL_TYPE))
+
+
+def test_figures_draw_into_a_given_axes_and_handle_empty_data(tmp_path):
+    ax = Figure().add_subplot()
+    assert figures.plot_raster([], [], ax) == []
+    assert len(ax.collections) == 0
+    figures.plot_rates({"all": (np.arange(3.0), np.ones(3))}, ax)
+    assert len(ax.lines) == 1
+    _check(figures.plot_raster([], [], tmp_path / "empty_raster"))
+    _check(figures.plot_cats([], X_UM, Y_UM, tmp_path / "no_cats"))
+    _check(figures.plot_ibi_histogram([], tmp_path / "no_ibi"))
+
+
+def test_figure_input_errors_are_named(tmp_path):
+    with pytest.raises(AnalysisInputError, match="rows\\*cols=16"):
+        figures.plot_potentials(np.zeros(15), (4, 4), tmp_path / "v")
+    with pytest.raises(AnalysisInputError, match="direction"):
+        figures.plot_connectivity([0], [1], X_UM, Y_UM, tmp_path / "c", direction="up")
+    with pytest.raises(AnalysisInputError, match="formats"):
+        figures.plot_rates({}, tmp_path / "r", formats=("jpg",))
+
+
+def test_report_is_self_contained(tmp_path, record):
+    ch, t, res = record
+    paths = figures.plot_raster(ch, t, tmp_path / "raster", CELL_TYPE, res.network_bursts)
+    paths += figures.plot_cats(res.cats, X_UM, Y_UM, tmp_path / "cats")
+    cfg = {"culture": {"n_neurons": N}, "seed": 7}
+    out = write_report(
+        tmp_path / "run" / "report.html", res.metrics, cfg, paths, timing={"wall_s": 1.5}
+    )
+    text = out.read_text()
+    assert text.count("<img") == 2  # one per figure, PNG preferred over its SVG twin
+    png = (tmp_path / "raster.png").read_bytes()
+    assert base64.b64encode(png).decode() in text
+    assert "mnbr_per_min" in text and "wall_s" in text
+    assert json.dumps(cfg, indent=2, sort_keys=True).replace('"', "&quot;") in text
+    assert "src='http" not in text and 'src="http' not in text
+    with pytest.raises(AnalysisInputError, match="does not exist"):
+        write_report(tmp_path / "r.html", {}, {}, [tmp_path / "missing.png"])
