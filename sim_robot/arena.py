@@ -221,4 +221,7 @@ class Arena:
 
         Uses ``body.ir_model``, or the Khepera II response when the body names none.
         """
-        return ir_value(self.read_sensors(), self._body.ir_model or "khepera2")
+        ranges = self.read_sensors().astype(np.float64)
+        # "nothing hit" is max_range_m exactly, not its float32 rounding
+        ranges[ranges == np.float32(self._body.max_range_m)] = self._body.max_range_m
+        return ir_value(ranges, self._body.ir_model or "khepera2")

@@ -176,14 +176,14 @@ def _validate(world: World) -> None:
                 )
             if not np.all(np.isfinite(pts)):
                 raise WorldError(f"obstacles[{j}].vertices_m must be finite")
-            if abs(polygon_signed_area(pts)) < 1e-12:
-                raise WorldError(f"{where} has zero area (vertices are collinear or repeated)")
             crossing = polygon_self_intersection(pts)
             if crossing is not None:
                 raise WorldError(
                     f"obstacles[{j}].vertices_m is a self-intersecting polygon: edges "
                     f"{crossing[0]} and {crossing[1]} cross or touch"
                 )
+            if abs(polygon_signed_area(pts)) < 1e-12:
+                raise WorldError(f"{where} has zero area (vertices are collinear or repeated)")
         _inside_arena(where, pts, a)
     # robot start: inside the arena and clear of every obstacle
     x, y, _ = world.start_pose
