@@ -1,4 +1,4 @@
-"""World files: the shipped worlds, the presets, and every invalid world rejected with its reason."""
+"""World files: shipped worlds, presets, and each invalid world rejected with its reason."""
 
 import math
 
