@@ -10,6 +10,9 @@ Metric keys (NaN becomes ``None`` so the dict is valid JSON):
 ``n_channels``, ``n_spikes``
 ``mfr_hz``, ``mfr_sd_hz``   mean and s.d. over channels of each channel's firing rate (MFR)
 ``mfr_exc_hz``, ``mfr_inh_hz``  mean rate over excitatory / inhibitory channels (if cell types)
+``nb_exc_spike_fraction``   fraction of spikes inside network bursts fired by excitatory
+                            channels (if cell types; the paper: network bursts are dominated
+                            by excitatory spikes)
 ``n_bursts``, ``mbr_per_min``   bursts, and bursts per minute per channel averaged over all
                             channels (MBR; silent channels count as 0)
 ``n_network_bursts``, ``mnbr_per_min``  network bursts and network bursts per minute (MNBR)
@@ -129,6 +132,17 @@ def _mean_sd(values: np.ndarray) -> tuple[float, float]:
     return float(values.mean()), float(values.std())
 
 
+def _exc_fraction_in(ch: np.ndarray, t: np.ndarray, ct: np.ndarray, nbs: NetworkBursts) -> float:
+    """Fraction of the spikes inside network bursts that excitatory channels fired."""
+    if len(nbs) == 0:
+        return math.nan
+    idx = np.searchsorted(nbs.start_ms, t, side="right") - 1
+    inside = (idx >= 0) & (t <= nbs.end_ms[np.maximum(idx, 0)])
+    if not inside.any():
+        return math.nan
+    return float(np.mean(ct[ch[inside]] == EXCITATORY))
+
+
 def analyze(
     channel,
     t_ms,
@@ -187,6 +201,7 @@ def analyze(
             )
         m["mfr_exc_hz"] = _mean_sd(rates[ct == EXCITATORY])[0]
         m["mfr_inh_hz"] = _mean_sd(rates[ct == INHIBITORY])[0]
+        m["nb_exc_spike_fraction"] = _exc_fraction_in(ch, t, ct, nbs)
 
     result = AnalysisResult(m, rates, bursts, nbs)
     if stim_ms is not None:

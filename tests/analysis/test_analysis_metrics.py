@@ -25,13 +25,20 @@ def _record():
 
 def test_planted_record_gives_known_rates_and_burst_statistics():
     ch, t = _record()
-    cell_type = np.array([0] * 8 + [1] * 2, dtype=np.uint8)
+    cell_type = np.array([0] * 5 + [1] * 5, dtype=np.uint8)
     m = compute_metrics(ch, t, N, 0.0, T_STOP_MS, cell_type=cell_type)
     per_channel = np.bincount(ch, minlength=N) / 60.0
     assert m["n_spikes"] == t.size
     assert m["mfr_hz"] == pytest.approx(per_channel.mean())
     assert m["mfr_sd_hz"] == pytest.approx(per_channel.std())
-    assert m["mfr_inh_hz"] == pytest.approx(per_channel[8:].mean())
+    assert m["mfr_inh_hz"] == pytest.approx(per_channel[5:].mean())
+    # network bursts hold channels 0-4 (excitatory) plus whatever 5-9 fire by chance in them
+    in_nb = np.zeros(t.size, dtype=bool)
+    for s in NB_STARTS_MS:
+        in_nb |= (t >= s) & (t <= s + 70.0)
+    expected = np.mean(cell_type[ch[in_nb]] == 0)
+    assert m["nb_exc_spike_fraction"] == pytest.approx(expected)
+    assert m["nb_exc_spike_fraction"] > 0.9
     assert m["n_bursts"] == 30
     assert m["mbr_per_min"] == pytest.approx(3.0)  # 30 bursts / 10 channels / 1 min
     assert m["n_network_bursts"] == 6
