@@ -1,0 +1,209 @@
+"""Network runs: determinism, chunking, pulses, noise, state, channels and the virtual MEA."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from sim_network import (
+    ConnectivityConfig,
+    LayoutConfig,
+    Network,
+    NetworkConfig,
+    NoiseConfig,
+    PeriodicStimulus,
+    PulseError,
+    Pulses,
+    Spikes,
+    StdpConfig,
+    load_config,
+)
+from sim_network.kernels import fill_noise
+
+SMALL = NetworkConfig(
+    layout=LayoutConfig(rows=12, cols=12),
+    connectivity=ConnectivityConfig(weight_exc_mv=(0.0, 12.0)),
+    noise=NoiseConfig(sd=4.5),
+)
+
+
+def same(a: Spikes, b: Spikes) -> bool:
+    return np.array_equal(a.channel, b.channel) and np.array_equal(a.t_ms, b.t_ms)
+
+
+def chunked(net: Network, sizes, pulses_at=None) -> Spikes:
+    parts = []
+    for i, size in enumerate(sizes):
+        parts.append(net.run(size, pulses=(pulses_at or {}).get(i)))
+    return Spikes.concat(parts)
+
+
+def test_same_seed_gives_identical_spikes_and_other_seed_differs():
+    a = Network(SMALL, seed=7).run(500.0)
+    b = Network(SMALL, seed=7).run(500.0)
+    c = Network(SMALL, seed=8).run(500.0)
+    assert len(a) > 50
+    assert same(a, b)
+    assert not same(a, c)
+
+
+@pytest.mark.parametrize(
+    "sizes", [[500.0, 500.0], [0.1] * 7 + [99.3, 400.0, 0.0, 500.0], [10.0] * 100]
+)
+def test_chunked_runs_equal_one_run(sizes):
+    whole = Network(SMALL, seed=2).run(1000.0)
+    parts = chunked(Network(SMALL, seed=2), sizes)
+    assert same(whole, parts)
+
+
+def test_chunking_with_pulses_spanning_calls_equals_one_run():
+    pulses = Pulses(
+        channel=[3, 40, 77, 3],
+        amplitude_ua=[100.0, 60.0, 100.0, 20.0],
+        width_ms=[10.0, 35.0, 10.0, 300.0],
+        onset_ms=[5.0, 95.0, 403.0, 250.0],
+    )
+    whole = Network(SMALL, seed=4).run(1000.0, pulses=pulses)
+    # the same pulses handed over at once to the first of many 10 ms calls (carried over) ...
+    parts = chunked(Network(SMALL, seed=4), [10.0] * 100, {0: pulses})
+    assert same(whole, parts)
+    # ... or each handed to the call in which it starts, with the onset relative to that call
+    net = Network(SMALL, seed=4)
+    per_call = {}
+    for ch, amp, width, onset in zip(*dataclasses.astuple(pulses), strict=True):
+        call = int(onset // 10)
+        per_call.setdefault(call, []).append((ch, amp, width, onset - 10 * call))
+    handed = {k: Pulses(*map(np.array, zip(*v, strict=True))) for k, v in per_call.items()}
+    assert same(whole, chunked(net, [10.0] * 100, handed))
+
+
+def test_stimulation_changes_the_activity():
+    quiet = Network(SMALL, seed=1).run(200.0)
+    stim = Network(SMALL, seed=1).run(200.0, pulses=Pulses.single([10], 100.0, 10.0, 50.0))
+    target = stim.t_ms[(stim.channel == 10) & (stim.t_ms > 50) & (stim.t_ms <= 61)]
+    assert target.size >= 2  # a 100 µA, 10 ms pulse makes the target fire
+    assert not same(quiet, stim)
+
+
+def test_periodic_stimulus_delivers_each_pulse_once():
+    stim = PeriodicStimulus((5, 6), 100.0, 10.0, 200.0, start_ms=30.0, count=3)
+    assert np.allclose(stim.onsets_ms(), [30.0, 230.0, 430.0])
+    got = [stim.pulses_between(t0, t0 + 100.0) for t0 in np.arange(0.0, 600.0, 100.0)]
+    assert sum(len(p) for p in got) == 6
+    assert np.allclose(got[2].onset_ms, [30.0, 30.0]) and list(got[2].channel) == [5, 6]
+
+
+def test_spikes_are_sorted_absolute_and_in_range():
+    net = Network(SMALL, seed=3)
+    net.run(300.0)
+    sp = net.run(200.0)
+    assert np.all(np.diff(sp.t_ms) >= 0)
+    assert sp.t_ms.min() > 300.0 and sp.t_ms.max() <= 500.0
+    assert sp.channel.dtype == np.uint32 and sp.t_ms.dtype == np.float64
+    assert net.t_ms == pytest.approx(500.0)
+
+
+def test_save_and_load_continue_identically(tmp_path):
+    cfg = dataclasses.replace(SMALL, stdp=StdpConfig(enabled=True))
+    ref = Network(cfg, seed=9)
+    ref.run(300.0, pulses=Pulses.single([1], 80.0, 50.0, 280.0))  # pulse spans the checkpoint
+    ref.save(tmp_path / "net.npz")
+    expected = ref.run(400.0)
+    again = Network.load(tmp_path / "net.npz")
+    assert again.t_ms == pytest.approx(300.0)
+    assert same(expected, again.run(400.0))
+    assert np.array_equal(ref.potentials(), again.potentials())
+
+
+def test_stdp_changes_excitatory_weights_only():
+    cfg = dataclasses.replace(SMALL, stdp=StdpConfig(enabled=True, w_max_mv=12.0))
+    net = Network(cfg, seed=1)
+    w0 = net.weight.copy()
+    net.run(1000.0)
+    exc = net.layout.cell_type[net.synapses.pre()] == 0
+    assert not np.array_equal(net.weight[exc], w0[exc])
+    assert np.array_equal(net.weight[~exc], w0[~exc])
+    assert net.weight[exc].min() >= 0 and net.weight[exc].max() <= 12.0
+
+
+def test_potentials_snapshot():
+    net = Network(SMALL, seed=1)
+    net.run(50.0)
+    v = net.potentials()
+    assert v.dtype == np.float32 and v.shape == (144,)
+    assert np.all((v >= -100.0) & (v <= 30.0))
+
+
+def test_noise_has_the_configured_mean_and_sd():
+    cur = np.empty(200_000)
+    fill_noise(cur, np.uint64(12345), 3, 2.0, 5.0)
+    assert cur.mean() == pytest.approx(2.0, abs=0.05)
+    assert cur.std() == pytest.approx(5.0, rel=0.01)
+    other = np.empty(200_000)
+    fill_noise(other, np.uint64(12345), 4, 2.0, 5.0)
+    assert abs(np.corrcoef(cur, other)[0, 1]) < 0.01  # windows are independent
+
+
+def test_noise_current_does_not_depend_on_dt():
+    fine = Network(dataclasses.replace(SMALL, dt_ms=0.1), seed=5)
+    coarse = Network(dataclasses.replace(SMALL, dt_ms=0.5), seed=5)
+    for net in (fine, coarse):
+        net.run(7.5)
+    assert np.array_equal(fine.noise_cur, coarse.noise_cur)
+
+
+def test_bad_run_arguments_are_rejected():
+    net = Network(SMALL, seed=1)
+    with pytest.raises(ValueError, match="multiple of dt_ms"):
+        net.run(0.25)
+    with pytest.raises(ValueError, match="duration_ms"):
+        net.run(-1.0)
+    with pytest.raises(PulseError, match="out of range"):
+        net.run(10.0, pulses=Pulses.single([144], 10.0, 1.0))
+    with pytest.raises(PulseError, match="width_ms"):
+        Pulses([1], [1.0], [-1.0], [0.0])
+    with pytest.raises(PulseError, match="length"):
+        Pulses([1, 2], [1.0], [1.0], [0.0])
+    with pytest.raises(PulseError, match="finite"):
+        Pulses([1], [np.nan], [1.0], [0.0])
+
+
+def test_neuron_channels_describe_the_neurons():
+    net = Network(SMALL, seed=1)
+    ch = net.channels
+    assert ch.kind == "neuron" and len(ch) == 144
+    assert np.array_equal(ch.cell_type, net.layout.cell_type)
+    assert ch.x_um.dtype == np.float32
+
+
+def test_virtual_mea_has_sixty_electrodes_and_records_nearby_neurons():
+    cfg = dataclasses.replace(load_config("configs/culture_1024.toml"), channels="mea")
+    net = Network(cfg, seed=1)
+    ch = net.channels
+    assert ch.kind == "electrode" and len(ch) == 60 and ch.cell_type is None
+    pitch = np.diff(np.unique(ch.x_um))
+    assert np.allclose(pitch, 200.0)
+    assert np.isclose(ch.x_um.mean(), net.layout.width_um / 2)
+    spikes = net.run(500.0)
+    neurons = net.neuron_spikes
+    assert len(spikes) > 0
+    # every electrode spike has a neuron spike at that time within the recording radius
+    for e, t in zip(spikes.channel[:200], spikes.t_ms[:200], strict=True):
+        at = neurons.channel[neurons.t_ms == t]
+        d = np.hypot(net.layout.x_um[at] - ch.x_um[e], net.layout.y_um[at] - ch.y_um[e])
+        assert d.min() <= cfg.mea.record_radius_um
+
+
+def test_mea_pulse_stimulates_neurons_near_the_electrode():
+    cfg = dataclasses.replace(
+        load_config("configs/culture_1024.toml"),
+        channels="mea",
+        noise=NoiseConfig(sd=0.0),
+        connectivity=ConnectivityConfig(p_c_max=0.0),  # only the direct effect of the pulse
+    )
+    net = Network(cfg, seed=1)
+    net.run(10.0, pulses=Pulses.single([27], 100.0, 10.0))
+    fired = np.unique(net.neuron_spikes.channel)
+    ch = net.channels
+    d = np.hypot(net.layout.x_um[fired] - ch.x_um[27], net.layout.y_um[fired] - ch.y_um[27])
+    assert fired.size >= 1 and d.max() <= cfg.mea.stim_radius_um
