@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from .bodies import Body
-from .geometry import cast_rays, disc_state
+from .geometry import cast_rays, disc_update
 from .ir import ir_value
 from .kinematics import arc_step, saturate, wrap_angle
 from .physics import SolidResolver, build_space
@@ -75,11 +75,7 @@ class Arena:
         self._angles = world.body.sensor_angles_rad.astype(np.float64)
         self._offsets = np.ascontiguousarray(world.body.sensor_offsets_m, dtype=np.float64)
         self._ranges = np.empty(world.body.n_sensors, dtype=np.float32)
-        self._xs = np.zeros(1)
-        self._ys = np.zeros(1)
-        self._overlap = np.zeros((1, g.n_obstacles), dtype=np.bool_)
-        self._outside = np.zeros(1, dtype=np.bool_)
-        self._touch = np.zeros(1, dtype=np.bool_)
+        self._overlap = np.zeros(g.n_obstacles, dtype=np.bool_)
         self.space = build_space(world)
         solid = world.obstacles_solid or world.walls_solid
         self._resolver = SolidResolver(world, self.space) if solid else None
@@ -100,6 +96,7 @@ class Arena:
         self.stats = ArenaStats()
         self.wheel_mps = (0.0, 0.0)
         self._rng = np.random.default_rng(self.seed)
+        self._overlap[:] = False
         self._update_flags()
 
     @property
@@ -114,31 +111,24 @@ class Arena:
     @property
     def contact(self) -> bool:
         """The robot's disc touches or overlaps an obstacle or the wall."""
-        return bool(self._in_obstacle.any() or self._touch[0])
+        return self._any_overlap or self._touch
 
     @property
     def touching(self) -> np.ndarray:
         """bool[n_obstacles]: which obstacles the disc touches or overlaps now."""
-        return self._in_obstacle.copy()
+        return self._overlap.copy()
 
     @property
     def outside(self) -> bool:
         """The robot's centre is outside the arena."""
-        return bool(self._outside[0])
+        return self._outside
 
-    def _update_flags(self) -> None:
-        self._xs[0] = self._x
-        self._ys[0] = self._y
-        disc_state(
-            self._xs,
-            self._ys,
-            self._body.radius_m,
-            *self._g,
-            self._overlap,
-            self._outside,
-            self._touch,
+    def _update_flags(self) -> int:
+        """Refresh the contact flags for the current pose; returns new obstacle entries."""
+        entries, self._any_overlap, self._outside, self._touch = disc_update(
+            self._x, self._y, self._body.radius_m, *self._g, self._overlap
         )
-        self._in_obstacle = self._overlap[0].copy()
+        return entries
 
     # ------------------------------------------------------------ stepping
 
@@ -174,21 +164,19 @@ class Arena:
                 self._x, self._y = self._resolver.resolve(x, y)
                 travelled += math.hypot(self._x - xa, self._y - ya)
         self.t_s += dt_s
-        was_in = self._in_obstacle
-        was_out = self._outside[0]
-        was_touch = self._touch[0]
-        self._update_flags()
+        was_out, was_touch = self._outside, self._touch
+        entries = self._update_flags()
         s = self.stats
         s.steps += 1
         s.distance_m += travelled
-        s.obstacle_entries += int(np.count_nonzero(self._in_obstacle & ~was_in))
-        if self._outside[0] and not was_out:
+        s.obstacle_entries += entries
+        if self._outside and not was_out:
             s.arena_exits += 1
-        if self._touch[0] and not was_touch:
+        if self._touch and not was_touch:
             s.wall_contacts += 1
-        if self._in_obstacle.any():
+        if self._any_overlap:
             s.time_in_obstacles_s += dt_s
-        if self._outside[0]:
+        if self._outside:
             s.time_outside_arena_s += dt_s
 
     # ------------------------------------------------------------ sensing

@@ -296,6 +296,28 @@ def disc_state(
 
 
 @njit(cache=True, nogil=True)
+def disc_update(
+    px, py, radius, obs_kind, obs_circle, poly_vertex, obs_start, wall_kind, wall_param, overlap
+):
+    """One robot position: update ``overlap[j]`` in place (same rule as :func:`disc_state`).
+
+    Returns ``(new_entries, any_overlap, outside, wall_touch)`` where ``new_entries`` counts
+    obstacles overlapped now but not in the previous ``overlap``.
+    """
+    entries = 0
+    any_overlap = False
+    for j in range(obs_kind.shape[0]):
+        c = _obstacle_clearance(px, py, j, obs_kind, obs_circle, poly_vertex, obs_start)
+        now = c <= radius + CONTACT_TOLERANCE_M
+        if now and not overlap[j]:
+            entries += 1
+        overlap[j] = now
+        any_overlap = any_overlap or now
+    m = _wall_margin(px, py, wall_kind, wall_param)
+    return entries, any_overlap, m < 0.0, abs(m) <= radius + CONTACT_TOLERANCE_M
+
+
+@njit(cache=True, nogil=True)
 def point_in_obstacles(xs, ys, obs_kind, obs_circle, poly_vertex, obs_start, out):
     """``out[k]`` = index of an obstacle containing point k, or -1."""
     for k in range(xs.shape[0]):
