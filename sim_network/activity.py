@@ -2,6 +2,9 @@
 
 - burst of one neuron: at least 3 spikes within 20 ms; overlapping 3-spike windows merge;
 - network burst: at least 30 % of the neurons inside a burst at the same time (1 ms bins);
+  its *core* is the time the 30 % level is held, its *extent* runs from the start of the
+  earliest to the end of the latest single-neuron burst overlapping the core (the usual MEA
+  reading of "network-burst duration": first to last spike of the participating bursts);
 - MFR: spikes/s per neuron (mean and s.d. over neurons); MBR: bursts/min per neuron, averaged.
 These are this library's own implementation for calibration; hub/analysis owns the
 reference analysis of recorded runs.
@@ -39,8 +42,9 @@ class ActivitySummary:
     mfr_inh: float
     mbr_per_min: float
     nb_per_min: float
-    nb_duration_mean_ms: float
+    nb_duration_mean_ms: float  # extent
     nb_duration_sd_ms: float
+    nb_core_mean_ms: float  # time at >= 30 % of neurons bursting
     nb_exc_spike_fraction: float
     n_network_bursts: int
 
@@ -84,6 +88,18 @@ def network_bursts(bursts: Bursts, n_neurons: int, duration_ms: float):
     return starts * BIN_MS, ends * BIN_MS
 
 
+def network_burst_extent(bursts: Bursts, core_start: np.ndarray, core_end: np.ndarray):
+    """Widen each network-burst core to the union of the single-neuron bursts overlapping it."""
+    start = core_start.astype(np.float64).copy()
+    end = core_end.astype(np.float64).copy()
+    for i in range(core_start.size):
+        hit = (bursts.start_ms < core_end[i]) & (bursts.end_ms >= core_start[i])
+        if hit.any():
+            start[i] = min(start[i], bursts.start_ms[hit].min())
+            end[i] = max(end[i], bursts.end_ms[hit].max())
+    return start, end
+
+
 def summarize(
     neuron: np.ndarray, t_ms: np.ndarray, cell_type: np.ndarray, t0_ms: float, t1_ms: float
 ) -> ActivitySummary:
@@ -97,8 +113,10 @@ def summarize(
     exc = cell_type == 0
     b = find_bursts(neuron, t)
     mbr = b.neuron.size / n / (dur_s / 60.0)
-    nb_start, nb_end = network_bursts(b, n, t1_ms - t0_ms)
+    core_start, core_end = network_bursts(b, n, t1_ms - t0_ms)
+    nb_start, nb_end = network_burst_extent(b, core_start, core_end)
     dur = nb_end - nb_start
+    core = core_end - core_start
     in_nb = np.zeros(t.size, dtype=bool)
     if nb_start.size:
         idx = np.searchsorted(nb_start, t, side="right") - 1
@@ -116,6 +134,7 @@ def summarize(
         nb_per_min=float(nb_start.size / (dur_s / 60.0)),
         nb_duration_mean_ms=float(dur.mean()) if dur.size else float("nan"),
         nb_duration_sd_ms=float(dur.std()) if dur.size else float("nan"),
+        nb_core_mean_ms=float(core.mean()) if core.size else float("nan"),
         nb_exc_spike_fraction=exc_frac,
         n_network_bursts=int(nb_start.size),
     )

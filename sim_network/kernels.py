@@ -119,7 +119,7 @@ def _hh_step(vi, m, h, nn, current, p, i, dt):
 
 
 @njit(cache=True, nogil=True)
-def _izhikevich_update(v, u, a, b, row, noise_cur, stim_cur, dt, n_sub):
+def _izhikevich_update(v, u, a, b, row, noise_cur, stim_cur, scratch, dt, n_sub):
     """One Izhikevich step for all neurons, branch-free so that it vectorises.
 
     v gets the synaptic jumps due now (floored at V_FLOOR_MV so that the quadratic cannot
@@ -136,16 +136,18 @@ def _izhikevich_update(v, u, a, b, row, noise_cur, stim_cur, dt, n_sub):
             v[i] = vi
             u[i] = ui + dt * a[i] * (b[i] * vi - ui)
         return
+    # several sub-steps (dt > 0.5 ms): loop over sub-steps outside, neurons inside, so that
+    # each pass still vectorises; drive (noise + stimulation + 140 - u) is held in `scratch`
     for i in range(v.size):
-        vi = max(v[i] + row[i], V_FLOOR_MV)
+        v[i] = max(v[i] + row[i], V_FLOOR_MV)
         row[i] = 0.0
-        ui = u[i]
-        current = noise_cur[i] + stim_cur[i] + 140.0 - ui
-        for _ in range(n_sub):
-            vi = min(vi, 30.0)
-            vi += h * ((0.04 * vi + 5.0) * vi + current)
-        v[i] = vi
-        u[i] = ui + dt * a[i] * (b[i] * vi - ui)
+        scratch[i] = noise_cur[i] + stim_cur[i] + 140.0 - u[i]
+    for _ in range(n_sub):
+        for i in range(v.size):
+            vi = min(v[i], 30.0)
+            v[i] = vi + h * ((0.04 * vi + 5.0) * vi + scratch[i])
+    for i in range(v.size):
+        u[i] += dt * a[i] * (b[i] * v[i] - u[i])
 
 
 @njit(cache=True, nogil=True)
@@ -218,7 +220,9 @@ def advance(
         row = ring[k % n_slots]
         first = n_out
         if model == 0:
-            _izhikevich_update(v, aux[0], params[0], params[1], row, noise_cur, stim_cur, dt, n_sub)
+            _izhikevich_update(
+                v, aux[0], params[0], params[1], row, noise_cur, stim_cur, aux[1], dt, n_sub
+            )
             c_reset = params[2]
             d_jump = params[3]
             u = aux[0]
