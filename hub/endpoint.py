@@ -21,7 +21,7 @@ import time
 from collections import Counter
 
 from hub.bus import LOOP_PUBLISH, open_session, payload_bytes
-from hub.config import BusSection
+from hub.config import BusSection, ConfigError, EndpointSection, ExperimentConfig
 from hub.protocol import (
     INPUT_TYPE,
     OUTPUT_TYPE,
@@ -62,6 +62,20 @@ class Endpoint(abc.ABC):
         self._stop = threading.Event()
 
     # ------------------------------------------------------------ for subclasses
+
+    @classmethod
+    def from_config(cls, section: EndpointSection, cfg: ExperimentConfig) -> Endpoint:
+        """Build from the experiment's ``[body]``/``[culture]`` section.
+
+        Subclasses read ``section.params`` here, raising
+        :class:`~hub.config.ConfigError` that names ``<role>.params.<key>``.
+        """
+        if section.params:
+            raise ConfigError(
+                f"{cls.role}.params: {cls.__name__} takes no parameters, "
+                f"got {sorted(section.params)}"
+            )
+        return cls(section.id)
 
     @abc.abstractmethod
     def describe(self) -> Description:
@@ -129,12 +143,16 @@ class Endpoint(abc.ABC):
         inbox: queue.SimpleQueue = queue.SimpleQueue()
         session = open_session(bus, listener=False)
         try:
-            session.declare_subscriber(
-                keys.input(self.role, self.id), lambda s: inbox.put(payload_bytes(s))
-            )
-            session.declare_queryable(keys.describe(self.role, self.id), inbox.put)
+            # Zenoh undeclares what is garbage-collected: keep every declaration.
+            declared = [  # noqa: F841
+                session.declare_subscriber(
+                    keys.input(self.role, self.id), lambda s: inbox.put(payload_bytes(s))
+                ),
+                session.declare_queryable(keys.describe(self.role, self.id), inbox.put),
+            ]
             publisher = session.declare_publisher(keys.output(self.role, self.id), **LOOP_PUBLISH)
-            session.liveliness().declare_token(keys.alive(self.role, self.id))
+            # Declared last: when the hub sees us alive, we already listen.
+            token = session.liveliness().declare_token(keys.alive(self.role, self.id))  # noqa: F841
             log.info("%s/%s (%s) ready on session %s", self.role, self.id, self.kind, bus.session)
             last_input = time.monotonic()
             timed_out = False

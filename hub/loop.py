@@ -172,6 +172,12 @@ class Hub:
             outcome, reason = "fault", str(exc)
             log.error("%s", exc)
             self._record_event("fault", reason=reason)
+        except KeyboardInterrupt:
+            outcome, reason = "interrupted", "KeyboardInterrupt"
+            raise
+        except BaseException as exc:
+            outcome, reason = "fault", f"hub crashed: {exc!r}"
+            raise
         finally:
             self._safe_stop_body()
             self.state = "stopped"
@@ -216,7 +222,7 @@ class Hub:
             late = self._collect(k, self._deadline(k, period_s))
             prev = {role: self.replies.get(role) for role in ROLES}
             self.step_wall_s[k] = time.monotonic() - t0
-            self.late_steps += late or self.lateness_s[k] > LATE_START_SHARE * period_s
+            self.late_steps += bool(late or self.lateness_s[k] > LATE_START_SHARE * period_s)
             self.k_done = k + 1
             self._tick()
 
@@ -367,8 +373,11 @@ class Hub:
                 )
             if message.ranges_m.size and message.ranges_m.max() > desc.max_range_m * (1 + 1e-6):
                 raise ProtocolError("range", f"ranges_m exceeds max_range_m {desc.max_range_m}")
-        elif message.channel.size and not np.isin(message.channel, desc.channel).all():
-            raise ProtocolError("range", "spikes on channels the culture does not have")
+        elif message.channel.size:
+            known = self._known_channel
+            channel = message.channel
+            if channel.max() >= known.size or not known[channel].all():
+                raise ProtocolError("range", "spikes on channels the culture does not have")
 
     def _drop(self, role: str, kind: str, detail: str) -> None:
         if not self.dropped[role][kind]:
@@ -430,18 +439,23 @@ class Hub:
             for role, i in self.ids.items()
         }
         self.status_pub = session.declare_publisher(self.keys.hub_status, **TELEMETRY_PUBLISH)
-        for role, i in self.ids.items():
+        # Zenoh undeclares what is garbage-collected: keep every declaration.
+        self._declared = [
             session.declare_subscriber(
                 self.keys.output(role, i),
                 lambda s, role=role: put(("rx", role, payload_bytes(s), time.time_ns())),
             )
-        session.liveliness().declare_subscriber(
-            self.keys.alive_all,
-            lambda s: put(("alive", str(s.key_expr), s.kind == zenoh.SampleKind.PUT)),
-            history=True,
-        )
-        session.declare_queryable(self.keys.hub_control, lambda q: put(("control", q)))
-        session.liveliness().declare_token(self.keys.alive("hub", "0"))
+            for role, i in self.ids.items()
+        ]
+        self._declared += [
+            session.liveliness().declare_subscriber(
+                self.keys.alive_all,
+                lambda s: put(("alive", str(s.key_expr), s.kind == zenoh.SampleKind.PUT)),
+                history=True,
+            ),
+            session.declare_queryable(self.keys.hub_control, lambda q: put(("control", q))),
+            session.liveliness().declare_token(self.keys.alive("hub", "0")),
+        ]
 
     def _wait_for_endpoints(self) -> None:
         needed = {(role, i) for role, i in self.ids.items()}
@@ -475,6 +489,9 @@ class Hub:
             if desc is None or desc.role != role or desc.id != i:
                 raise HubError(f"{role}/{i} did not describe itself on {key}")
             self.descriptions[role] = desc
+            if role == "culture":
+                self._known_channel = np.zeros(int(desc.channel.max(initial=0)) + 1, bool)
+                self._known_channel[desc.channel] = True
             self._record_event("described", role=role, id=i, kind=desc.kind)
 
     def _build_schemes(self) -> None:

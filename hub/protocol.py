@@ -23,6 +23,7 @@ import numpy as np
 SCHEMA_VERSION = 1
 ROLES = ("body", "culture")
 MAX_MESSAGE_BYTES = 64 * 1024 * 1024
+SMALL_ARRAY = 64
 
 
 class ProtocolError(ValueError):
@@ -183,6 +184,7 @@ def _check_scalar(name: str, spec: Scalar, value: Any) -> Any:
 
 
 def _decode_array(name: str, spec: Array, value: Any) -> np.ndarray:
+    """``bin`` → array of the schema's dtype (values are checked at construction)."""
     if not isinstance(value, bytes):
         raise ProtocolError(
             "type", f"{name} must be bin of {spec.dtype}, got {type(value).__name__}"
@@ -192,29 +194,41 @@ def _decode_array(name: str, spec: Array, value: Any) -> np.ndarray:
         raise ProtocolError(
             "array", f"{name} has {len(value)} bytes, not a multiple of {dtype.itemsize}"
         )
-    arr = np.frombuffer(value, dtype=dtype).astype(dtype.newbyteorder("="), copy=True)
-    _check_array_values(name, spec, arr)
-    return arr
+    arr = np.frombuffer(value, dtype=dtype)
+    return arr if dtype.isnative else arr.astype(dtype.newbyteorder("="))
+
+
+def _as_array(name: str, spec: Array, value: Any) -> np.ndarray:
+    dtype = np.dtype(spec.dtype).newbyteorder("=")
+    if isinstance(value, np.ndarray) and value.dtype == dtype and value.ndim == 1:
+        return value
+    try:
+        return np.ascontiguousarray(value, dtype=dtype).reshape(-1)
+    except (TypeError, ValueError) as exc:
+        raise ProtocolError("type", f"{name} is not convertible to {dtype}: {exc}") from None
 
 
 def _check_array_values(name: str, spec: Array, arr: np.ndarray) -> None:
     if spec.length is not None and arr.size != spec.length:
         raise ProtocolError("array", f"{name} must have {spec.length} values, got {arr.size}")
-    if arr.dtype.kind == "f" and not np.isfinite(arr).all():
+    if not arr.size:
+        return
+    is_float = arr.dtype.kind == "f"
+    if not (is_float or spec.min is not None or spec.max is not None):
+        return
+    if arr.size <= SMALL_ARRAY:  # plain Python is faster than numpy calls here
+        values = arr.tolist()
+        finite = not is_float or all(map(math.isfinite, values))
+        lo, hi = (min(values), max(values)) if finite else (0, 0)
+    else:  # min and max propagate NaN: two reductions check finiteness and range
+        lo, hi = arr.min(), arr.max()
+        finite = not is_float or bool(np.isfinite(lo) and np.isfinite(hi))
+    if not finite:
         raise ProtocolError("non_finite", f"{name} holds NaN or infinity")
-    if arr.size and spec.min is not None and arr.min() < spec.min:
-        raise ProtocolError("range", f"{name} must be >= {spec.min}, got {arr.min()}")
-    if arr.size and spec.max is not None and arr.max() > spec.max:
-        raise ProtocolError("range", f"{name} must be <= {spec.max}, got {arr.max()}")
-
-
-def _as_array(name: str, spec: Array, value: Any) -> np.ndarray:
-    dtype = np.dtype(spec.dtype).newbyteorder("=")
-    try:
-        arr = np.ascontiguousarray(value, dtype=dtype).reshape(-1)
-    except (TypeError, ValueError) as exc:
-        raise ProtocolError("type", f"{name} is not convertible to {dtype}: {exc}") from None
-    return arr
+    if spec.min is not None and lo < spec.min:
+        raise ProtocolError("range", f"{name} must be >= {spec.min}, got {lo}")
+    if spec.max is not None and hi > spec.max:
+        raise ProtocolError("range", f"{name} must be <= {spec.max}, got {hi}")
 
 
 # --------------------------------------------------------------------------- base
@@ -241,7 +255,8 @@ class Message:
             if isinstance(spec, Array):
                 arr = _as_array(name, spec, value)
                 _check_array_values(name, spec, arr)
-                arr.setflags(write=False)
+                if arr.flags.writeable and arr.base is None:
+                    arr.setflags(write=False)
                 object.__setattr__(self, name, arr)
                 if spec.group:
                     first = groups.setdefault(spec.group, (name, arr.size))

@@ -1,0 +1,227 @@
+"""The ``neuvision`` command line.
+
+neuvision run CONFIG          hub + every local endpoint, with progress; records the run
+neuvision hub CONFIG          the hub alone (endpoints started elsewhere)
+neuvision endpoint ROLE CONFIG   one endpoint (body or culture) of CONFIG
+neuvision record-info RUN_DIR    what a recorded run holds
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import signal
+import sys
+import time
+
+from hub.config import ConfigError, load_config
+
+EXIT_OK, EXIT_FAULT, EXIT_CONFIG, EXIT_INTERRUPTED = 0, 2, 3, 130
+
+
+def _overrides(args) -> list[str]:
+    items = list(args.set or [])
+    for flag, key in (
+        ("duration_s", "experiment.duration_s"),
+        ("seed", "experiment.seed"),
+        ("mode", "loop.mode"),
+        ("runs_dir", "experiment.runs_dir"),
+        ("session", "bus.session"),
+    ):
+        value = getattr(args, flag, None)
+        if value is not None:
+            items.append(f"{key}={json.dumps(value)}")
+    return items
+
+
+def _add_config_args(p: argparse.ArgumentParser, *, shortcuts: bool = True) -> None:
+    p.add_argument("config", nargs="?", help="experiment file (TOML); defaults if omitted")
+    p.add_argument(
+        "--set",
+        action="append",
+        metavar="KEY=VALUE",
+        help="override a config key, e.g. --set loop.period_ms=5 (repeatable)",
+    )
+    if shortcuts:
+        p.add_argument("--duration-s", type=float, help="experiment.duration_s")
+        p.add_argument("--seed", type=int, help="experiment.seed")
+        p.add_argument("--mode", choices=("lockstep", "realtime"), help="loop.mode")
+        p.add_argument("--runs-dir", help="experiment.runs_dir")
+        p.add_argument("--session", help="bus.session")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="neuvision", description=__doc__.split("\n\n")[0])
+    parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    sub = parser.add_subparsers(dest="command", required=True)
+    p = sub.add_parser("run", help="run an experiment: hub and local endpoints")
+    _add_config_args(p)
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p = sub.add_parser("hub", help="run the hub alone")
+    _add_config_args(p)
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p = sub.add_parser("endpoint", help="serve one endpoint of a config")
+    p.add_argument("role", choices=("body", "culture"))
+    _add_config_args(p, shortcuts=False)
+    p = sub.add_parser("record-info", help="summarise a recorded run")
+    p.add_argument("run_dir")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    # Schemes and endpoint kinds named module:attr may live in the user's own
+    # folder, as with `python -m`.
+    if "" not in sys.path and os.getcwd() not in sys.path:
+        sys.path.insert(0, os.getcwd())
+    logging.basicConfig(
+        level=logging.DEBUG if args.verbose else logging.INFO,
+        format="%(asctime)s %(name)s %(levelname)s: %(message)s",
+        stream=sys.stderr,
+    )
+    try:
+        return COMMANDS[args.command](args)
+    except ConfigError as exc:
+        print(f"neuvision: config error: {exc}", file=sys.stderr)
+        return EXIT_CONFIG
+
+
+# --------------------------------------------------------------------------- commands
+
+
+def cmd_endpoint(args) -> int:
+    from hub.launch import make_endpoint
+
+    cfg = load_config(args.config, _overrides(args))
+    return make_endpoint(cfg, args.role).serve(cfg.bus)
+
+
+def cmd_hub(args, local: bool = False) -> int:
+    from hub.bus import free_tcp_port
+    from hub.launch import start_local_endpoints, stop_local_endpoints
+    from hub.loop import Hub
+    from hub.record import new_run_dir
+
+    overrides = _overrides(args)
+    cfg = load_config(args.config, overrides)
+    if local and all(cfg.endpoint(r).launch == "local" for r in ("body", "culture")):
+        # Everything on this machine: a free loopback port keeps parallel runs apart.
+        overrides.append(f'bus.listen=["tcp/127.0.0.1:{free_tcp_port()}"]')
+        cfg = load_config(args.config, overrides)
+    run_dir = new_run_dir(cfg.experiment.runs_dir, cfg.experiment.name)
+    print(f"neuvision: run folder {run_dir}", file=sys.stderr)
+    procs = start_local_endpoints(args.config, overrides, cfg, run_dir) if local else []
+    bar = None if args.quiet else ProgressBar()
+    hub = Hub(cfg, run_dir=run_dir, progress=bar)
+    previous = signal.signal(signal.SIGINT, lambda *_: hub.request_stop("interrupted"))
+    signal.signal(signal.SIGTERM, lambda *_: hub.request_stop("interrupted"))
+    try:
+        result = hub.run()
+    finally:
+        signal.signal(signal.SIGINT, previous)
+        if bar:
+            bar.close()
+        codes = stop_local_endpoints(procs)
+    for role, code in codes.items():
+        if code != 0:
+            print(f"neuvision: {role} endpoint exited with status {code}", file=sys.stderr)
+    if result.outcome != "fault":
+        from hub.postrun import after_run
+
+        after_run(result, cfg)
+    print(_result_line(result), file=sys.stderr)
+    if result.outcome == "fault":
+        print(f"neuvision: run failed: {result.reason}", file=sys.stderr)
+        return EXIT_FAULT
+    return EXIT_INTERRUPTED if result.outcome == "interrupted" else EXIT_OK
+
+
+def cmd_run(args) -> int:
+    return cmd_hub(args, local=True)
+
+
+def cmd_record_info(args) -> int:
+    from hub.record import read_run
+
+    rec = read_run(args.run_dir)
+    print(json.dumps(record_summary(rec), indent=2))
+    return EXIT_OK
+
+
+def record_summary(rec) -> dict:
+    """What a record holds: outcome, timing, counts of frames per key and events."""
+    per_key: dict[str, int] = {}
+    events: dict[str, int] = {}
+    for f in rec.frames:
+        if f.direction == "ev":
+            events[f.key] = events.get(f.key, 0) + 1
+        else:
+            name = f"{f.direction} {f.key}"
+            per_key[name] = per_key.get(name, 0) + 1
+    m = rec.manifest
+    span_s = (rec.frames[-1].t_wall_ns - rec.frames[0].t_wall_ns) / 1e9 if rec.frames else 0.0
+    return {
+        "run_dir": str(rec.run_dir),
+        "name": m.get("name"),
+        "outcome": m.get("outcome", "unknown (no manifest)"),
+        "reason": m.get("reason", ""),
+        "start_utc": m.get("start_utc"),
+        "end_utc": m.get("end_utc"),
+        "steps": m.get("steps"),
+        "timing": m.get("timing", {}),
+        "counts": m.get("counts", {}),
+        "frames": len(rec.frames),
+        "recorded_span_s": round(span_s, 3),
+        "messages": per_key,
+        "events": events,
+    }
+
+
+def _result_line(result) -> str:
+    t = result.timing
+    return (
+        f"neuvision: {result.outcome} after {result.steps} steps, "
+        f"{t.get('wall_s', 0):.1f} s wall, {t.get('x_realtime', 0):.1f}x real time, "
+        f"{t.get('late_steps', 0)} late step(s); record in {result.run_dir}"
+    )
+
+
+class ProgressBar:
+    """Simulated time, steps/s and late steps on stderr (a line every 5 s if not a TTY)."""
+
+    def __init__(self, stream=sys.stderr):
+        self.stream = stream
+        self.tty = stream.isatty()
+        self._last_line = 0.0
+
+    def __call__(self, p) -> None:
+        share = p.step / p.n_steps if p.n_steps else 0.0
+        filled = int(30 * share)
+        text = (
+            f"[{'#' * filled}{'-' * (30 - filled)}] {100 * share:5.1f}%  "
+            f"t={p.t_s:8.2f} s  {p.steps_per_s:7.0f} steps/s  late {p.late_steps}  {p.state}"
+        )
+        if self.tty:
+            self.stream.write("\r" + text)
+            self.stream.flush()
+        elif time.monotonic() - self._last_line >= 5.0:
+            self._last_line = time.monotonic()
+            print(text, file=self.stream, flush=True)
+
+    def close(self) -> None:
+        if self.tty:
+            self.stream.write("\n")
+            self.stream.flush()
+
+
+COMMANDS = {
+    "run": cmd_run,
+    "hub": cmd_hub,
+    "endpoint": cmd_endpoint,
+    "record-info": cmd_record_info,
+}
+
+if __name__ == "__main__":
+    sys.exit(main())

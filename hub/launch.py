@@ -1,0 +1,102 @@
+"""Making endpoints from a config, and running them as local processes.
+
+An endpoint's ``kind`` in the experiment file is either a registered short name
+(``sim_robot``, ``sim_network``) or ``module:Class``. The class provides
+``from_config(section, cfg) -> Endpoint``.
+
+Local endpoints are started with ``subprocess`` (fork-and-exec, before the hub
+opens its own Zenoh session: a process that has a session must never fork).
+"""
+
+from __future__ import annotations
+
+import importlib
+import os
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from hub.config import ConfigError, ExperimentConfig
+from hub.endpoint import Endpoint
+
+ENDPOINT_KINDS = {
+    "sim_robot": "sim_robot.endpoint:ArenaEndpoint",
+    "sim_network": "sim_network.endpoint:NetworkEndpoint",
+}
+
+
+def endpoint_class(role: str, kind: str) -> type[Endpoint]:
+    """The endpoint class for ``<role>.kind`` (a short name or ``module:Class``)."""
+    spec = ENDPOINT_KINDS.get(kind, kind)
+    module_name, sep, attr = spec.partition(":")
+    if not sep:
+        known = ", ".join(ENDPOINT_KINDS)
+        raise ConfigError(f"{role}.kind must be one of {known} or module:Class, got {kind!r}")
+    try:
+        cls = getattr(importlib.import_module(module_name), attr)
+    except (ImportError, AttributeError) as exc:
+        raise ConfigError(f"{role}.kind: cannot load {spec!r}: {exc}") from None
+    if not (isinstance(cls, type) and issubclass(cls, Endpoint)) or cls.role != role:
+        raise ConfigError(f"{role}.kind: {spec} is not a {role} endpoint")
+    return cls
+
+
+def make_endpoint(cfg: ExperimentConfig, role: str) -> Endpoint:
+    section = cfg.endpoint(role)
+    return endpoint_class(role, section.kind).from_config(section, cfg)
+
+
+@dataclass
+class LocalProcess:
+    role: str
+    popen: subprocess.Popen
+    log_path: Path | None
+
+
+def start_local_endpoints(
+    config_path: str | None, overrides: list[str], cfg: ExperimentConfig, log_dir: Path | None
+) -> list[LocalProcess]:
+    """Start every ``launch = "local"`` endpoint as ``neuvision endpoint ROLE``."""
+    procs = []
+    for role in ("body", "culture"):
+        if cfg.endpoint(role).launch != "local":
+            continue
+        endpoint_class(role, cfg.endpoint(role).kind)  # fail here, not in the child
+        cmd = [sys.executable, "-m", "hub.cli", "endpoint", role]
+        if config_path:
+            cmd.append(str(config_path))
+        for item in overrides:
+            cmd += ["--set", item]
+        log_path = log_dir / f"{role}.log" if log_dir else None
+        out = open(log_path, "wb") if log_path else subprocess.DEVNULL
+        popen = subprocess.Popen(
+            cmd,
+            stdin=subprocess.DEVNULL,
+            stdout=out,
+            stderr=subprocess.STDOUT,
+            start_new_session=True,  # Ctrl-C goes to the runner, which stops us in order
+            env={**os.environ, "PYTHONUNBUFFERED": "1"},
+        )
+        if log_path:
+            out.close()
+        procs.append(LocalProcess(role, popen, log_path))
+    return procs
+
+
+def stop_local_endpoints(procs: list[LocalProcess], timeout_s: float = 10.0) -> dict[str, int]:
+    """SIGTERM each, wait, SIGKILL what is left; return the exit codes by role."""
+    for p in procs:
+        if p.popen.poll() is None:
+            p.popen.send_signal(signal.SIGTERM)
+    deadline = time.monotonic() + timeout_s
+    codes = {}
+    for p in procs:
+        try:
+            codes[p.role] = p.popen.wait(timeout=max(deadline - time.monotonic(), 0.1))
+        except subprocess.TimeoutExpired:
+            p.popen.kill()
+            codes[p.role] = p.popen.wait()
+    return codes

@@ -1,0 +1,35 @@
+"""Fixtures shared by the bus tests: an isolated Zenoh namespace on loopback per test."""
+
+from __future__ import annotations
+
+import json
+import secrets
+
+import pytest
+from hypothesis import HealthCheck, settings
+
+from hub.bus import free_tcp_port
+
+# Shared 2-core machines: judge properties, not the speed of example generation.
+settings.register_profile("neuvision", deadline=None, suppress_health_check=[HealthCheck.too_slow])
+settings.load_profile("neuvision")
+
+
+@pytest.fixture
+def bus_overrides() -> list[str]:
+    """Config overrides that isolate a test: random session, free loopback port, no scouting."""
+    session = f"test-{secrets.token_hex(4)}"
+    port = free_tcp_port()
+    return [
+        f"bus.session={json.dumps(session)}",
+        f'bus.listen=["tcp/127.0.0.1:{port}"]',
+        "bus.scouting=false",
+    ]
+
+
+TEST_ENDPOINTS = [
+    'body.kind="tests.endpoints:EchoBody"',
+    'culture.kind="tests.endpoints:EchoCulture"',
+    'coding.scheme="tests.endpoints:code_step_count"',
+    'decoding.scheme="tests.endpoints:decode_step"',
+]

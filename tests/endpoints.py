@@ -1,0 +1,115 @@
+"""Small endpoints and schemes used as test fixtures (not product features).
+
+They make the loop's order observable: the body reports, in its pose, the
+step and the motor command it was given; the culture fires one spike per pulse
+it was given; the schemes write the step of the message they were given into
+what they produce. So a record shows which step's output fed which step's input.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from hub.config import ConfigError
+from hub.endpoint import Endpoint
+from hub.protocol import Description, MotorCommand, SensorReading, SpikeBatch, Stimulation
+
+N_SENSORS = 3
+MAX_RANGE_M = 1.0
+N_CHANNELS = 4
+
+
+class EchoBody(Endpoint):
+    """pose = (step, left_mps received, right_mps received); ranges = 0.5 m."""
+
+    role, kind = "body", "test_echo_body"
+
+    def __init__(self, id="0", delay_ms: float = 0.0, late_every: int = 0):
+        super().__init__(id)
+        self.delay_ms = delay_ms
+        self.late_every = late_every
+
+    @classmethod
+    def from_config(cls, section, cfg):
+        unknown = set(section.params) - {"delay_ms", "late_every"}
+        if unknown:
+            raise ConfigError(f"body.params.{sorted(unknown)[0]} is not a parameter")
+        return cls(section.id, **section.params)
+
+    def describe(self):
+        return Description(
+            role="body",
+            id=self.id,
+            kind=self.kind,
+            sensor_angles_rad=np.linspace(-1, 1, N_SENSORS),
+            max_range_m=MAX_RANGE_M,
+            wheel_base_m=0.05,
+            radius_m=0.035,
+            max_wheel_mps=1.0,
+        )
+
+    def step(self, m: MotorCommand) -> SensorReading:
+        if self.delay_ms:
+            time.sleep(self.delay_ms / 1e3)
+        if self.late_every and m.step % self.late_every == self.late_every - 1:
+            time.sleep(0.05)
+        return SensorReading(
+            step=m.step,
+            t_s=m.step * 0.01,
+            ranges_m=np.full(N_SENSORS, 0.5, np.float32),
+            pose=[m.step, m.left_mps, m.right_mps],
+            contact=False,
+        )
+
+
+class EchoCulture(Endpoint):
+    """One spike on channel 0 per pulse received, at the pulse's onset."""
+
+    role, kind = "culture", "test_echo_culture"
+
+    def describe(self):
+        return Description(
+            role="culture",
+            id=self.id,
+            kind=self.kind,
+            channel=np.arange(N_CHANNELS),
+            x_um=np.zeros(N_CHANNELS),
+            y_um=np.arange(N_CHANNELS) * 100.0,
+        )
+
+    def step(self, s: Stimulation) -> SpikeBatch:
+        n = s.n_pulses
+        return SpikeBatch(
+            step=s.step,
+            t0_s=s.step * 0.01,
+            t1_s=(s.step + 1) * 0.01,
+            channel=np.zeros(n, np.uint32),
+            t_ms=np.sort(np.minimum(s.onset_ms, 10.0)),
+        )
+
+
+def code_step_count(ctx):
+    """Coder: as many pulses as the sensor reading's step (capped at 8), amplitude = step."""
+    ctx.check_params(set())
+
+    def coder(sensors, step):
+        n = min(sensors.step, 8)
+        return Stimulation(
+            step=step,
+            channel=np.zeros(n, np.uint32),
+            amplitude_ua=np.full(n, float(sensors.step), np.float32),
+            width_ms=np.ones(n, np.float32),
+            onset_ms=np.zeros(n, np.float32),
+        )
+
+    return coder
+
+
+def decode_step(ctx):
+    """Decoder: left_mps = step of the spike batch, right_mps = its spike count."""
+    ctx.check_params(set())
+    return lambda spikes, step: MotorCommand(
+        step=step, left_mps=float(spikes.step), right_mps=float(spikes.channel.size)
+    )

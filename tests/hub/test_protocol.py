@@ -1,0 +1,210 @@
+"""The wire contract: every message round-trips, and every kind of bad input is rejected."""
+
+import math
+
+import msgpack
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from hub.protocol import (
+    ControlReply,
+    ControlRequest,
+    Description,
+    HubStatus,
+    Keys,
+    MotorCommand,
+    Potentials,
+    ProtocolError,
+    SensorReading,
+    SpikeBatch,
+    Stimulation,
+)
+
+EXAMPLES = [
+    MotorCommand(step=4, left_mps=0.1, right_mps=-0.2, v_mps=-0.05, omega_rad_s=5.7),
+    MotorCommand.stop(0),
+    SensorReading(step=7, t_s=0.07, ranges_m=[0.1, 0.3, 0.0], pose=[0.1, -0.2, 3.1], contact=True),
+    Stimulation(step=2, channel=[3, 9], amplitude_ua=[50, 10], width_ms=[1, 10], onset_ms=[0, 2.5]),
+    Stimulation(step=0),
+    SpikeBatch(step=5, t0_s=0.05, t1_s=0.06, channel=[1, 1, 8], t_ms=[0.1, 2.0, 9.9]),
+    Potentials(step=5, t_s=0.05, v_mv=[-65.0, -70.0]),
+    Description(
+        role="culture",
+        id="0",
+        kind="sim_network",
+        channel=[0, 1, 2],
+        x_um=[0, 50, 100],
+        y_um=[0, 0, 0],
+        cell_type=[0, 0, 1],
+    ),
+    Description(
+        role="body",
+        id="k2",
+        kind="sim_robot",
+        sensor_angles_rad=[-1.0, 0.0, 1.0],
+        max_range_m=0.3,
+        wheel_base_m=0.053,
+        radius_m=0.035,
+        max_wheel_mps=1.0,
+    ),
+    HubStatus(
+        step=9,
+        t_s=0.09,
+        mode="realtime",
+        state="running",
+        late={"body": 1},
+        missing={},
+        dropped={"culture": 2},
+        alive=["body/0", "culture/0"],
+    ),
+    ControlRequest(cmd="pause"),
+    ControlReply(ok=True, state="paused", data={"step": 3}),
+]
+
+
+@pytest.mark.parametrize("message", EXAMPLES, ids=lambda m: type(m).__name__)
+def test_every_message_round_trips(message):
+    raw = message.encode()
+    assert type(message).decode(raw) == message
+
+
+def test_arrays_travel_as_little_endian_bin_of_the_schema_dtype():
+    m = SensorReading(step=1, t_s=0.0, ranges_m=[0.25, 0.5], pose=[1, 2, 3], contact=False)
+    data = msgpack.unpackb(m.encode(), raw=False)
+    assert data["v"] == 1
+    assert data["ranges_m"] == np.array([0.25, 0.5], "<f4").tobytes()
+    assert data["pose"] == np.array([1, 2, 3], "<f8").tobytes()
+
+
+def _raw(**fields):
+    base = {
+        "v": 1,
+        "step": 3,
+        "t_s": 0.03,
+        "ranges_m": np.array([0.1, 0.2], "<f4").tobytes(),
+        "pose": np.zeros(3, "<f8").tobytes(),
+        "contact": False,
+    }
+    base.update(fields)
+    return msgpack.packb({k: v for k, v in base.items() if v is not ...}, use_bin_type=True)
+
+
+@pytest.mark.parametrize(
+    "raw, kind",
+    [
+        (b"\xc1\xc1garbage", "not_msgpack"),
+        (msgpack.packb([1, 2, 3]), "not_a_map"),
+        (_raw(v=2), "version"),
+        (_raw(v=...), "version"),
+        (_raw(step=...), "missing"),
+        (_raw(extra=1), "unknown"),
+        (_raw(step="3"), "type"),
+        (_raw(step=-1), "range"),
+        (_raw(step=1.5), "type"),
+        (_raw(contact=1), "type"),
+        (_raw(t_s=float("nan")), "non_finite"),
+        (_raw(ranges_m=[0.1, 0.2]), "type"),
+        (_raw(ranges_m=b"\x00\x00\x80"), "array"),
+        (_raw(ranges_m=np.array([0.1, np.nan], "<f4").tobytes()), "non_finite"),
+        (_raw(ranges_m=np.array([0.1, np.inf], "<f4").tobytes()), "non_finite"),
+        (_raw(ranges_m=np.array([-0.1], "<f4").tobytes()), "range"),
+        (_raw(pose=np.zeros(2, "<f8").tobytes()), "array"),
+    ],
+)
+def test_malformed_sensor_readings_are_rejected_with_their_kind(raw, kind):
+    with pytest.raises(ProtocolError) as err:
+        SensorReading.decode(raw)
+    assert err.value.kind == kind
+
+
+def test_parallel_arrays_must_have_equal_lengths():
+    with pytest.raises(ProtocolError, match="amplitude_ua has 1 values but channel has 2"):
+        Stimulation(step=1, channel=[1, 2], amplitude_ua=[5], width_ms=[1, 1], onset_ms=[0, 0])
+
+
+def test_spikes_must_be_sorted_and_inside_their_window():
+    with pytest.raises(ProtocolError, match="sorted"):
+        SpikeBatch(step=1, t0_s=0.01, t1_s=0.02, channel=[0, 1], t_ms=[5, 2])
+    with pytest.raises(ProtocolError, match="beyond"):
+        SpikeBatch(step=1, t0_s=0.01, t1_s=0.02, channel=[0], t_ms=[12.0])
+    with pytest.raises(ProtocolError, match="precedes"):
+        SpikeBatch(step=1, t0_s=0.02, t1_s=0.01)
+
+
+def test_descriptions_need_their_role_geometry():
+    with pytest.raises(ProtocolError, match="needs"):
+        Description(role="body", id="0", kind="x", max_range_m=1.0)
+    with pytest.raises(ProtocolError, match="unique"):
+        Description(role="culture", id="0", kind="x", channel=[1, 1], x_um=[0, 0], y_um=[0, 0])
+    with pytest.raises(ProtocolError, match="role"):
+        Description(role="robot", id="0", kind="x")
+
+
+def test_control_commands_are_a_closed_set():
+    with pytest.raises(ProtocolError, match="cmd"):
+        ControlRequest(cmd="explode")
+
+
+def test_a_decoded_message_is_read_only():
+    m = SensorReading.decode(EXAMPLES[2].encode())
+    with pytest.raises(ValueError):
+        m.ranges_m[0] = 1.0
+
+
+def test_key_expressions_follow_the_architecture():
+    k = Keys("lab1")
+    assert k.motor("0") == "nv/lab1/body/0/motor"
+    assert k.sensors("0") == "nv/lab1/body/0/sensors"
+    assert k.stim("a") == "nv/lab1/culture/a/stim"
+    assert k.spikes("a") == "nv/lab1/culture/a/spikes"
+    assert k.potentials("a") == "nv/lab1/culture/a/potentials"
+    assert k.describe("body", "0") == "nv/lab1/body/0/describe"
+    assert k.hub_status == "nv/lab1/hub/status"
+    assert k.hub_control == "nv/lab1/hub/control"
+    assert k.alive("culture", "0") == "nv/lab1/alive/culture/0"
+    assert k.parse_alive("nv/lab1/alive/culture/0") == ("culture", "0")
+    assert k.parse_alive("nv/other/alive/culture/0") is None
+    with pytest.raises(ValueError):
+        Keys("a/b")
+
+
+finite = st.floats(allow_nan=False, allow_infinity=False, width=32)
+
+
+@given(
+    step=st.integers(0, 2**40),
+    ranges=st.lists(st.floats(0, 10, width=32), max_size=32),
+    pose=st.tuples(finite, finite, finite),
+    contact=st.booleans(),
+)
+def test_sensor_readings_round_trip_for_any_valid_content(step, ranges, pose, contact):
+    m = SensorReading(step=step, t_s=0.0, ranges_m=ranges, pose=pose, contact=contact)
+    back = SensorReading.decode(m.encode())
+    assert back == m
+    assert back.ranges_m.dtype == np.float32 and back.pose.dtype == np.float64
+
+
+@given(st.binary(max_size=200))
+def test_arbitrary_bytes_never_crash_a_decoder(raw):
+    for kind in (MotorCommand, SensorReading, Stimulation, SpikeBatch, Description):
+        try:
+            kind.decode(raw)
+        except ProtocolError:
+            pass
+
+
+@given(
+    st.dictionaries(
+        st.sampled_from(["v", "step", "left_mps", "right_mps", "x"]),
+        st.one_of(st.integers(-(2**63), 2**64 - 1), st.floats(), st.text(max_size=3), st.none()),
+    )
+)
+def test_arbitrary_maps_are_motor_commands_or_protocol_errors(data):
+    raw = msgpack.packb(data)
+    try:
+        m = MotorCommand.decode(raw)
+    except ProtocolError:
+        return
+    assert math.isfinite(m.left_mps) and math.isfinite(m.right_mps) and m.step >= 0
