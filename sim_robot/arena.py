@@ -161,7 +161,7 @@ class Arena:
             for _ in range(n_sub):
                 xa, ya = self._x, self._y
                 x, y, self._th = arc_step(xa, ya, self._th, left, right, b.wheel_base_m, sub_dt)
-                self._x, self._y = self._resolver.resolve(x, y)
+                self._x, self._y = self._resolver.resolve(x, y, xa, ya)
                 travelled += math.hypot(self._x - xa, self._y - ya)
         self.t_s += dt_s
         was_out, was_touch = self._outside, self._touch

@@ -24,7 +24,7 @@ from .geometry import _ray_circle, is_convex
 from .world import World
 
 #: at most this many push-outs per substep when resolving solid contacts
-MAX_PUSHES = 8
+MAX_PUSHES = 16
 
 
 def build_space(world: World) -> pymunk.Space:
@@ -64,32 +64,46 @@ class SolidResolver:
         self._robot = pymunk.Body(body_type=pymunk.Body.KINEMATIC)
         self._disc = pymunk.Circle(self._robot, world.body.radius_m)
 
-    def resolve(self, x_m: float, y_m: float) -> tuple[float, float]:
-        """The nearest non-penetrating position for a disc centred at (x_m, y_m)."""
-        if self.obstacles_solid:
-            for _ in range(MAX_PUSHES):
-                deepest = None
-                self._robot.position = (x_m, y_m)
-                for info in self.space.shape_query(self._disc):
-                    if getattr(info.shape, "obstacle_index", -1) < 0:
-                        continue  # rectangle wall segments: handled in closed form below
-                    points = info.contact_point_set.points
-                    if not points:
-                        continue
-                    depth = min(p.distance for p in points)
-                    normal = info.contact_point_set.normal
-                    if depth < 0.0 and (normal.x or normal.y):
-                        if deepest is None or depth < deepest[0]:
-                            deepest = (depth, normal)
-                if deepest is None:
-                    break
-                depth, normal = deepest
-                # the normal points from the robot into the obstacle; step back out
-                x_m += normal.x * depth
-                y_m += normal.y * depth
-        if self.walls_solid:
-            x_m, y_m = self._inside_walls(x_m, y_m)
-        return x_m, y_m
+    def resolve(
+        self, x_m: float, y_m: float, prev_x_m: float, prev_y_m: float
+    ) -> tuple[float, float]:
+        """The non-penetrating position nearest to a disc moved to (x_m, y_m).
+
+        Pushes out along the deepest contact, keeps the disc inside solid walls, and repeats.
+        If the pushes do not settle within ``MAX_PUSHES`` (a notch narrower than the robot),
+        the disc stays at its previous position ``(prev_x_m, prev_y_m)``, which was valid.
+        """
+        for attempt in range(MAX_PUSHES + 1):
+            if self.walls_solid:
+                x_m, y_m = self._inside_walls(x_m, y_m)
+            if not self.obstacles_solid:
+                return x_m, y_m
+            deepest = self._deepest_contact(x_m, y_m)
+            if deepest is None:
+                return x_m, y_m
+            if attempt == MAX_PUSHES:
+                break
+            depth, nx, ny = deepest
+            # the normal points from the robot into the obstacle; step back out
+            x_m += nx * depth
+            y_m += ny * depth
+        return prev_x_m, prev_y_m
+
+    def _deepest_contact(self, x_m: float, y_m: float) -> tuple[float, float, float] | None:
+        """(depth < 0, normal x, normal y) of the deepest obstacle penetration, or None."""
+        deepest = None
+        self._robot.position = (x_m, y_m)
+        for info in self.space.shape_query(self._disc):
+            if getattr(info.shape, "obstacle_index", -1) < 0:
+                continue  # rectangle wall segments: handled in closed form
+            points = info.contact_point_set.points
+            normal = info.contact_point_set.normal
+            if not points or not (normal.x or normal.y):
+                continue
+            depth = min(p.distance for p in points)
+            if depth < 0.0 and (deepest is None or depth < deepest[0]):
+                deepest = (depth, normal.x, normal.y)
+        return deepest
 
     def _inside_walls(self, x_m: float, y_m: float) -> tuple[float, float]:
         a, r = self.world.arena, self.world.body.radius_m

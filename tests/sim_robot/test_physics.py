@@ -135,3 +135,22 @@ def test_noise_is_off_by_default_and_seeded_when_on(base_world):
     assert np.all((ra >= 0) & (ra <= 0.5))
     quiet = Arena(world_from_dict(base_world()), seed=5)
     np.testing.assert_array_equal(quiet.read_sensors(), quiet.read_sensors())
+
+
+def test_gap_narrower_than_the_robot_between_obstacle_and_wall_is_not_squeezed_through(
+    base_world,
+):
+    # a circle 0.05 m from the solid wall; the robot (0.06 m wide) drives into the gap
+    data = base_world(
+        obstacles=[{"shape": "circle", "center_m": [0.85, 0.0], "radius_m": 0.1}],
+        physics={"obstacles": "solid", "walls": "solid"},
+    )
+    data["robot"].update(radius_m=RADIUS_M, max_wheel_mps=0.5)
+    data["robot"]["start"] = {"x_m": 0.7, "y_m": -0.5, "heading_deg": 65.0}
+    arena = Arena(world_from_dict(data))
+    for _ in range(800):
+        arena.step(0.3, 0.3, 0.01)
+        x, y, _ = arena.pose
+        assert math.hypot(x - 0.85, y) >= 0.1 + RADIUS_M - 1e-9
+        assert math.hypot(x, y) <= 1.0 - RADIUS_M + 1e-9
+    assert arena.contact and y < 0.0  # wedged on the near side of the gap
