@@ -26,7 +26,9 @@ from hub.analysis.spikes import (
     AnalysisInputError,
     Psth,
     check_spikes,
+    instantaneous_rate,
     interval_histogram,
+    isi_ms,
 )
 
 FORMATS = ("png", "svg")
@@ -328,3 +330,88 @@ def plot_cats(
         ax.set_title(title or f"Center of activity trajectories ({len(nonempty)})")
 
     return _render(draw, out, figsize=(6.5, 6.0), formats=formats)
+
+
+def plot_all(
+    out_dir,
+    channel,
+    t_ms,
+    result,
+    t_start_ms: float,
+    t_stop_ms: float,
+    cell_type=None,
+    x_um=None,
+    y_um=None,
+    stim_channels=None,
+    raster_span_ms: float = 60_000.0,
+    rate_bin_ms: float = 10.0,
+    formats=FORMATS,
+) -> list[Path]:
+    """The standard figure set of one analysed record (``metrics.analyze``'s ``result``).
+
+    Writes into ``out_dir``: ``raster`` (the first ``raster_span_ms``), ``raster_nb`` (1 s around
+    the first network burst), ``rate`` (all/exc/inh), ``isi``, ``ibi``, and when available
+    ``psth``, ``cat_single``, ``cats_all``, ``cats_evoked``, ``cats_spontaneous``. Returns every
+    path written, in that order.
+    """
+    out = Path(out_dir)
+    ch, t = check_spikes(channel, t_ms)
+    n_channels = result.rates_hz.size
+    nbs = result.network_bursts
+    paths: list[Path] = []
+    raster_stop = min(t_stop_ms, t_start_ms + raster_span_ms)
+    paths += plot_raster(ch, t, out / "raster", cell_type, nbs, t_start_ms, raster_stop, formats)
+    if len(nbs):
+        s = nbs.start_ms[0]
+        paths += plot_raster(
+            ch, t, out / "raster_nb", cell_type, nbs, s - 300.0, s + 700.0, formats
+        )
+    pops = ("all", "exc", "inh") if cell_type is not None else ("all",)
+    series = {
+        pop: instantaneous_rate(
+            ch, t, n_channels, t_start_ms, raster_stop, rate_bin_ms, pop, cell_type
+        )
+        for pop in pops
+    }
+    paths += plot_rates(series, out / "rate", formats)
+    paths += plot_isi_histogram(isi_ms(ch, t), out / "isi", formats=formats)
+    paths += plot_ibi_histogram(np.diff(nbs.start_ms), out / "ibi", formats=formats)
+    if result.psth is not None:
+        paths += plot_psth(result.psth, out / "psth", formats)
+    if result.cats and x_um is not None and y_um is not None:
+        cats = result.cats
+        longest = int(np.argmax([len(c) for c in cats]))
+        paths += plot_cats(
+            [cats[longest]],
+            x_um,
+            y_um,
+            out / "cat_single",
+            cell_type,
+            stim_channels,
+            f"CAT of network burst {longest}",
+            formats,
+        )
+        paths += plot_cats(
+            cats,
+            x_um,
+            y_um,
+            out / "cats_all",
+            cell_type,
+            stim_channels,
+            f"All CATs ({len(cats)})",
+            formats,
+        )
+        if result.evoked is not None:
+            for name, keep in (("evoked", result.evoked), ("spontaneous", ~result.evoked)):
+                chosen = [c for c, k in zip(cats, keep, strict=True) if k]
+                paths += plot_cats(
+                    chosen,
+                    x_um,
+                    y_um,
+                    out / f"cats_{name}",
+                    cell_type,
+                    stim_channels,
+                    f"CATs of {name} network bursts ({len(chosen)})",
+                    formats,
+                )
+    return paths

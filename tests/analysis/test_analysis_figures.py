@@ -98,3 +98,26 @@ def test_report_is_self_contained(tmp_path, record):
     assert "src='http" not in text and 'src="http' not in text
     with pytest.raises(AnalysisInputError, match="does not exist"):
         write_report(tmp_path / "r.html", {}, {}, [tmp_path / "missing.png"])
+
+
+def test_plot_all_writes_the_standard_set(tmp_path, record):
+    ch, t, res = record
+    paths = figures.plot_all(
+        tmp_path / "figs", ch, t, res, 0.0, 20_000.0, CELL_TYPE, X_UM, Y_UM, stim_channels=[0]
+    )
+    stems = sorted({p.stem for p in paths})
+    assert stems == sorted(
+        [
+            "raster",
+            "raster_nb",
+            "rate",
+            "isi",
+            "ibi",
+            "psth",
+            "cat_single",
+            "cats_all",
+            "cats_evoked",
+            "cats_spontaneous",
+        ]
+    )
+    assert all(p.stat().st_size > 500 for p in paths)

@@ -70,3 +70,13 @@ def test_bad_spans_and_channels_are_named():
         firing_rates_hz([5], [1.0], 2, 0.0, 10.0)
     with pytest.raises(AnalysisInputError, match="finite"):
         isi_ms([0, 0], [1.0, np.nan])
+
+
+def test_psth_restricted_to_some_channels():
+    ch, t = merge(
+        ([0, 1, 1], [110.0, 120.0, 121.0]),
+    )
+    h = psth(ch, t, [100.0], n_channels=4, window_ms=(0.0, 50.0), bin_ms=10.0, channels=[1])
+    assert h.counts.tolist() == [0, 0, 2, 0, 0] and h.n_channels == 1
+    assert h.peak_latency_ms() == 25.0
+    assert np.isnan(h.peak_latency_ms(min_latency_ms=30.0))  # nothing after 30 ms
