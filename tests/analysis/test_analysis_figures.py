@@ -103,8 +103,19 @@ def test_report_is_self_contained(tmp_path, record):
 def test_plot_all_writes_the_standard_set(tmp_path, record):
     ch, t, res = record
     paths = figures.plot_all(
-        tmp_path / "figs", ch, t, res, 0.0, 20_000.0, CELL_TYPE, X_UM, Y_UM, stim_channels=[0]
+        tmp_path / "figs",
+        ch,
+        t,
+        res,
+        0.0,
+        20_000.0,
+        CELL_TYPE,
+        X_UM,
+        Y_UM,
+        stim_channels=[0],
+        formats=("png",),
     )
+    assert {p.suffix for p in paths} == {".png"}
     stems = sorted({p.stem for p in paths})
     assert stems == sorted(
         [
