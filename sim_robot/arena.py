@@ -89,7 +89,10 @@ class Arena:
     # ------------------------------------------------------------ state
 
     def reset(self, pose: tuple[float, float, float] | None = None) -> None:
-        """Back to time 0 with zeroed counters, at ``pose`` or the world's start pose."""
+        """Back to time 0 with zeroed counters, at ``pose`` or the world's start pose.
+
+        The noise generator is re-seeded, so a reset run repeats its noise exactly.
+        """
         x, y, th = self.world.start_pose if pose is None else pose
         self._x, self._y, self._th = float(x), float(y), wrap_angle(float(th))
         self.t_s = 0.0

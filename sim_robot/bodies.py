@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import numbers
 from dataclasses import dataclass
 
 import numpy as np
@@ -71,7 +72,8 @@ class Body:
         object.__setattr__(self, "sensor_offsets_m", offsets)
         for key in ("radius_m", "wheel_base_m", "max_wheel_mps", "max_range_m"):
             value = getattr(self, key)
-            if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
+            ok = isinstance(value, numbers.Real) and not isinstance(value, bool)
+            if not (ok and math.isfinite(value) and value > 0):
                 raise WorldError(f"robot.{key} must be a finite number > 0, got {value!r}")
         if angles.size == 0:
             raise WorldError("robot.sensor_angles_deg must list at least one sensor, got none")

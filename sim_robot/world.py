@@ -9,6 +9,7 @@ pictures and trajectory metrics can use it without a simulator. World files are 
 from __future__ import annotations
 
 import math
+import numbers
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -219,7 +220,8 @@ def _validate(world: World) -> None:
 
 
 def _positive(key: str, value) -> None:
-    if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
+    ok = isinstance(value, numbers.Real) and not isinstance(value, bool)
+    if not (ok and math.isfinite(value) and value > 0):
         raise WorldError(f"{key} must be a finite number > 0, got {value!r}")
 
 
@@ -329,7 +331,7 @@ def _known(where: str, table: dict, allowed: tuple) -> None:
 
 
 def _number(key: str, value) -> float:
-    if isinstance(value, bool) or not isinstance(value, int | float):
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
         raise WorldError(f"{key} must be a number, got {value!r}")
     return float(value)
 
