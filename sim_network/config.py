@@ -66,9 +66,11 @@ class NeuronConfig:
     model: str = "izhikevich"
     excitatory_type: str = "RS"
     inhibitory_type: str = "FS"
-    # Izhikevich (2003) heterogeneity: c, d of excitatory and a, b of inhibitory cells spread
-    # by r² / r with r ~ U(0, 1), scaled by this factor (0 = identical cells of the named type).
-    heterogeneity: float = 0.0
+    # Izhikevich (2003) heterogeneity, r ~ U(0, 1) per neuron: excitatory c += 15·h·r²,
+    # d -= 6·h·r² (RS toward chattering); inhibitory a -= 0.08·h·r, b += 0.05·h·r (FS toward
+    # LTS). 0 = identical cells of the named type.
+    heterogeneity_exc: float = 0.0
+    heterogeneity_inh: float = 0.0
     lif: LifConfig = field(default_factory=LifConfig)
     hh: HhConfig = field(default_factory=HhConfig)
 
@@ -199,12 +201,9 @@ def validate(cfg: NetworkConfig) -> None:
             f"must be one of {tuple(IZHIKEVICH_TYPES)}",
             name,
         )
-    _require(
-        0.0 <= neu.heterogeneity <= 1.0,
-        "neurons.heterogeneity",
-        "must be in [0, 1]",
-        neu.heterogeneity,
-    )
+    for key in ("heterogeneity_exc", "heterogeneity_inh"):
+        h = getattr(neu, key)
+        _require(0.0 <= h <= 1.0, f"neurons.{key}", "must be in [0, 1]", h)
     lif = neu.lif
     _require(lif.tau_m_ms > 0, "neurons.lif.tau_m_ms", "must be > 0", lif.tau_m_ms)
     _require(

@@ -1,9 +1,9 @@
 """Numba kernels: advance the whole network by many steps in one call, over flat arrays.
 
 One step k (time k·dt to (k+1)·dt), in this order:
-1. noise: at the start of each noise window every neuron draws a new current
-   N(mean, sd) from a counter-based generator keyed by (seed, window, neuron), so the
-   stream does not depend on how the run is chunked;
+1. noise: at the start of each noise window every neuron draws a new current with the
+   configured mean and s.d. from its own xoroshiro128+ generator (state kept in the
+   network), advanced once per window, so the stream depends neither on dt nor on chunking;
 2. stimulation: the current of every pulse with start ≤ k < end is summed per neuron;
 3. synaptic input due at step k (ring-buffer slot k mod n_slots) is added to v (a voltage jump);
 4. the neuron model integrates one step; threshold crossings are recorded as spikes at step k;
@@ -18,7 +18,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from numba import njit, types
+from numba.extending import intrinsic
 
 _GOLDEN = np.uint64(0x9E3779B97F4A7C15)
 _MIX1 = np.uint64(0xBF58476D1CE4E5B9)
@@ -26,16 +27,34 @@ _MIX2 = np.uint64(0x94D049BB133111EB)
 _S30 = np.uint64(30)
 _S27 = np.uint64(27)
 _S31 = np.uint64(31)
-_S11 = np.uint64(11)
+_S12 = np.uint64(12)
 _S16 = np.uint64(16)
-_S32 = np.uint64(32)
-_S48 = np.uint64(48)
-_M16 = np.uint64(0xFFFF)
-# Each 16-bit value j maps to (j + 0.5) / 65536, uniform on (0, 1) with mean 1/2; the sum of
-# four, centred on 2, is scaled by sqrt(3) to unit variance.
-_IH_SCALE = math.sqrt(3.0) / 65536.0
-_IH_SHIFT = 2.0 * math.sqrt(3.0)
+_S24 = np.uint64(24)
+_S25 = np.uint64(25)
+_S37 = np.uint64(37)
+_S38 = np.uint64(38)
+_S39 = np.uint64(39)
+_S40 = np.uint64(40)
+_S51 = np.uint64(51)
+_M13 = np.uint64(0x1FFF)
+_ONE_BITS = np.uint64(0x3FF0000000000000)  # float64 1.0; a 13-bit field below it gives [1, 2)
+# four fields f_j give sum(1 + f_j / 8192); uniforms (f_j + 0.5) / 8192 centred on 2 → offset
+_IH_OFFSET = 6.0 - 2.0 / 8192.0
+_ROOT3 = math.sqrt(3.0)
+# fast-math limited to what lets the update loops vectorise with FMA; no reassociation
+_FAST = {"contract", "nnan", "ninf", "nsz"}
 V_FLOOR_MV = -100.0
+
+
+@intrinsic
+def _bits_as_float64(typingctx, bits):
+    """Reinterpret the 64 bits of a uint64 as a float64 (a bit cast, no conversion)."""
+    sig = types.float64(types.uint64)
+
+    def codegen(context, builder, signature, args):
+        return builder.bitcast(args[0], context.get_value_type(types.float64))
+
+    return sig, codegen
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -47,34 +66,44 @@ def splitmix64(x):
     return z ^ (z >> _S31)
 
 
-@njit(cache=True, nogil=True, inline="always")
-def window_key(seed, window):
-    """Key of one noise window, from the network seed and the window index."""
-    return splitmix64(np.uint64(seed) ^ splitmix64(np.uint64(window)))
-
-
-@njit(cache=True, nogil=True, inline="always")
-def unit_normal(key, index):
-    """Approximately standard-normal variate for (key, index): zero mean, unit variance.
-
-    One 64-bit hash gives four 16-bit uniforms; their centred, scaled sum (Irwin–Hall, n = 4)
-    has exactly mean 0 and variance 1, a bell shape with tails cut at ±3.46 and excess
-    kurtosis -0.3. This is 5-10× cheaper than Box–Muller, and the noise is the largest share
-    of the cost at small dt.
-    """
-    h = splitmix64(key + np.uint64(index) * _GOLDEN)
-    total = (
-        float(h & _M16) + float((h >> _S16) & _M16) + float((h >> _S32) & _M16) + float(h >> _S48)
-    )
-    return (total + 2.0) * _IH_SCALE - _IH_SHIFT
-
-
 @njit(cache=True, nogil=True)
-def fill_noise(noise_cur, seed, window, mean, sd):
-    """Draw the noise current of every neuron for one window."""
-    key = window_key(seed, window)
+def seed_noise_state(seed, state):
+    """Fill the per-neuron xoroshiro128+ states (2, n) from a 64-bit seed via SplitMix64."""
+    x = np.uint64(seed)
+    for j in range(state.shape[1]):
+        for r in range(2):
+            x = splitmix64(x)
+            state[r, j] = x if x != np.uint64(0) else _GOLDEN
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _uniform13(r, shift):
+    """1 + (13-bit field of r at `shift`) / 8192, built by bit cast (vectorises)."""
+    return _bits_as_float64((((r >> shift) & _M13) << _S39) | _ONE_BITS)
+
+
+@njit(cache=True, nogil=True, fastmath=_FAST)
+def fill_noise(noise_cur, state, mean, sd):
+    """Draw each neuron's noise current for one window; advances its xoroshiro128+ state.
+
+    The variate is Irwin–Hall with four uniforms (the top 52 bits of one 64-bit draw, as four
+    13-bit fields centred on their cells), centred and scaled: exactly mean 0 and variance 1
+    (up to 1e-8), bell-shaped, tails cut at ±3.46, excess kurtosis -0.3. Each neuron has its
+    own generator, advanced once per window, so the stream does not depend on dt or chunking.
+    """
+    s0 = state[0]
+    s1 = state[1]
     for i in range(noise_cur.size):
-        noise_cur[i] = mean + sd * unit_normal(key, i)
+        a = s0[i]
+        b = s1[i]
+        r = a + b
+        b ^= a
+        s0[i] = ((a << _S24) | (a >> _S40)) ^ b ^ (b << _S16)
+        s1[i] = (b << _S37) | (b >> _S27)
+        total = (
+            _uniform13(r, _S12) + _uniform13(r, _S25) + _uniform13(r, _S38) + _uniform13(r, _S51)
+        )
+        noise_cur[i] = mean + sd * ((total - _IH_OFFSET) * _ROOT3)
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -118,15 +147,17 @@ def _hh_step(vi, m, h, nn, current, p, i, dt):
     return vi, m, h, nn
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, fastmath=_FAST)
 def _izhikevich_update(v, u, a, b, row, noise_cur, stim_cur, scratch, dt, n_sub):
     """One Izhikevich step for all neurons, branch-free so that it vectorises.
 
     v gets the synaptic jumps due now (floored at V_FLOOR_MV so that the quadratic cannot
     run away from far below rest), then n_sub Euler sub-steps (two half-steps at 1 ms, as in
     Izhikevich 2003), clipped at the 30 mV peak between sub-steps; u is then updated with v.
+    Returns how many neurons reached the peak (the caller scans for them only when > 0).
     """
     h = dt / n_sub
+    n_peak = 0
     if n_sub == 1:  # the common case at dt <= 0.5 ms, kept free of the inner loop
         for i in range(v.size):
             vi = min(max(v[i] + row[i], V_FLOOR_MV), 30.0)
@@ -135,7 +166,8 @@ def _izhikevich_update(v, u, a, b, row, noise_cur, stim_cur, scratch, dt, n_sub)
             vi += h * ((0.04 * vi + 5.0) * vi + noise_cur[i] + stim_cur[i] + 140.0 - ui)
             v[i] = vi
             u[i] = ui + dt * a[i] * (b[i] * vi - ui)
-        return
+            n_peak += vi >= 30.0
+        return n_peak
     # several sub-steps (dt > 0.5 ms): loop over sub-steps outside, neurons inside, so that
     # each pass still vectorises; drive (noise + stimulation + 140 - u) is held in `scratch`
     for i in range(v.size):
@@ -147,7 +179,10 @@ def _izhikevich_update(v, u, a, b, row, noise_cur, stim_cur, scratch, dt, n_sub)
             vi = min(v[i], 30.0)
             v[i] = vi + h * ((0.04 * vi + 5.0) * vi + scratch[i])
     for i in range(v.size):
-        u[i] += dt * a[i] * (b[i] * v[i] - u[i])
+        vi = v[i]
+        u[i] += dt * a[i] * (b[i] * vi - u[i])
+        n_peak += vi >= 30.0
+    return n_peak
 
 
 @njit(cache=True, nogil=True)
@@ -172,7 +207,7 @@ def advance(
     noise_mean,
     noise_sd,
     noise_steps,
-    seed,
+    noise_state,
     noise_cur,
     p_neuron,
     p_current,
@@ -211,7 +246,7 @@ def advance(
             return s, n_out
         k = step0 + s
         if k % noise_steps == 0:
-            fill_noise(noise_cur, seed, k // noise_steps, noise_mean, noise_sd)
+            fill_noise(noise_cur, noise_state, noise_mean, noise_sd)
         for j in range(n_p):
             stim_cur[p_neuron[j]] = 0.0
         for j in range(n_p):
@@ -220,19 +255,20 @@ def advance(
         row = ring[k % n_slots]
         first = n_out
         if model == 0:
-            _izhikevich_update(
+            n_peak = _izhikevich_update(
                 v, aux[0], params[0], params[1], row, noise_cur, stim_cur, aux[1], dt, n_sub
             )
-            c_reset = params[2]
-            d_jump = params[3]
-            u = aux[0]
-            for i in range(n):
-                if v[i] >= 30.0:
-                    out_neuron[n_out] = i
-                    out_step[n_out] = k
-                    n_out += 1
-                    v[i] = c_reset[i]
-                    u[i] += d_jump[i]
+            if n_peak > 0:
+                c_reset = params[2]
+                d_jump = params[3]
+                u = aux[0]
+                for i in range(n):
+                    if v[i] >= 30.0:
+                        out_neuron[n_out] = i
+                        out_step[n_out] = k
+                        n_out += 1
+                        v[i] = c_reset[i]
+                        u[i] += d_jump[i]
         elif model == 1:
             for i in range(n):
                 vi = v[i] + row[i]

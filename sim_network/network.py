@@ -49,9 +49,6 @@ class Network:
         self.synapses: Synapses = build_synapses(self.layout, cfg.connectivity, rng)
         self.params = build_params(cfg, self.layout.cell_type, rng)
         self.mea: Mea | None = build_mea(cfg.mea, self.layout) if cfg.channels == "mea" else None
-        self._noise_seed = np.uint64(
-            int(np.random.SeedSequence([self.seed, 0x0153]).generate_state(1, np.uint64)[0])
-        )
         self._derive()
         self._reset_state()
 
@@ -94,6 +91,9 @@ class Network:
         self.v, self.aux = initial_state(self.cfg, self.params)
         self.ring = np.zeros((self._n_slots, n), dtype=np.float64)
         self.noise_cur = np.zeros(n)
+        self.noise_state = np.zeros((2, n), dtype=np.uint64)
+        noise_seed = np.random.SeedSequence([self.seed, 0x0153]).generate_state(1, np.uint64)[0]
+        kernels.seed_noise_state(np.uint64(noise_seed), self.noise_state)
         self.dep_x = np.ones(n)
         self.dep_last = np.full(n, _NEVER, dtype=np.int64)
         self.x_pre = np.zeros(n)
@@ -176,7 +176,7 @@ class Network:
                 self.v, self.aux, self.params, self.ring,
                 self.synapses.indptr, self.synapses.post, self.weight, self._delay,
                 self.cfg.depression.u, self._dep_tau_steps, self.dep_x, self.dep_last,
-                self.cfg.noise.mean, self.cfg.noise.sd, self._noise_steps, self._noise_seed,
+                self.cfg.noise.mean, self.cfg.noise.sd, self._noise_steps, self.noise_state,
                 self.noise_cur,
                 pend.neuron, pend.current, pend.start, pend.end, self._stim_cur,
                 st[0], st[1], st[2], st[3], st[4], st[5], self.x_pre, self.y_post,
@@ -247,6 +247,7 @@ class Network:
             "aux": self.aux.copy(),
             "ring": self.ring.copy(),
             "noise_cur": self.noise_cur.copy(),
+            "noise_state": self.noise_state.copy(),
             "dep_x": self.dep_x.copy(),
             "dep_last": self.dep_last.copy(),
             "x_pre": self.x_pre.copy(),
@@ -265,6 +266,7 @@ class Network:
             "aux",
             "ring",
             "noise_cur",
+            "noise_state",
             "dep_x",
             "dep_last",
             "x_pre",
@@ -321,9 +323,6 @@ class Network:
             )  # fmt: skip
             net.params = data["params"].copy()
             net.mea = build_mea(cfg.mea, net.layout) if cfg.channels == "mea" else None
-            net._noise_seed = np.uint64(
-                int(np.random.SeedSequence([net.seed, 0x0153]).generate_state(1, np.uint64)[0])
-            )
             net._derive()
             net._reset_state()
             net.set_state({k: data[k] for k in data.files})

@@ -35,13 +35,14 @@ def izhikevich_params(
     cell_type: np.ndarray,
     exc_name: str,
     inh_name: str,
-    heterogeneity: float,
+    heterogeneity_exc: float,
+    heterogeneity_inh: float,
     rng: np.random.Generator,
 ) -> np.ndarray:
     """Per-neuron (a, b, c, d), shape (4, n), with Izhikevich-2003-style spread.
 
-    With heterogeneity h and r ~ U(0, 1) per neuron: excitatory c += 15·h·r², d -= 6·h·r²
-    (RS drifts toward chattering); inhibitory a -= 0.08·h·r (floored at 0.02), b += 0.05·h·r
+    With r ~ U(0, 1) per neuron: excitatory c += 15·h_exc·r², d -= 6·h_exc·r² (RS drifts
+    toward chattering); inhibitory a -= 0.08·h_inh·r (floored at 0.02), b += 0.05·h_inh·r
     (FS drifts toward LTS).
     """
     n = cell_type.size
@@ -50,11 +51,10 @@ def izhikevich_params(
     params[:, exc] = np.array(IZHIKEVICH_TYPES[exc_name])[:, None]
     params[:, ~exc] = np.array(IZHIKEVICH_TYPES[inh_name])[:, None]
     r = rng.random(n)
-    if heterogeneity > 0:
-        params[2, exc] += 15.0 * heterogeneity * r[exc] ** 2
-        params[3, exc] = np.maximum(params[3, exc] - 6.0 * heterogeneity * r[exc] ** 2, 0.05)
-        params[0, ~exc] = np.maximum(params[0, ~exc] - 0.08 * heterogeneity * r[~exc], 0.02)
-        params[1, ~exc] += 0.05 * heterogeneity * r[~exc]
+    params[2, exc] += 15.0 * heterogeneity_exc * r[exc] ** 2
+    params[3, exc] = np.maximum(params[3, exc] - 6.0 * heterogeneity_exc * r[exc] ** 2, 0.05)
+    params[0, ~exc] = np.maximum(params[0, ~exc] - 0.08 * heterogeneity_inh * r[~exc], 0.02)
+    params[1, ~exc] += 0.05 * heterogeneity_inh * r[~exc]
     return params
 
 
@@ -79,7 +79,12 @@ def build_params(cfg: NetworkConfig, cell_type: np.ndarray, rng: np.random.Gener
     neu = cfg.neurons
     if neu.model == "izhikevich":
         return izhikevich_params(
-            cell_type, neu.excitatory_type, neu.inhibitory_type, neu.heterogeneity, rng
+            cell_type,
+            neu.excitatory_type,
+            neu.inhibitory_type,
+            neu.heterogeneity_exc,
+            neu.heterogeneity_inh,
+            rng,
         )
     if neu.model == "lif":
         p = neu.lif

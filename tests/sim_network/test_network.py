@@ -18,7 +18,7 @@ from sim_network import (
     StdpConfig,
     load_config,
 )
-from sim_network.kernels import fill_noise
+from sim_network.kernels import fill_noise, seed_noise_state
 
 SMALL = NetworkConfig(
     layout=LayoutConfig(rows=12, cols=12),
@@ -135,13 +135,19 @@ def test_potentials_snapshot():
 
 
 def test_noise_has_the_configured_mean_and_sd():
+    state = np.zeros((2, 200_000), dtype=np.uint64)
+    seed_noise_state(np.uint64(12345), state)
     cur = np.empty(200_000)
-    fill_noise(cur, np.uint64(12345), 3, 2.0, 5.0)
+    fill_noise(cur, state, 2.0, 5.0)
     assert cur.mean() == pytest.approx(2.0, abs=0.05)
     assert cur.std() == pytest.approx(5.0, rel=0.01)
+    z = (cur - 2.0) / 5.0
+    assert np.mean(z**4) == pytest.approx(2.7, abs=0.05)  # Irwin-Hall(4): bell-shaped
+    assert np.abs(z).max() <= np.sqrt(12.0)
     other = np.empty(200_000)
-    fill_noise(other, np.uint64(12345), 4, 2.0, 5.0)
-    assert abs(np.corrcoef(cur, other)[0, 1]) < 0.01  # windows are independent
+    fill_noise(other, state, 2.0, 5.0)
+    assert abs(np.corrcoef(cur, other)[0, 1]) < 0.01  # successive windows are independent
+    assert abs(np.corrcoef(cur[1:], cur[:-1])[0, 1]) < 0.01  # and so are neighbours
 
 
 def test_noise_current_does_not_depend_on_dt():
