@@ -3,8 +3,8 @@
     .venv/bin/python bench/network.py [--quick] [--seconds 10]
 
 Single-threaded (numba kernels are serial). Networks are the default culture config
-(configs/culture_1024.toml) with the grid enlarged; the 100k network uses p_c_max/d_pc_um
-chosen for ~100 synapses per neuron. The 100k figures and the warm-compile time are measured
+(configs/culture_1024.toml) with the grid enlarged; the 100k network has wider connectivity
+(~100 synapses per neuron) with weights scaled down to match (see `bench_100k`). The 100k figures and the warm-compile time are measured
 in fresh subprocesses (peak RSS of that process). The last line is one JSON object.
 """
 
@@ -62,9 +62,19 @@ def per_call_us(net: Network, calls: int = 2000, period_ms: float = 10.0) -> flo
 
 
 def bench_100k(seconds: float) -> dict:
-    """Build and run ~100k neurons at dt = 1 ms (called in a subprocess)."""
+    """Build and run 316² ≈ 100k neurons at dt = 1 ms (called in a subprocess).
+
+    Connectivity is widened to d_pc_um = 200 (≈ 100 synapses per neuron, 4× the culture's)
+    and the weights are scaled by 1/4 so that the summed input per neuron stays comparable.
+    """
+    base = load_config(CONFIG).connectivity
+    scale = 0.25
     con = dataclasses.replace(
-        load_config(CONFIG).connectivity, p_c_max=0.5, d_pc_um=280.0, cutoff_um=1400.0
+        base,
+        d_pc_um=200.0,
+        cutoff_um=1000.0,
+        weight_exc_mv=tuple(w * scale for w in base.weight_exc_mv),
+        weight_inh_mv=tuple(w * scale for w in base.weight_inh_mv),
     )
     cfg = sized(316, 1.0, con)
     t = time.perf_counter()

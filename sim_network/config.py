@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import tomllib
+import types
 import typing
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -103,14 +104,25 @@ class DepressionConfig:
 
 @dataclass(frozen=True)
 class NoiseConfig:
-    """Random background current: each neuron draws N(mean, sd) every `interval_ms`, held.
+    """Random background current: each neuron draws (mean, sd) every `interval_ms`, held.
 
     The current process does not depend on `dt_ms` (dt must divide `interval_ms`).
+    `inhibitory_mean` / `inhibitory_sd`, when given, apply to inhibitory neurons instead.
     """
 
     mean: float = 0.0
     sd: float = 3.0
     interval_ms: float = 1.0
+    inhibitory_mean: float | None = None
+    inhibitory_sd: float | None = None
+
+    def of_population(self, inhibitory: bool) -> tuple[float, float]:
+        """(mean, sd) of the noise of one population."""
+        if not inhibitory:
+            return self.mean, self.sd
+        mean = self.mean if self.inhibitory_mean is None else self.inhibitory_mean
+        sd = self.sd if self.inhibitory_sd is None else self.inhibitory_sd
+        return mean, sd
 
 
 @dataclass(frozen=True)
@@ -240,6 +252,8 @@ def validate(cfg: NetworkConfig) -> None:
     _require(dep.tau_rec_ms > 0, "depression.tau_rec_ms", "must be > 0", dep.tau_rec_ms)
     noi = cfg.noise
     _require(noi.sd >= 0, "noise.sd", "must be >= 0", noi.sd)
+    if noi.inhibitory_sd is not None:
+        _require(noi.inhibitory_sd >= 0, "noise.inhibitory_sd", "must be >= 0", noi.inhibitory_sd)
     _require(noi.interval_ms > 0, "noise.interval_ms", "must be > 0", noi.interval_ms)
     ratio = noi.interval_ms / cfg.dt_ms
     _require(
@@ -281,6 +295,9 @@ def _range_ok(pair: tuple[float, float], key: str, sign: int) -> None:
 
 def _coerce(value: Any, typ: Any, key: str) -> Any:
     """Convert a TOML value to the annotated field type, or raise naming the key."""
+    if isinstance(typ, types.UnionType) and type(None) in typing.get_args(typ):
+        (inner,) = (a for a in typing.get_args(typ) if a is not type(None))
+        return _coerce(value, inner, key)
     if dataclasses.is_dataclass(typ):
         if not isinstance(value, dict):
             raise ConfigError(f"{key} must be a table, got {value!r}")
@@ -332,7 +349,11 @@ def config_to_dict(cfg: NetworkConfig) -> dict:
 
     def plain(obj: Any) -> Any:
         if dataclasses.is_dataclass(obj):
-            return {f.name: plain(getattr(obj, f.name)) for f in dataclasses.fields(obj)}
+            return {
+                f.name: plain(getattr(obj, f.name))
+                for f in dataclasses.fields(obj)
+                if getattr(obj, f.name) is not None  # absent in TOML means None
+            }
         if isinstance(obj, tuple):
             return [plain(v) for v in obj]
         return obj

@@ -84,7 +84,9 @@ def _uniform13(r, shift):
 
 @njit(cache=True, nogil=True, fastmath=_FAST)
 def fill_noise(noise_cur, state, mean, sd):
-    """Draw each neuron's noise current for one window; advances its xoroshiro128+ state.
+    """Draw each neuron's noise current (per-neuron mean and sd arrays) for one window.
+
+    Advances each neuron's xoroshiro128+ state by one draw.
 
     The variate is Irwin–Hall with four uniforms (the top 52 bits of one 64-bit draw, as four
     13-bit fields centred on their cells), centred and scaled: exactly mean 0 and variance 1
@@ -103,7 +105,7 @@ def fill_noise(noise_cur, state, mean, sd):
         total = (
             _uniform13(r, _S12) + _uniform13(r, _S25) + _uniform13(r, _S38) + _uniform13(r, _S51)
         )
-        noise_cur[i] = mean + sd * ((total - _IH_OFFSET) * _ROOT3)
+        noise_cur[i] = mean[i] + sd[i] * ((total - _IH_OFFSET) * _ROOT3)
 
 
 @njit(cache=True, nogil=True, inline="always")

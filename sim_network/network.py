@@ -79,6 +79,13 @@ class Network:
             st.w_max_mv,
         )
         self._dep_tau_steps = cfg.depression.tau_rec_ms / self._dt
+        inh = self.layout.cell_type != EXCITATORY
+        self._noise_mean = np.empty(n)
+        self._noise_sd = np.empty(n)
+        for flag in (False, True):
+            mean, sd = cfg.noise.of_population(flag)
+            self._noise_mean[inh == flag] = mean
+            self._noise_sd[inh == flag] = sd
         self._stim_cur = np.zeros(n)
         self._out_neuron = np.zeros(max(4 * n, 4096), dtype=np.int32)
         self._out_step = np.zeros(self._out_neuron.size, dtype=np.int64)
@@ -176,7 +183,7 @@ class Network:
                 self.v, self.aux, self.params, self.ring,
                 self.synapses.indptr, self.synapses.post, self.weight, self._delay,
                 self.cfg.depression.u, self._dep_tau_steps, self.dep_x, self.dep_last,
-                self.cfg.noise.mean, self.cfg.noise.sd, self._noise_steps, self.noise_state,
+                self._noise_mean, self._noise_sd, self._noise_steps, self.noise_state,
                 self.noise_cur,
                 pend.neuron, pend.current, pend.start, pend.end, self._stim_cur,
                 st[0], st[1], st[2], st[3], st[4], st[5], self.x_pre, self.y_post,

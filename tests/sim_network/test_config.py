@@ -37,6 +37,8 @@ def test_culture_file_loads():
         ({"dt_ms": 2.0}, "dt_ms"),
         ({"dt_ms": 0.3}, "noise.interval_ms"),
         ({"noise": {"sd": -1.0}}, "noise.sd"),
+        ({"noise": {"inhibitory_sd": -1.0}}, "noise.inhibitory_sd"),
+        ({"noise": {"inhibitory_mean": "x"}}, "noise.inhibitory_mean"),
         ({"channels": "pixels"}, "channels"),
         ({"stdp": {"tau_plus_ms": 0.0}}, "stdp.tau_plus_ms"),
         ({"mea": {"pitch_um": 0.0}}, "mea.pitch_um"),

@@ -138,16 +138,25 @@ def test_noise_has_the_configured_mean_and_sd():
     state = np.zeros((2, 200_000), dtype=np.uint64)
     seed_noise_state(np.uint64(12345), state)
     cur = np.empty(200_000)
-    fill_noise(cur, state, 2.0, 5.0)
+    mean, sd = np.full(200_000, 2.0), np.full(200_000, 5.0)
+    fill_noise(cur, state, mean, sd)
     assert cur.mean() == pytest.approx(2.0, abs=0.05)
     assert cur.std() == pytest.approx(5.0, rel=0.01)
     z = (cur - 2.0) / 5.0
     assert np.mean(z**4) == pytest.approx(2.7, abs=0.05)  # Irwin-Hall(4): bell-shaped
     assert np.abs(z).max() <= np.sqrt(12.0)
     other = np.empty(200_000)
-    fill_noise(other, state, 2.0, 5.0)
+    fill_noise(other, state, mean, sd)
     assert abs(np.corrcoef(cur, other)[0, 1]) < 0.01  # successive windows are independent
     assert abs(np.corrcoef(cur[1:], cur[:-1])[0, 1]) < 0.01  # and so are neighbours
+
+
+def test_inhibitory_noise_can_differ():
+    cfg = dataclasses.replace(SMALL, noise=NoiseConfig(mean=0.0, sd=1.0, inhibitory_mean=5.0))
+    net = Network(cfg, seed=2)
+    net.run(1.0)
+    inh = net.layout.cell_type == 1
+    assert net.noise_cur[inh].mean() > 4.0 > 1.0 > abs(net.noise_cur[~inh].mean())
 
 
 def test_noise_current_does_not_depend_on_dt():
