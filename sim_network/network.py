@@ -166,6 +166,8 @@ class Network:
             same call are in `neuron_spikes`.
         """
         n_steps = self._steps_of(duration_ms)
+        if pulses is not None and not isinstance(pulses, Pulses):
+            raise TypeError(f"pulses must be a Pulses record, got {type(pulses).__name__}")
         if pulses is not None and len(pulses):
             self._add_pulses(pulses)
         k0 = self.step

@@ -250,3 +250,27 @@ def test_pulse_into_one_excitatory_neuron_evokes_a_network_response():
         net.run(4850.0)  # 0.2 Hz, as in the paper
     assert np.mean(extra) > 100, extra
     assert max(extra) > 500, extra  # at least one large evoked population response
+
+
+@pytest.mark.parametrize(
+    ("model", "noise"),
+    [("lif", NoiseConfig(mean=14.0, sd=6.0)), ("hh", NoiseConfig(mean=4.0, sd=6.0))],
+)
+def test_lif_and_hh_networks_run_deterministically_in_chunks(model, noise):
+    from sim_network import NeuronConfig
+
+    cfg = dataclasses.replace(
+        SMALL,
+        neurons=NeuronConfig(model=model),
+        noise=noise,
+        connectivity=ConnectivityConfig(weight_exc_mv=(0.0, 2.0), weight_inh_mv=(-2.0, 0.0)),
+    )
+    whole = Network(cfg, seed=3).run(300.0)
+    parts = chunked(Network(cfg, seed=3), [10.0] * 30)
+    assert len(whole) > 20
+    assert same(whole, parts)
+
+
+def test_run_rejects_pulses_of_the_wrong_type():
+    with pytest.raises(TypeError, match="pulses"):
+        Network(SMALL, seed=1).run(10.0, pulses={"channel": [1]})
