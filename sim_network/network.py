@@ -96,7 +96,7 @@ class Network:
         n = self.layout.n
         self.step = 0
         self.v, self.aux = initial_state(self.cfg, self.params)
-        self.ring = np.zeros((self._n_slots, n), dtype=np.float64)
+        self.ring = np.zeros((self._n_slots, n), dtype=np.float32)  # mV due per step
         self.noise_cur = np.zeros(n)
         self.noise_state = np.zeros((2, n), dtype=np.uint64)
         noise_seed = np.random.SeedSequence([self.seed, 0x0153]).generate_state(1, np.uint64)[0]
