@@ -47,7 +47,7 @@ class Network:
         rng = np.random.default_rng([self.seed, 0x5E7])
         self.layout: Layout = build_layout(cfg.layout, rng)
         self.synapses: Synapses = build_synapses(self.layout, cfg.connectivity, rng)
-        self.params = build_params(cfg, self.layout.cell_type, rng)
+        self.params = build_params(cfg, self.layout.cell_type, rng).astype(kernels.STATE_DTYPE)
         self.mea: Mea | None = build_mea(cfg.mea, self.layout) if cfg.channels == "mea" else None
         self._derive()
         self._reset_state()
@@ -80,13 +80,13 @@ class Network:
         )
         self._dep_tau_steps = cfg.depression.tau_rec_ms / self._dt
         inh = self.layout.cell_type != EXCITATORY
-        self._noise_mean = np.empty(n)
-        self._noise_sd = np.empty(n)
+        self._noise_mean = np.empty(n, dtype=kernels.STATE_DTYPE)
+        self._noise_sd = np.empty(n, dtype=kernels.STATE_DTYPE)
         for flag in (False, True):
             mean, sd = cfg.noise.of_population(flag)
             self._noise_mean[inh == flag] = mean
             self._noise_sd[inh == flag] = sd
-        self._stim_cur = np.zeros(n)
+        self._stim_cur = np.zeros(n, dtype=kernels.STATE_DTYPE)
         self._out_neuron = np.zeros(max(4 * n, 4096), dtype=np.int32)
         self._out_step = np.zeros(self._out_neuron.size, dtype=np.int64)
         self._pulse_current_per_ua = cfg.stimulation.model_current_per_ua
@@ -95,9 +95,11 @@ class Network:
     def _reset_state(self) -> None:
         n = self.layout.n
         self.step = 0
-        self.v, self.aux = initial_state(self.cfg, self.params)
+        v, aux = initial_state(self.cfg, self.params.astype(np.float64))
+        self.v = v.astype(kernels.STATE_DTYPE)
+        self.aux = aux.astype(kernels.STATE_DTYPE)
         self.ring = np.zeros((self._n_slots, n), dtype=np.float32)  # mV due per step
-        self.noise_cur = np.zeros(n)
+        self.noise_cur = np.zeros(n, dtype=kernels.STATE_DTYPE)
         self.noise_state = np.zeros((2, n), dtype=np.uint64)
         noise_seed = np.random.SeedSequence([self.seed, 0x0153]).generate_state(1, np.uint64)[0]
         kernels.seed_noise_state(np.uint64(noise_seed), self.noise_state)
@@ -330,7 +332,7 @@ class Network:
                 data["syn_indptr"], data["syn_post"], data["syn_weight_mv"],
                 data["syn_delay_ms"], data["syn_distance_um"],
             )  # fmt: skip
-            net.params = data["params"].copy()
+            net.params = data["params"].astype(kernels.STATE_DTYPE)
             net.mea = build_mea(cfg.mea, net.layout) if cfg.channels == "mea" else None
             net._derive()
             net._reset_state()
