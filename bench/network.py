@@ -4,8 +4,9 @@
 
 Single-threaded (numba kernels are serial). Networks are the default culture config
 (configs/culture_1024.toml) with the grid enlarged; the 100k network has wider connectivity
-(~100 synapses per neuron) with weights scaled down to match (see `bench_100k`). The 100k figures and the warm-compile time are measured
-in fresh subprocesses (peak RSS of that process). The last line is one JSON object.
+(~100 synapses per neuron) with weights scaled down to match (see `bench_100k`). The 100k
+figures and the warm-compile time are measured in fresh subprocesses (peak RSS of that
+process). The last line is one JSON object.
 """
 
 from __future__ import annotations
