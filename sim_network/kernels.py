@@ -33,14 +33,14 @@ _S24 = np.uint64(24)
 _S25 = np.uint64(25)
 _S37 = np.uint64(37)
 _S38 = np.uint64(38)
-_S39 = np.uint64(39)
 _S40 = np.uint64(40)
 _S51 = np.uint64(51)
 _M13 = np.uint64(0x1FFF)
-_ONE_BITS = np.uint64(0x3FF0000000000000)  # float64 1.0; a 13-bit field below it gives [1, 2)
-# four fields f_j give sum(1 + f_j / 8192); uniforms (f_j + 0.5) / 8192 centred on 2 → offset
-_IH_OFFSET = 6.0 - 2.0 / 8192.0
-_ROOT3 = math.sqrt(3.0)
+_TWO52_BITS = np.uint64(0x4330000000000000)  # float64 2^52; OR-ing an integer < 2^52 adds it
+_TWO52 = 4503599627370496.0
+# four 13-bit fields f_j, uniforms u_j = (f_j + 0.5) / 8192; Irwin-Hall z = (sum u_j - 2)·√3
+_IH_SCALE = math.sqrt(3.0) / 8192.0
+_IH_SHIFT = (2.0 / 8192.0 - 2.0) * math.sqrt(3.0)
 # fast-math limited to what lets the update loops vectorise with FMA; no reassociation
 _FAST = {"contract", "nnan", "ninf", "nsz"}
 V_FLOOR_MV = -100.0
@@ -85,12 +85,6 @@ def seed_noise_state(seed, state):
             state[r, j] = x if x != np.uint64(0) else _GOLDEN
 
 
-@njit(cache=True, nogil=True, inline="always")
-def _uniform13(r, shift):
-    """1 + (13-bit field of r at `shift`) / 8192, built by bit cast (vectorises)."""
-    return _bits_as_float64((((r >> shift) & _M13) << _S39) | _ONE_BITS)
-
-
 @njit(cache=True, nogil=True, fastmath=_FAST)
 def fill_noise(noise_cur, state, mean, sd):
     """Draw each neuron's noise current (per-neuron mean and sd arrays) for one window.
@@ -111,10 +105,10 @@ def fill_noise(noise_cur, state, mean, sd):
         b ^= a
         s0[i] = ((a << _S24) | (a >> _S40)) ^ b ^ (b << _S16)
         s1[i] = (b << _S37) | (b >> _S27)
-        total = (
-            _uniform13(r, _S12) + _uniform13(r, _S25) + _uniform13(r, _S38) + _uniform13(r, _S51)
-        )
-        noise_cur[i] = mean[i] + sd[i] * ((total - _IH_OFFSET) * _ROOT3)
+        total = ((r >> _S12) & _M13) + ((r >> _S25) & _M13) + ((r >> _S38) & _M13) + (r >> _S51)
+        # exact int -> float of the (< 2^15) sum by bit cast against 2^52 (vectorises on AVX2)
+        x = _bits_as_float64(total | _TWO52_BITS) - _TWO52
+        noise_cur[i] = mean[i] + sd[i] * (x * _IH_SCALE + _IH_SHIFT)
 
 
 @njit(cache=True, nogil=True, inline="always")
