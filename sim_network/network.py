@@ -298,21 +298,22 @@ class Network:
         )
 
     def save(self, path: str | Path) -> None:
-        """Write config, seed, connectivity and state to one `.npz` file."""
+        """Write config, seed, connectivity and state to one `.npz`-format file at `path`."""
         syn = self.synapses
         meta = {"version": _STATE_VERSION, "seed": self.seed, "config": config_to_dict(self.cfg)}
-        np.savez(
-            path,
-            meta=np.array(json.dumps(meta)),
-            syn_indptr=syn.indptr,
-            syn_post=syn.post,
-            syn_weight_mv=syn.weight_mv,
-            syn_delay_ms=syn.delay_ms,
-            syn_distance_um=syn.distance_um,
-            cell_type=self.layout.cell_type,
-            params=self.params,
-            **self.get_state(),
-        )
+        with open(path, "wb") as fh:  # exactly this path (np.savez would add .npz)
+            np.savez(
+                fh,
+                meta=np.array(json.dumps(meta)),
+                syn_indptr=syn.indptr,
+                syn_post=syn.post,
+                syn_weight_mv=syn.weight_mv,
+                syn_delay_ms=syn.delay_ms,
+                syn_distance_um=syn.distance_um,
+                cell_type=self.layout.cell_type,
+                params=self.params,
+                **self.get_state(),
+            )
 
     @classmethod
     def load(cls, path: str | Path) -> Network:

@@ -107,9 +107,9 @@ def test_save_and_load_continue_identically(tmp_path):
     cfg = dataclasses.replace(SMALL, stdp=StdpConfig(enabled=True))
     ref = Network(cfg, seed=9)
     ref.run(300.0, pulses=Pulses.single([1], 80.0, 50.0, 280.0))  # pulse spans the checkpoint
-    ref.save(tmp_path / "net.npz")
+    ref.save(tmp_path / "net.ckpt")
     expected = ref.run(400.0)
-    again = Network.load(tmp_path / "net.npz")
+    again = Network.load(tmp_path / "net.ckpt")
     assert again.t_ms == pytest.approx(300.0)
     assert same(expected, again.run(400.0))
     assert np.array_equal(ref.potentials(), again.potentials())
