@@ -41,25 +41,33 @@ def zenoh_config(bus: BusSection, *, listener: bool) -> zenoh.Config:
     def put(key: str, value) -> None:
         cfg.insert_json5(key, json.dumps(value))
 
-    put("mode", bus.mode)
+    put("mode", bus.hub_mode if listener else bus.mode)
     put("scouting/multicast/enabled", bus.scouting)
     put("scouting/gossip/enabled", bus.scouting)
     put("transport/link/tx/lease", bus.lease_ms)
     if listener:
         put("listen/endpoints", list(bus.listen))
-        put("connect/endpoints", list(bus.connect) if bus.mode == "client" else [])
+        put("connect/endpoints", [])
     else:
         put("listen/endpoints", [])
         put("connect/endpoints", list(bus.connect or bus.listen))
-        # Keep trying until the hub is up, instead of failing at open().
-        put("connect/timeout_ms", -1)
-        put("connect/exit_on_failure", False)
+        # Wait for the hub to come up (endpoints are often started first).
+        put("connect/timeout_ms", int(bus.connect_timeout_s * 1000))
     return cfg
+
+
+class BusError(RuntimeError):
+    """The bus could not be joined; the message says where and why."""
 
 
 def open_session(bus: BusSection, *, listener: bool) -> zenoh.Session:
     """Open a Zenoh session for one participant (caller must close it)."""
-    return zenoh.open(zenoh_config(bus, listener=listener))
+    try:
+        return zenoh.open(zenoh_config(bus, listener=listener))
+    except zenoh.ZError as exc:
+        where = ", ".join(bus.listen if listener else (bus.connect or bus.listen))
+        verb = "listen on" if listener else "reach the hub at"
+        raise BusError(f"cannot {verb} {where}: {exc}") from None
 
 
 def free_tcp_port(host: str = "127.0.0.1") -> int:

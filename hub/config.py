@@ -76,11 +76,18 @@ class PolicySection:
 @dataclass(frozen=True)
 class BusSection:
     session: str = field(default="default", metadata=_check(pattern="session"))
-    mode: str = field(default="peer", metadata=_check(choices=("peer", "client")))
+    # The hub is a Zenoh router; endpoints and observers are its clients, so
+    # all traffic goes through the hub's router and every client sees every key
+    # (with "peer", endpoints reach the hub only).
+    mode: str = field(default="client", metadata=_check(choices=("client", "peer")))
+    hub_mode: str = field(default="router", metadata=_check(choices=("router", "peer")))
     # Where the hub listens; endpoints connect there unless `connect` is given.
     listen: tuple[str, ...] = ("tcp/127.0.0.1:7447",)
     connect: tuple[str, ...] = ()
     scouting: bool = False
+    # An endpoint gives up (exit status 1, message naming the address) if it cannot
+    # reach the hub within this long.
+    connect_timeout_s: float = field(default=30.0, metadata=_check(gt=0))
     lease_ms: int = field(default=1000, metadata=_check(ge=100))
 
     @property

@@ -337,9 +337,13 @@ class Hub:
             self._stop_reason = self._stop_reason or item[1]
 
     def _on_reply(self, role: str, raw: bytes, t_wall_ns: int) -> None:
-        key = self.keys.output(role, self.ids[role])
+        """Accept, count as late, or drop one reply; record it with that verdict."""
+        verdict = self._classify_reply(role, raw)
         if self.recorder:
-            self.recorder.message("rx", key, raw, t_wall_ns)
+            key = self.keys.output(role, self.ids[role])
+            self.recorder.message(verdict, key, raw, t_wall_ns)
+
+    def _classify_reply(self, role: str, raw: bytes) -> str:
         try:
             message = OUTPUT_TYPE[role].decode(raw)
             self._check_against_description(role, message)
@@ -347,19 +351,20 @@ class Hub:
             return self._drop(role, exc.kind, str(exc))
         step = message.step
         if self.state == "waiting":
-            self._drop(role, "early", f"reply for step {step} before the run started")
-        elif step == self.k and step not in self.missed[role]:
+            return self._drop(role, "early", f"reply for step {step} before the run started")
+        if step == self.k and step not in self.missed[role]:
             if role in self.replies:
                 return self._drop(role, "duplicate", f"second reply for step {step}")
             self.replies[role] = message
-        elif step in self.missed[role]:
+            return "rx"
+        if step in self.missed[role]:
             self.late[role] += 1
             self.missed[role].discard(step)
             self._record_event("late", role=role, step=step, at_step=self.k)
-        elif step <= self.k:
-            self._drop(role, "stale", f"reply for step {step} during step {self.k}")
-        else:
-            self._drop(role, "future", f"reply for step {step} during step {self.k}")
+            return "late"
+        if step <= self.k:
+            return self._drop(role, "stale", f"reply for step {step} during step {self.k}")
+        return self._drop(role, "future", f"reply for step {step} during step {self.k}")
 
     def _check_against_description(self, role: str, message: Message) -> None:
         desc = self.descriptions.get(role)
@@ -379,11 +384,13 @@ class Hub:
             if channel.max() >= known.size or not known[channel].all():
                 raise ProtocolError("range", "spikes on channels the culture does not have")
 
-    def _drop(self, role: str, kind: str, detail: str) -> None:
+    def _drop(self, role: str, kind: str, detail: str) -> str:
+        """Count (and log once per kind) a dropped message; returns the record verdict."""
         if not self.dropped[role][kind]:
             log.warning("dropped a %s message (%s): %s", role, kind, detail)
             self._record_event("dropped", role=role, kind=kind, detail=detail)
         self.dropped[role][kind] += 1
+        return "drop"
 
     def _on_liveliness(self, key: str, present: bool) -> None:
         parsed = self.keys.parse_alive(key)
@@ -538,7 +545,7 @@ class Hub:
             mode=self.cfg.loop.mode,
             state=self.state,
             late=dict(self.late),
-            missing={r: len(s) for r, s in self.missed.items()},
+            missing={r: len(s) for r, s in self.missed.items() if s},
             dropped={r: sum(c.values()) for r, c in self.dropped.items()},
             alive=sorted(f"{r}/{i}" for r, i in self.alive),
             wall_s=wall,
@@ -588,6 +595,6 @@ class Hub:
     def counts(self) -> dict:
         return {
             "late": dict(self.late),
-            "missing": {r: len(s) for r, s in self.missed.items()},
+            "missing": {r: len(s) for r, s in self.missed.items() if s},
             "dropped": {r: dict(c) for r, c in self.dropped.items()},
         }

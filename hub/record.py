@@ -4,8 +4,12 @@ A run folder holds ``manifest.json`` (config, seed, versions, hosts, start,
 end, outcome, timing) and ``record.nvrec``: a stream of msgpack frames, the
 first a header map, then one list per message or event::
 
-    [t_wall_ns, "tx" | "rx", key, payload_bytes]   # a message the hub sent or received
-    [t_wall_ns, "ev", name, {details}]             # something the hub noticed or did
+    [t_wall_ns, direction, key, payload_bytes]   # a message the hub sent or received
+    [t_wall_ns, "ev", name, {details}]           # something the hub noticed or did
+
+where direction is ``tx`` (sent), ``rx`` (received and used by the loop),
+``late`` (valid, but arrived after its deadline: real data the loop did not
+use) or ``drop`` (received and dropped: malformed, stale, duplicate, future).
 
 The writer flushes at least every ``flush_s`` (≤ 1 s), so a run killed at any
 moment leaves a record readable up to its last flush; the reader returns
@@ -41,6 +45,9 @@ RECORD_FILE = "record.nvrec"
 MANIFEST_FILE = "manifest.json"
 FORMAT = "neuvision-record"
 FORMAT_VERSION = 1
+DIRECTIONS = ("tx", "rx", "late", "drop", "ev")
+# What the analysis reads as the culture's and body's real output.
+DATA_DIRECTIONS = ("rx", "late")
 
 
 def utc_now() -> str:
@@ -113,7 +120,7 @@ class Recorder:
         self.tick()
 
     def message(self, direction: str, key: str, payload: bytes, t_wall_ns: int | None = None):
-        """Record a message sent (``tx``) or received (``rx``), valid or not."""
+        """Record a message sent or received, with the loop's verdict on it."""
         self._write([t_wall_ns or time.time_ns(), direction, key, payload])
 
     def event(self, name: str, **details) -> None:
@@ -140,7 +147,7 @@ class Recorder:
 @dataclass
 class Frame:
     t_wall_ns: int
-    direction: str  # "tx", "rx" or "ev"
+    direction: str  # one of DIRECTIONS
     key: str
     payload: Any  # bytes for messages, dict for events
 
@@ -166,7 +173,7 @@ def iter_frames(path: str | Path) -> Iterator[Frame]:
                 isinstance(item, list)
                 and len(item) == 4
                 and isinstance(item[0], int)
-                and item[1] in ("tx", "rx", "ev")
+                and item[1] in DIRECTIONS
                 and isinstance(item[2], str)
             ):
                 return
@@ -185,14 +192,14 @@ class RunRecord:
     def events(self) -> list[Frame]:
         return [f for f in self.frames if f.direction == "ev"]
 
-    def decoded(self, kind: type, direction: str | None = None) -> list:
-        """Every valid message of type ``kind`` in the record, in order (invalid ones skipped)."""
+    def decoded(self, kind: type, *directions: str) -> list:
+        """Valid messages of type ``kind`` with one of ``directions`` (default: all), in order."""
         suffix = _SUFFIX[kind]
         out = []
         for f in self.frames:
             if f.direction == "ev" or not f.key.endswith(suffix):
                 continue
-            if direction and f.direction != direction:
+            if directions and f.direction not in directions:
                 continue
             try:
                 out.append(kind.decode(f.payload))
@@ -201,11 +208,11 @@ class RunRecord:
         return out
 
     def descriptions(self) -> dict[str, Description]:
-        return {d.role: d for d in self.decoded(Description)}
+        return {d.role: d for d in self.decoded(Description, "rx")}
 
     def spikes(self) -> tuple[np.ndarray, np.ndarray]:
         """All received spikes as ``(channel uint32, t_ms float64 absolute)``."""
-        batches = self.decoded(SpikeBatch, "rx")
+        batches = self.decoded(SpikeBatch, *DATA_DIRECTIONS)
         if not batches:
             return np.zeros(0, np.uint32), np.zeros(0, np.float64)
         channel = np.concatenate([b.channel for b in batches])
@@ -214,7 +221,7 @@ class RunRecord:
 
     def trajectory(self) -> tuple[np.ndarray, np.ndarray]:
         """Received body poses as ``(t_s[n], pose[n, 3])``."""
-        readings = self.decoded(SensorReading, "rx")
+        readings = self.decoded(SensorReading, *DATA_DIRECTIONS)
         t_s = np.array([r.t_s for r in readings], dtype=np.float64)
         poses = np.array([r.pose for r in readings], dtype=np.float64).reshape(-1, 3)
         return t_s, poses

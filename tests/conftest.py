@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import json
+import os
 import secrets
+from pathlib import Path
 
 import pytest
 from hypothesis import HealthCheck, settings
@@ -33,3 +35,8 @@ TEST_ENDPOINTS = [
     'coding.scheme="tests.endpoints:code_step_count"',
     'decoding.scheme="tests.endpoints:decode_step"',
 ]
+
+
+# Endpoint subprocesses import the test fixtures (tests.endpoints) from the repo root.
+ROOT = str(Path(__file__).resolve().parent.parent)
+os.environ["PYTHONPATH"] = os.pathsep.join(p for p in (ROOT, os.environ.get("PYTHONPATH", "")) if p)

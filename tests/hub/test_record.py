@@ -17,15 +17,18 @@ def test_messages_and_events_read_back_in_order(tmp_path):
     for k in range(3):
         rec.message("rx", "nv/s/body/0/sensors", _reading(k).encode())
     rec.event("dropped", role="body", kind="stale")
-    rec.message("rx", "nv/s/body/0/sensors", b"\x00garbage")
+    rec.message("drop", "nv/s/body/0/sensors", b"\x00garbage")
+    rec.message("drop", "nv/s/body/0/sensors", _reading(99).encode())  # e.g. a duplicate
+    rec.message("late", "nv/s/body/0/sensors", _reading(3).encode())
     rec.close()
     frames = list(iter_frames(tmp_path / RECORD_FILE))
-    assert [f.direction for f in frames] == ["rx", "rx", "rx", "ev", "rx"]
+    assert [f.direction for f in frames] == ["rx", "rx", "rx", "ev", "drop", "drop", "late"]
     assert frames[3].key == "dropped" and frames[3].payload == {"role": "body", "kind": "stale"}
     run = read_run(tmp_path)
     t_s, poses = run.trajectory()
-    assert np.array_equal(poses[:, 0], [0, 1, 2])  # the garbage frame is kept but skipped here
-    assert np.allclose(t_s, [0, 0.01, 0.02])
+    # Dropped frames are kept in the record but are not the body's trajectory; late ones are.
+    assert np.array_equal(poses[:, 0], [0, 1, 2, 3])
+    assert np.allclose(t_s, [0, 0.01, 0.02, 0.03])
 
 
 def test_a_truncated_or_damaged_tail_reads_up_to_the_last_whole_frame(tmp_path):

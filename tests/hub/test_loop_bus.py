@@ -1,0 +1,341 @@
+"""The hub's loop over real Zenoh, with endpoints in separate processes on loopback.
+
+Each test gets its own session name and port (see conftest), so runs never cross.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import threading
+import time
+from contextlib import contextmanager
+
+import msgpack
+import numpy as np
+import pytest
+import zenoh
+
+from hub.bus import open_session, payload_bytes
+from hub.config import load_config
+from hub.launch import start_local_endpoints, stop_local_endpoints
+from hub.loop import Hub
+from hub.protocol import (
+    ControlReply,
+    ControlRequest,
+    Description,
+    HubStatus,
+    MotorCommand,
+    SensorReading,
+    SpikeBatch,
+    Stimulation,
+)
+from hub.record import read_run
+from tests.conftest import TEST_ENDPOINTS
+
+pytestmark = pytest.mark.bus
+
+
+class Harness:
+    """A hub in this process and the test endpoints as subprocesses."""
+
+    def __init__(self, tmp_path, overrides):
+        self.overrides = TEST_ENDPOINTS + overrides
+        self.cfg = load_config(None, self.overrides)
+        self.run_dir = tmp_path / "run"
+        self.run_dir.mkdir()
+        self.procs = start_local_endpoints(None, self.overrides, self.cfg, tmp_path)
+        self.hub = None
+
+    def run(self, progress=None):
+        self.hub = Hub(self.cfg, run_dir=self.run_dir, progress=progress)
+        self.result = self.hub.run()
+        self.record = read_run(self.run_dir)
+        return self.result
+
+    def pid(self, role):
+        return next(p.popen.pid for p in self.procs if p.role == role)
+
+    def sent(self, kind):
+        return {m.step: m for m in self.record.decoded(kind, "tx")}
+
+    def received(self, kind):
+        return {m.step: m for m in self.record.decoded(kind, "rx")}
+
+
+@contextmanager
+def harness(tmp_path, bus_overrides, *overrides):
+    h = Harness(tmp_path, bus_overrides + list(overrides))
+    try:
+        yield h
+    finally:
+        h.exit_codes = stop_local_endpoints(h.procs)
+
+
+def test_lockstep_keeps_the_step_order_with_one_step_of_latency(tmp_path, bus_overrides):
+    with harness(tmp_path, bus_overrides, "experiment.duration_s=0.5") as h:
+        result = h.run()
+    assert result.outcome == "completed" and result.steps == 50
+    assert result.counts["dropped"] == {} and result.counts["missing"] == {}
+    motors, stims = h.sent(MotorCommand), h.sent(Stimulation)
+    sensors, spikes = h.received(SensorReading), h.received(SpikeBatch)
+    assert sorted(sensors) == sorted(stims) == sorted(spikes) == list(range(50))
+    # Whatever ends a run, the hub's last word to the body is "stop".
+    assert sorted(motors) == list(range(51)) and motors[50] == MotorCommand.stop(50)
+    # Step 0: zero motion, no stimulation.
+    assert motors[0].left_mps == motors[0].right_mps == 0 and stims[0].n_pulses == 0
+    for k in range(1, 50):
+        # The motor command of step k is decoded from the spikes of step k-1 ...
+        assert motors[k].left_mps == k - 1
+        assert motors[k].right_mps == spikes[k - 1].channel.size
+        # ... and the stimulation of step k is coded from the sensors of step k-1.
+        assert stims[k].n_pulses == min(k - 1, 8)
+        assert np.all(stims[k].amplitude_ua == k - 1)
+        # The body replied for step k having applied the motor command of step k.
+        assert tuple(sensors[k].pose) == (k, motors[k].left_mps, motors[k].right_mps)
+        # The culture's spikes of step k answer the stimulation of step k.
+        assert spikes[k].channel.size == stims[k].n_pulses
+    assert h.exit_codes == {"body": 0, "culture": 0}
+    assert h.record.manifest["outcome"] == "completed"
+    assert h.record.manifest["counts"]["late"] == {}
+
+
+def test_realtime_mode_holds_its_period(tmp_path, bus_overrides):
+    with harness(tmp_path, bus_overrides, "loop.mode=realtime", "experiment.duration_s=1.5") as h:
+        result = h.run()
+    t = result.timing
+    assert result.outcome == "completed" and t["steps"] == 150
+    # Anchored schedule: 150 periods of 10 ms take 1.5 s, not more (no drift).
+    assert 1.49 <= t["wall_s"] < 1.5 + 0.15
+    assert t["lateness_ms_median"] < 2.0
+    assert result.counts["missing"] == {}
+
+
+def test_a_late_reply_is_counted_and_the_policy_stands_in(tmp_path, bus_overrides):
+    with harness(
+        tmp_path,
+        bus_overrides,
+        "loop.mode=realtime",
+        "loop.period_ms=20",
+        "experiment.duration_s=1.2",
+        "body.params.late_every=10",  # the body sleeps 50 ms on steps 9, 19, ...
+    ) as h:
+        result = h.run()
+    assert result.outcome == "completed"
+    missed = sorted(e.payload["step"] for e in h.record.events if e.key == "missed")
+    assert missed and all(e.payload["role"] == "body" for e in h.record.events if e.key == "missed")
+    assert 9 in missed
+    assert result.counts["late"]["body"] >= 1
+    stims = h.sent(Stimulation)
+    for k in missed:
+        if k + 1 in stims:
+            # policy.missing_sensors = zero_stim: nothing is coded from a missing reading
+            assert stims[k + 1].n_pulses == 0
+    assert stims[min(set(range(2, 59)) - set(missed) - {k + 1 for k in missed})].n_pulses > 0
+
+
+def test_killing_an_endpoint_ends_the_run_within_a_second(tmp_path, bus_overrides):
+    killed = {}
+
+    def kill_at_step_100(progress):
+        if progress.step >= 100 and not killed:
+            os.kill(h.pid("culture"), signal.SIGKILL)
+            killed["t"] = time.monotonic()
+            killed["t_ns"] = time.time_ns()
+
+    with harness(tmp_path, bus_overrides, "experiment.duration_s=1000", "loop.status_hz=100") as h:
+        result = h.run(progress=kill_at_step_100)
+        ended = time.monotonic()
+    assert killed, "the run never reached step 100"
+    assert result.outcome == "fault"
+    assert "culture/0 died" in result.reason
+    assert ended - killed["t"] < 1.0
+    # The record is readable up to the kill, and says what happened.
+    rec = h.record
+    dead = [e for e in rec.events if e.key == "dead" and e.payload["role"] == "culture"]
+    assert dead and (dead[0].t_wall_ns - killed["t_ns"]) / 1e9 < 1.0
+    assert rec.manifest["outcome"] == "fault" and "culture/0" in rec.manifest["reason"]
+    steps = sorted(h.received(SpikeBatch))
+    assert steps == list(range(len(steps))) and len(steps) >= 100
+    # Fault policy: the robot is left stopped.
+    last_motor = rec.decoded(MotorCommand, "tx")[-1]
+    assert last_motor.left_mps == last_motor.right_mps == 0
+    assert h.exit_codes["body"] == 0
+
+
+GARBAGE = [
+    b"",
+    b"\xc1not msgpack",
+    msgpack.packb([1, 2, 3]),
+    msgpack.packb({"v": 99, "step": 5}),
+    msgpack.packb({"v": 1, "step": "five"}),
+    msgpack.packb({"v": 1, "step": 1, "left_mps": float("nan"), "right_mps": 0.0}),
+    MotorCommand(step=10**9, left_mps=1.0, right_mps=1.0).encode(),  # far future
+    MotorCommand(step=0, left_mps=1.0, right_mps=1.0).encode(),  # the past
+    Stimulation(step=1, channel=[0], amplitude_ua=[1], width_ms=[1], onset_ms=[0]).encode(),
+    SensorReading(step=1, t_s=0, ranges_m=[0.1] * 3, pose=[0, 0, 0], contact=False).encode(),
+    SensorReading(step=10**9, t_s=0, ranges_m=[0.1] * 3, pose=[0, 0, 0], contact=False).encode(),
+    SensorReading(step=3, t_s=0, ranges_m=[0.1] * 7, pose=[0, 0, 0], contact=False).encode(),
+    SpikeBatch(step=2, t0_s=0, t1_s=0.01, channel=[999], t_ms=[1]).encode(),
+    os.urandom(64),
+]
+
+
+def _spray_garbage(bus, keys):
+    """Publish every kind of garbage on every key of the session, and query with it."""
+    session = open_session(bus, listener=False)
+    try:
+        # Publish only once this session reaches the endpoints (a describe answers).
+        wait_for(lambda: any(r.ok for r in session.get(keys.describe("body", "0"), timeout=1)))
+        targets = [
+            keys.motor("0"),
+            keys.sensors("0"),
+            keys.stim("0"),
+            keys.spikes("0"),
+            keys.potentials("0"),
+            keys.hub_status,
+            keys.alive("body", "0"),
+        ]
+        for _ in range(3):
+            for key in targets:
+                for raw in GARBAGE:
+                    session.put(key, raw, congestion_control=zenoh.CongestionControl.BLOCK)
+        replies = []
+        for raw in GARBAGE[:6]:
+            for reply in session.get(keys.hub_control, payload=raw, timeout=5):
+                replies.append(ControlReply.decode(payload_bytes(reply.ok)))
+        # The endpoints report what they dropped in their descriptions.
+        counters = {}
+
+        def counted_all():
+            for role in ("body", "culture"):
+                for reply in session.get(keys.describe(role, "0"), payload=b"\xc1", timeout=5):
+                    counters[role] = Description.decode(payload_bytes(reply.ok)).counters
+            return (
+                all(sum(counters.get(r, {}).values()) >= 3 * 8 for r in counters)
+                and len(counters) == 2
+            )
+
+        wait_for(counted_all)
+        return replies, counters
+    finally:
+        session.close()
+
+
+def test_garbage_on_every_key_is_dropped_and_counted_and_the_run_goes_on(tmp_path, bus_overrides):
+    out = {}
+
+    with harness(tmp_path, bus_overrides, "experiment.duration_s=6", "loop.status_hz=50") as h:
+        bus, keys = h.cfg.bus, h.cfg.bus.keys
+
+        def spray():
+            out["replies"], out["counters"] = _spray_garbage(bus, keys)
+
+        sprayer = threading.Thread(target=spray)
+
+        def start_spraying(progress):
+            if progress.step >= 20 and "started" not in out:
+                out["started"] = True
+                sprayer.start()
+
+        result = h.run(progress=start_spraying)
+        sprayer.join(timeout=30)
+    counters = out["counters"]
+    assert out.get("started"), "garbage was never sent"
+    assert result.outcome == "completed" and result.steps == 600
+    dropped = result.counts["dropped"]
+    assert sum(dropped["body"].values()) >= 3 * 8
+    assert sum(dropped["culture"].values()) >= 3 * 8
+    assert {"not_msgpack", "version", "missing", "stale", "future", "array"} <= set(dropped["body"])
+    assert set(dropped["culture"]) & {"range", "stale", "future", "unknown", "missing"}
+    assert sum(dropped["control"].values()) == 6
+    assert all(not r.ok for r in out["replies"]) and len(out["replies"]) == 6
+    # The endpoints counted what they dropped too, and kept serving.
+    for role in ("body", "culture"):
+        assert sum(counters[role].values()) >= 3 * 8, counters
+    assert {"not_msgpack", "future", "stale"} <= set(counters["body"])
+    # Every valid step still arrived, in order.
+    assert sorted(h.received(SensorReading)) == list(range(600))
+
+
+def _control(session, keys, cmd):
+    for reply in session.get(keys.hub_control, payload=ControlRequest(cmd=cmd).encode(), timeout=5):
+        return ControlReply.decode(payload_bytes(reply.ok))
+    raise AssertionError(f"no reply to {cmd}")
+
+
+def test_pause_resume_stop_and_config_over_the_control_key(tmp_path, bus_overrides):
+    statuses: list[HubStatus] = []
+    out = {}
+
+    with harness(
+        tmp_path,
+        bus_overrides,
+        "loop.mode=realtime",
+        "experiment.duration_s=100",
+        "loop.status_hz=20",
+    ) as h:
+        bus, keys = h.cfg.bus, h.cfg.bus.keys
+
+        def operator():
+            session = open_session(bus, listener=False)
+            sub = session.declare_subscriber(
+                keys.hub_status, lambda s: statuses.append(HubStatus.decode(payload_bytes(s)))
+            )
+            try:
+                wait_for(lambda: statuses and statuses[-1].step >= 20)
+                out["pause"] = _control(session, keys, "pause")
+                first = _control(session, keys, "status").data["step"]
+                wait_for(lambda: statuses[-1].state == "paused")
+                n = len(statuses)
+                wait_for(lambda: len(statuses) >= n + 5)  # a quarter second of statuses
+                out["paused_steps"] = (first, statuses[-1].step)
+                out["pause_again"] = _control(session, keys, "pause")
+                out["resume"] = _control(session, keys, "resume")
+                wait_for(lambda: statuses[-1].step > first + 10)
+                out["config"] = _control(session, keys, "config")
+                out["stop"] = _control(session, keys, "stop")
+            finally:
+                sub.undeclare()
+                session.close()
+
+        thread = threading.Thread(target=operator)
+        thread.start()
+        result = h.run()
+        thread.join(timeout=30)
+    assert out["pause"].ok and out["pause"].state == "paused"
+    first, later = out["paused_steps"]
+    assert later <= first + 1  # nothing advanced while paused (the step in flight may finish)
+    assert not out["pause_again"].ok and "while paused" in out["pause_again"].reason
+    assert out["resume"].ok and out["resume"].state == "running"
+    assert out["config"].data["loop"]["mode"] == "realtime"
+    assert out["stop"].ok
+    assert result.outcome == "stopped" and 30 < result.steps < 10_000
+    assert any(s.alive == ["body/0", "culture/0", "hub/0"] for s in statuses)
+    assert [e.payload["cmd"] for e in h.record.events if e.key == "control"] == [
+        "pause",
+        "status",
+        "pause",
+        "resume",
+        "config",
+        "stop",
+    ]
+
+
+def test_a_missing_endpoint_is_named_after_the_wait(tmp_path, bus_overrides):
+    with harness(
+        tmp_path, bus_overrides, 'culture.launch="external"', "loop.wait_timeout_s=1.5"
+    ) as h:
+        result = h.run()
+    assert result.outcome == "fault"
+    assert "culture/0 did not appear" in result.reason and "body" not in result.reason
+    assert h.record.manifest["outcome"] == "fault"
+
+
+def wait_for(condition, timeout_s=10.0):
+    """Wait until ``condition()`` holds (polling); fail the test after ``timeout_s``."""
+    deadline = time.monotonic() + timeout_s
+    while not condition():
+        if time.monotonic() > deadline:
+            raise AssertionError("condition not reached in time")
+        time.sleep(0.01)
