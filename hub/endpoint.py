@@ -20,7 +20,7 @@ import threading
 import time
 from collections import Counter
 
-from hub.bus import LOOP_PUBLISH, open_session, payload_bytes
+from hub.bus import LOOP_PUBLISH, TELEMETRY_PUBLISH, open_session, payload_bytes
 from hub.config import BusSection, ConfigError, EndpointSection, ExperimentConfig
 from hub.protocol import (
     INPUT_TYPE,
@@ -60,6 +60,9 @@ class Endpoint(abc.ABC):
         self.dropped: Counter[str] = Counter()
         self.last_step = -1
         self._stop = threading.Event()
+        self._session = None
+        self._telemetry: dict = {}
+        self.keys = Keys()
 
     # ------------------------------------------------------------ for subclasses
 
@@ -96,6 +99,16 @@ class Endpoint(abc.ABC):
 
     def close(self) -> None:
         """Stop the device and release it. Default: nothing."""
+
+    def publish_telemetry(self, key: str, message: Message) -> None:
+        """Publish an observer-only message (newest wins; never blocks the loop)."""
+        if self._session is None:
+            return
+        publisher = self._telemetry.get(key)
+        if publisher is None:
+            publisher = self._session.declare_publisher(key, **TELEMETRY_PUBLISH)
+            self._telemetry[key] = publisher
+        publisher.put(message.encode())
 
     # ------------------------------------------------------------ serving
 
@@ -139,9 +152,9 @@ class Endpoint(abc.ABC):
         if install_signals:
             for sig in (signal.SIGINT, signal.SIGTERM):
                 signal.signal(sig, lambda *_: self.request_stop())
-        keys = Keys(bus.session)
+        keys = self.keys = Keys(bus.session)
         inbox: queue.SimpleQueue = queue.SimpleQueue()
-        session = open_session(bus, listener=False)
+        session = self._session = open_session(bus, listener=False)
         try:
             # Zenoh undeclares what is garbage-collected: keep every declaration.
             declared = [  # noqa: F841
@@ -176,6 +189,8 @@ class Endpoint(abc.ABC):
             try:
                 self.close()
             finally:
+                self._telemetry.clear()
+                self._session = None
                 session.close()
         if self.dropped:
             log.info("%s/%s dropped: %s", self.role, self.id, dict(self.dropped))

@@ -142,6 +142,9 @@ class Array:
     max: float | None = None
     optional: bool = False
 
+    def __post_init__(self):
+        object.__setattr__(self, "native", np.dtype(self.dtype).newbyteorder("="))
+
 
 @dataclass(frozen=True)
 class Mapping:
@@ -159,6 +162,8 @@ class StrList:
 
 def _check_scalar(name: str, spec: Scalar, value: Any) -> Any:
     kind = spec.kind
+    if kind is float and type(value) is float and spec.min is None and math.isfinite(value):
+        return value
     if kind is bool:
         if not isinstance(value, bool):
             raise ProtocolError("type", f"{name} must be a bool, got {type(value).__name__}")
@@ -199,8 +204,8 @@ def _decode_array(name: str, spec: Array, value: Any) -> np.ndarray:
 
 
 def _as_array(name: str, spec: Array, value: Any) -> np.ndarray:
-    dtype = np.dtype(spec.dtype).newbyteorder("=")
-    if isinstance(value, np.ndarray) and value.dtype == dtype and value.ndim == 1:
+    dtype = spec.native
+    if type(value) is np.ndarray and value.ndim == 1 and value.dtype == dtype:
         return value
     try:
         return np.ascontiguousarray(value, dtype=dtype).reshape(-1)
@@ -255,9 +260,10 @@ class Message:
             if isinstance(spec, Array):
                 arr = _as_array(name, spec, value)
                 _check_array_values(name, spec, arr)
-                if arr.flags.writeable and arr.base is None:
-                    arr.setflags(write=False)
-                object.__setattr__(self, name, arr)
+                if arr.base is None:
+                    arr.flags.writeable = False
+                if arr is not value:
+                    object.__setattr__(self, name, arr)
                 if spec.group:
                     first = groups.setdefault(spec.group, (name, arr.size))
                     if first[1] != arr.size:
@@ -266,7 +272,9 @@ class Message:
                             f"{name} has {arr.size} values but {first[0]} has {first[1]}",
                         )
             elif isinstance(spec, Scalar):
-                object.__setattr__(self, name, _check_scalar(name, spec, value))
+                checked = _check_scalar(name, spec, value)
+                if checked is not value:
+                    object.__setattr__(self, name, checked)
             elif isinstance(spec, StrList):
                 if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
                     raise ProtocolError("type", f"{name} must be a list of str")

@@ -1,0 +1,90 @@
+"""Benchmark of the hub's loop: hub + two trivial endpoints in separate processes, loopback.
+
+Measures lockstep steps per second, and for realtime mode at 1 ms and 10 ms
+periods the lateness of step starts (median, p99) and the share of late steps.
+Recording is on, as in a real run. The endpoints are the trivial test fixtures
+of ``tests/endpoints.py`` (they do no work), so the figures are the loop's own.
+
+    python bench/loop.py            # 10,000 steps per figure (about 2 minutes)
+    python bench/loop.py --steps 2000
+
+The last line printed is one JSON object.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import tempfile
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+os.environ["PYTHONPATH"] = os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")]))
+
+from hub.bus import free_tcp_port  # noqa: E402
+from hub.config import load_config  # noqa: E402
+from hub.launch import start_local_endpoints, stop_local_endpoints  # noqa: E402
+from hub.loop import Hub  # noqa: E402
+
+TRIVIAL = [
+    'body.kind="tests.endpoints:EchoBody"',
+    'culture.kind="tests.endpoints:EchoCulture"',
+    'coding.scheme="tests.endpoints:code_step_count"',
+    'decoding.scheme="tests.endpoints:decode_step"',
+]
+
+
+def run_once(mode: str, period_ms: float, steps: int) -> dict:
+    overrides = TRIVIAL + [
+        f'bus.session="bench-{os.getpid()}-{mode}-{period_ms:g}"',
+        f'bus.listen=["tcp/127.0.0.1:{free_tcp_port()}"]',
+        f'loop.mode="{mode}"',
+        f"loop.period_ms={period_ms}",
+        f"experiment.duration_s={steps * period_ms / 1e3}",
+    ]
+    cfg = load_config(None, overrides)
+    with tempfile.TemporaryDirectory() as tmp:
+        procs = start_local_endpoints(None, overrides, cfg, Path(tmp))
+        try:
+            result = Hub(cfg, run_dir=Path(tmp)).run()
+        finally:
+            stop_local_endpoints(procs)
+    if result.outcome != "completed":
+        raise SystemExit(f"{mode} {period_ms} ms run failed: {result.reason}")
+    return result.timing
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--steps", type=int, default=10_000)
+    args = parser.parse_args()
+    n = args.steps
+
+    lock = run_once("lockstep", 10.0, n)
+    print(
+        f"lockstep      {n} steps: {lock['steps_per_s']:8.0f} steps/s  "
+        f"step median {lock['step_ms_median']:.3f} ms  p99 {lock['step_ms_p99']:.3f} ms"
+    )
+    out = {"lockstep_steps_per_s": round(lock["steps_per_s"], 1)}
+    for period in (10.0, 1.0):
+        t = run_once("realtime", period, n)
+        tag = f"rt{period:g}"
+        print(
+            f"realtime {period:4g} ms {n} steps: lateness median {t['lateness_ms_median']:.3f} ms"
+            f"  p99 {t['lateness_ms_p99']:.3f} ms  max {t['lateness_ms_max']:.3f} ms  "
+            f"late steps {t['late_steps']} ({100 * t['late_share']:.2f} %)"
+        )
+        out[f"{tag}_late_share"] = round(t["late_share"], 5)
+        out[f"{tag}_p99_lateness_ms"] = round(t["lateness_ms_p99"], 4)
+        out[f"{tag}_median_lateness_ms"] = round(t["lateness_ms_median"], 4)
+        out[f"{tag}_max_lateness_ms"] = round(t["lateness_ms_max"], 3)
+    out["steps_per_figure"] = n
+    out["cpus"] = os.cpu_count()
+    print(json.dumps(out))
+
+
+if __name__ == "__main__":
+    main()

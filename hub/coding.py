@@ -1,0 +1,322 @@
+"""Coding schemes: the body's range readings → the culture's stimulation.
+
+Each public function here is a scheme factory (see :mod:`hub.schemes`): called once with a
+:class:`~hub.schemes.SchemeContext`, it validates ``ctx.params`` and returns the per-step
+coder ``coder(sensors, step) -> Stimulation``.
+
+Body ↔ culture convention (shared with :mod:`hub.decoding`)
+-----------------------------------------------------------
+The culture is seen from above as a map of the body: the robot's **forward** is the culture's
+**+y** and the robot's **left** is the culture's **−x**. A body angle ``a`` (radians,
+counter-clockwise from forward, as the body's ``sensor_angles_rad``) is the culture direction
+``(−sin a, cos a)`` from the culture's centre. The centre is the middle of the bounding box of
+the channels' positions and the culture's radius is half the larger side of that box
+(:class:`CultureFrame`).
+
+Schemes
+-------
+``somatotopic``          one site per sensor at the sensor's angle; amplitude ``A · d_s``
+                         (farther obstacle → stronger), the paper's scheme (section 3.3).
+``somatotopic_inverse``  same sites; amplitude ``A · (max_range − d_s)`` (nearer → stronger).
+``rate``                 same sites; fixed amplitude, pulse frequency rising linearly from
+                         ``min_rate_hz`` (nothing seen) to ``max_rate_hz`` (obstacle touching).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from hub.protocol import Description, SensorReading, Stimulation
+from hub.schemes import Coder, ConfigError, SchemeContext
+
+# One place for the defaults shared by the schemes.
+FULL_SCALE_UA = 100.0  # amplitude at full range (amplitude codes), and the rate code's amplitude
+MIN_AMPLITUDE_UA = 20.0  # below this no pulse is sent (a 10 ms pulse under ~25 µA is sub-threshold)
+MAX_AMPLITUDE_UA = 150.0  # safety clamp
+WIDTH_MS = 10.0  # the paper's pulse width
+SITE_RADIUS_FRAC = 0.6  # sites on a circle of 0.6 × the culture's radius
+SITES_PER_SENSOR = 1
+MIN_RATE_HZ = 0.0
+MAX_RATE_HZ = 20.0
+
+_SITE_PARAMS = {"site_radius_frac", "sites_per_sensor", "channels", "excitatory_only"}
+_PULSE_PARAMS = {"width_ms", "max_amplitude_ua"}
+
+
+# --------------------------------------------------------------------------- geometry
+
+
+@dataclass(frozen=True)
+class CultureFrame:
+    """The culture's centre and radius (µm), from its channel positions.
+
+    ``centre`` is the middle of the bounding box of ``x_um``, ``y_um``; ``radius_um`` is half
+    the larger side of that box (at least 1 µm, so a one-channel culture still has a scale).
+    """
+
+    centre_x_um: float
+    centre_y_um: float
+    radius_um: float
+
+    @classmethod
+    def of(cls, culture: Description) -> CultureFrame:
+        x = np.asarray(culture.x_um, dtype=np.float64)
+        y = np.asarray(culture.y_um, dtype=np.float64)
+        if x.size == 0:
+            raise ConfigError("the culture's description lists no channels")
+        half = max(x.max() - x.min(), y.max() - y.min()) / 2.0
+        return cls(
+            float((x.min() + x.max()) / 2.0), float((y.min() + y.max()) / 2.0), max(half, 1.0)
+        )
+
+    def point_at(self, angle_rad: float, distance_um: float) -> tuple[float, float]:
+        """The culture point at body angle ``angle_rad`` (CCW from forward) and distance."""
+        return (
+            self.centre_x_um - distance_um * math.sin(angle_rad),
+            self.centre_y_um + distance_um * math.cos(angle_rad),
+        )
+
+
+def stimulation_sites(ctx: SchemeContext) -> list[np.ndarray]:
+    """The channels stimulated for each sensor, in the body's sensor order.
+
+    Either listed by hand (``params.channels``: one channel or one list of channels per
+    sensor), or placed somatotopically: sensor ``s`` at body angle ``a_s`` gets the
+    ``sites_per_sensor`` channels nearest to the culture point at angle ``a_s`` and distance
+    ``site_radius_frac × radius`` from the centre (see :class:`CultureFrame`). With
+    ``excitatory_only`` (default true) and a culture that reports ``cell_type``, only
+    excitatory channels are candidates. A channel is never given to two sensors: each sensor,
+    in order, takes the nearest channels not already taken.
+    """
+    body, culture = ctx.body, ctx.culture
+    n_sensors = body.n_sensors
+    key = f"{ctx.section}.params.channels"
+    if "channels" in ctx.params:
+        listed = ctx.param("channels", None, kind=list)
+        if len(listed) != n_sensors:
+            raise ConfigError(
+                f"{key} must list one entry per sensor ({n_sensors}), got {len(listed)}"
+            )
+        known = set(culture.channel.tolist())
+        sites, seen = [], set()
+        for s, entry in enumerate(listed):
+            chans = entry if isinstance(entry, list) else [entry]
+            if not chans or not all(isinstance(c, int) and not isinstance(c, bool) for c in chans):
+                raise ConfigError(
+                    f"{key}[{s}] must be a channel id or a non-empty list of them, got {entry!r}"
+                )
+            for c in chans:
+                if c not in known:
+                    raise ConfigError(f"{key}[{s}]: channel {c} is not one of the culture's")
+                if c in seen:
+                    raise ConfigError(f"{key}[{s}]: channel {c} is listed for two sensors")
+                seen.add(c)
+            sites.append(np.asarray(chans, dtype=np.uint32))
+        return sites
+
+    radius_frac = ctx.param("site_radius_frac", SITE_RADIUS_FRAC, ge=0.0, le=1.0)
+    per_sensor = ctx.param("sites_per_sensor", SITES_PER_SENSOR, kind=int, ge=1)
+    excitatory_only = ctx.param("excitatory_only", True, kind=bool)
+    candidates = np.ones(culture.channel.size, dtype=bool)
+    if excitatory_only and culture.cell_type is not None:
+        candidates &= culture.cell_type == 0
+    if per_sensor * n_sensors > int(candidates.sum()):
+        raise ConfigError(
+            f"{ctx.section}.params.sites_per_sensor: {per_sensor} sites for each of "
+            f"{n_sensors} sensors needs {per_sensor * n_sensors} channels, the culture offers "
+            f"{int(candidates.sum())}"
+        )
+    frame = CultureFrame.of(culture)
+    x = culture.x_um.astype(np.float64)
+    y = culture.y_um.astype(np.float64)
+    sites = []
+    for angle in body.sensor_angles_rad.astype(np.float64):
+        px, py = frame.point_at(angle, radius_frac * frame.radius_um)
+        d2 = np.where(candidates, (x - px) ** 2 + (y - py) ** 2, np.inf)
+        # stable sort: ties go to the lower index, so placement is deterministic
+        nearest = np.argsort(d2, kind="stable")[:per_sensor]
+        candidates[nearest] = False
+        sites.append(culture.channel[nearest].astype(np.uint32))
+    return sites
+
+
+# --------------------------------------------------------------------------- pulses
+
+
+class _Sites:
+    """Flattened sites: ``channel[i]`` belongs to sensor ``sensor[i]``."""
+
+    def __init__(self, sites: list[np.ndarray]):
+        self.channel = np.concatenate(sites).astype(np.uint32)
+        self.sensor = np.repeat(np.arange(len(sites)), [s.size for s in sites])
+
+
+def _ranges(sensors: SensorReading, n_sensors: int) -> np.ndarray:
+    ranges = sensors.ranges_m
+    if ranges.size != n_sensors:
+        raise ValueError(
+            f"sensor reading of step {sensors.step} has {ranges.size} ranges, "
+            f"the body described {n_sensors}"
+        )
+    return ranges.astype(np.float64)
+
+
+def _pulse_params(ctx: SchemeContext) -> tuple[float, float]:
+    width_ms = ctx.param("width_ms", WIDTH_MS, gt=0.0)
+    max_amplitude_ua = ctx.param("max_amplitude_ua", MAX_AMPLITUDE_UA, gt=0.0)
+    return width_ms, max_amplitude_ua
+
+
+def _amplitude_code(ctx: SchemeContext, *, inverse: bool) -> Coder:
+    ctx.check_params(
+        _SITE_PARAMS | _PULSE_PARAMS | {"gain_ua_per_m", "min_amplitude_ua", "pulse_period_ms"}
+    )
+    body = ctx.body
+    max_range_m = float(body.max_range_m)
+    if not max_range_m > 0:
+        raise ConfigError(f"the body's max_range_m must be > 0, got {max_range_m}")
+    gain = ctx.param("gain_ua_per_m", FULL_SCALE_UA / max_range_m, ge=0.0)
+    width_ms, max_ua = _pulse_params(ctx)
+    min_ua = ctx.param("min_amplitude_ua", MIN_AMPLITUDE_UA, ge=0.0)
+    if min_ua > max_ua:
+        raise ConfigError(
+            f"{ctx.section}.params.min_amplitude_ua must be <= max_amplitude_ua ({max_ua}), "
+            f"got {min_ua}"
+        )
+    period_ms = float(ctx.period_ms)
+    pulse_period_ms = ctx.param("pulse_period_ms", period_ms, gt=0.0)
+    if pulse_period_ms < width_ms:
+        raise ConfigError(
+            f"{ctx.section}.params.pulse_period_ms must be >= width_ms ({width_ms}) so that a "
+            f"site's pulses do not overlap, got {pulse_period_ms}"
+        )
+    sites = _Sites(stimulation_sites(ctx))
+    n_sensors = body.n_sensors
+
+    def code(sensors: SensorReading, step: int) -> Stimulation:
+        t0_ms = step * period_ms
+        # pulse times m·P inside [t0, t0 + T): the same grid for every site
+        m0 = math.ceil(t0_ms / pulse_period_ms - 1e-9)
+        m1 = math.ceil((t0_ms + period_ms) / pulse_period_ms - 1e-9)
+        if m1 <= m0:
+            return Stimulation(step=step)
+        d = np.clip(_ranges(sensors, n_sensors), 0.0, max_range_m)
+        amp = gain * ((max_range_m - d) if inverse else d)
+        np.minimum(amp, max_ua, out=amp)
+        amp_site = amp[sites.sensor]
+        on = amp_site >= min_ua if min_ua > 0 else amp_site > 0
+        n_on = int(on.sum())
+        if n_on == 0:
+            return Stimulation(step=step)
+        onsets = np.arange(m0, m1) * pulse_period_ms - t0_ms
+        n_t = onsets.size
+        return Stimulation(
+            step=step,
+            channel=np.tile(sites.channel[on], n_t),
+            amplitude_ua=np.tile(amp_site[on], n_t),
+            width_ms=np.full(n_on * n_t, width_ms),
+            onset_ms=np.repeat(np.maximum(onsets, 0.0), n_on),
+        )
+
+    return code
+
+
+def somatotopic(ctx: SchemeContext) -> Coder:
+    """The paper's coding: one site per sensor, amplitude ``A · d_s`` (farther → stronger).
+
+    Parameters (``coding.params``)
+    -------------------------------
+    gain_ua_per_m : float, default ``100 / body.max_range_m``
+        ``A``: µA per metre of range (so nothing seen gives 100 µA by default).
+    min_amplitude_ua : float, default 20
+        Pulses weaker than this are not sent.
+    max_amplitude_ua : float, default 150
+        Safety clamp on every pulse.
+    width_ms : float, default 10
+        Pulse width; a pulse may run past its step into the next.
+    pulse_period_ms : float, default the loop period
+        Pulses fall at ``0, P, 2P, …`` ms of run time (every step by default); must be
+        ``>= width_ms``.
+    site_radius_frac, sites_per_sensor, excitatory_only, channels
+        Site placement, see :func:`stimulation_sites`.
+    """
+    return _amplitude_code(ctx, inverse=False)
+
+
+def somatotopic_inverse(ctx: SchemeContext) -> Coder:
+    """Somatotopic sites, amplitude ``A · (max_range − d_s)``: nearer obstacle → stronger.
+
+    The usual choice with real infrared sensors. Same parameters as :func:`somatotopic`
+    (``gain_ua_per_m`` defaults to ``100 / max_range_m``, so an obstacle touching the sensor
+    gives 100 µA and nothing in range gives no pulse).
+    """
+    return _amplitude_code(ctx, inverse=True)
+
+
+def rate(ctx: SchemeContext) -> Coder:
+    """Somatotopic sites, distance coded as pulse frequency (nearer → more pulses per second).
+
+    ``f_s = min_rate_hz + (max_rate_hz − min_rate_hz) · (1 − d_s / max_range_m)``. Each site
+    keeps a phase in ``[0, 1]`` that advances by ``f_s · T`` over a step; a pulse is sent each
+    time the phase reaches a whole number, at the exact time inside the step, so the number of
+    pulses over any stretch of constant ``f_s`` is ``f_s × time`` to within one pulse. A site
+    starts with its phase at 1: its first pulse falls at the start of the first step in which
+    its rate is above zero.
+
+    Parameters (``coding.params``)
+    -------------------------------
+    min_rate_hz : float, default 0
+        Frequency when nothing is in range.
+    max_rate_hz : float, default 20
+        Frequency for an obstacle touching the sensor; at most ``1000 / width_ms``.
+    amplitude_ua : float, default 100
+        Amplitude of every pulse (clamped to ``max_amplitude_ua``).
+    width_ms, max_amplitude_ua, site_radius_frac, sites_per_sensor, excitatory_only, channels
+        As in :func:`somatotopic`.
+    """
+    ctx.check_params(_SITE_PARAMS | _PULSE_PARAMS | {"min_rate_hz", "max_rate_hz", "amplitude_ua"})
+    body = ctx.body
+    max_range_m = float(body.max_range_m)
+    if not max_range_m > 0:
+        raise ConfigError(f"the body's max_range_m must be > 0, got {max_range_m}")
+    width_ms, max_ua = _pulse_params(ctx)
+    amplitude_ua = min(ctx.param("amplitude_ua", FULL_SCALE_UA, gt=0.0), max_ua)
+    min_hz = ctx.param("min_rate_hz", MIN_RATE_HZ, ge=0.0)
+    max_hz = ctx.param("max_rate_hz", MAX_RATE_HZ, ge=min_hz, le=1000.0 / width_ms)
+    sites = _Sites(stimulation_sites(ctx))
+    n_sensors = body.n_sensors
+    period_ms = float(ctx.period_ms)
+    period_s = period_ms / 1e3
+    phase = np.ones(n_sensors)  # one phase per sensor: a sensor's sites pulse together
+    channels = [sites.channel[sites.sensor == s] for s in range(n_sensors)]
+
+    def code(sensors: SensorReading, step: int) -> Stimulation:
+        d = np.clip(_ranges(sensors, n_sensors), 0.0, max_range_m)
+        hz = min_hz + (max_hz - min_hz) * (1.0 - d / max_range_m)
+        end = phase + hz * period_s
+        # pulses where the phase crosses j = 1, 2, … with j < end (end itself is next step's)
+        n = np.maximum(np.ceil(end) - 1.0, 0.0).astype(np.int64)
+        if not n.any():
+            phase[:] = end
+            return Stimulation(step=step)
+        chan, onset = [], []
+        for s in np.flatnonzero(n):
+            t_ms = (np.arange(1, n[s] + 1) - phase[s]) / hz[s] * 1e3
+            chan.append(np.tile(channels[s], t_ms.size))
+            onset.append(
+                np.repeat(np.clip(t_ms, 0.0, np.nextafter(period_ms, 0)), channels[s].size)
+            )
+        phase[:] = end - n
+        chan = np.concatenate(chan)
+        return Stimulation(
+            step=step,
+            channel=chan,
+            amplitude_ua=np.full(chan.size, amplitude_ua),
+            width_ms=np.full(chan.size, width_ms),
+            onset_ms=np.concatenate(onset),
+        )
+
+    return code

@@ -1,0 +1,72 @@
+"""Serves a simulated arena on the bus: motor commands in, sensor readings out.
+
+A thin shell around :class:`sim_robot.Arena`; all physics lives in the library.
+Parameters (``[body.params]``): ``world`` (world file, default the paper's) and
+``seed`` (sensor noise; default the experiment's seed).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from hub.config import ConfigError, EndpointSection, ExperimentConfig
+from hub.endpoint import Endpoint
+from hub.protocol import Description, MotorCommand, SensorReading
+from sim_robot import Arena, WorldError
+
+DEFAULT_WORLD = "configs/worlds/paper.toml"
+
+
+class ArenaEndpoint(Endpoint):
+    """A simulated robot in a simulated arena, stepped by the hub's period."""
+
+    role, kind = "body", "sim_robot"
+
+    def __init__(self, arena: Arena, period_ms: float, id: str = "0"):
+        super().__init__(id)
+        self.arena = arena
+        self.period_s = period_ms / 1e3
+        self.last_wheels_mps = (0.0, 0.0)
+
+    @classmethod
+    def from_config(cls, section: EndpointSection, cfg: ExperimentConfig) -> ArenaEndpoint:
+        params = dict(section.params)
+        world = params.pop("world", DEFAULT_WORLD)
+        seed = params.pop("seed", cfg.experiment.seed)
+        if params:
+            raise ConfigError(f"body.params.{sorted(params)[0]} is not a sim_robot parameter")
+        try:
+            arena = Arena.from_toml(world, seed=seed)
+        except FileNotFoundError:
+            raise ConfigError(f"body.params.world: no world file {world!r}") from None
+        except WorldError as exc:
+            raise ConfigError(f"body.params.world ({world}): {exc}") from None
+        return cls(arena, cfg.loop.period_ms, section.id)
+
+    def describe(self) -> Description:
+        body = self.arena.body
+        return Description(
+            role="body",
+            id=self.id,
+            kind=self.kind,
+            sensor_angles_rad=body.sensor_angles_rad,
+            max_range_m=float(body.max_range_m),
+            wheel_base_m=float(body.wheel_base_m),
+            radius_m=float(body.radius_m),
+            max_wheel_mps=float(body.max_wheel_mps),
+        )
+
+    def step(self, m: MotorCommand) -> SensorReading:
+        # Steps the hub skipped (realtime, lost input): the robot kept rolling.
+        gap = m.step - round(self.arena.t_s / self.period_s)
+        if gap > 0:
+            self.arena.step(*self.last_wheels_mps, gap * self.period_s)
+        self.last_wheels_mps = (m.left_mps, m.right_mps)
+        self.arena.step(m.left_mps, m.right_mps, self.period_s)
+        return SensorReading(
+            step=m.step,
+            t_s=(m.step + 1) * self.period_s,
+            ranges_m=self.arena.read_sensors(),
+            pose=np.asarray(self.arena.pose, dtype=np.float64),
+            contact=bool(self.arena.contact),
+        )
