@@ -113,3 +113,29 @@ def decode_step(ctx):
     return lambda spikes, step: MotorCommand(
         step=step, left_mps=float(spikes.step), right_mps=float(spikes.channel.size)
     )
+
+
+def constant_drive(ctx):
+    """Decoder: the same wheel speeds every step (``left_mps``, ``right_mps`` in params)."""
+    ctx.check_params({"left_mps", "right_mps"})
+    left = ctx.param("left_mps", 0.0)
+    right = ctx.param("right_mps", 0.0)
+    return lambda spikes, step: MotorCommand(step=step, left_mps=left, right_mps=right)
+
+
+def pulse_at_step(ctx):
+    """Coder: one pulse (``channel``, ``amplitude_ua``, ``width_ms``) at ``step`` only."""
+    ctx.check_params({"channel", "amplitude_ua", "width_ms", "step"})
+    channel = ctx.param("channel", 0, kind=int)
+    amplitude = ctx.param("amplitude_ua", 100.0)
+    width = ctx.param("width_ms", 10.0)
+    at = ctx.param("step", 10, kind=int)
+
+    def coder(sensors, step):
+        if step != at:
+            return Stimulation(step=step)
+        return Stimulation(
+            step=step, channel=[channel], amplitude_ua=[amplitude], width_ms=[width], onset_ms=[0]
+        )
+
+    return coder

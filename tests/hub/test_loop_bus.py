@@ -9,7 +9,6 @@ import os
 import signal
 import threading
 import time
-from contextlib import contextmanager
 
 import msgpack
 import numpy as np
@@ -17,9 +16,6 @@ import pytest
 import zenoh
 
 from hub.bus import open_session, payload_bytes
-from hub.config import load_config
-from hub.launch import start_local_endpoints, stop_local_endpoints
-from hub.loop import Hub
 from hub.protocol import (
     ControlReply,
     ControlRequest,
@@ -30,46 +26,9 @@ from hub.protocol import (
     SpikeBatch,
     Stimulation,
 )
-from hub.record import read_run
-from tests.conftest import TEST_ENDPOINTS
+from tests.harness import harness, wait_for
 
 pytestmark = pytest.mark.bus
-
-
-class Harness:
-    """A hub in this process and the test endpoints as subprocesses."""
-
-    def __init__(self, tmp_path, overrides):
-        self.overrides = TEST_ENDPOINTS + overrides
-        self.cfg = load_config(None, self.overrides)
-        self.run_dir = tmp_path / "run"
-        self.run_dir.mkdir()
-        self.procs = start_local_endpoints(None, self.overrides, self.cfg, tmp_path)
-        self.hub = None
-
-    def run(self, progress=None):
-        self.hub = Hub(self.cfg, run_dir=self.run_dir, progress=progress)
-        self.result = self.hub.run()
-        self.record = read_run(self.run_dir)
-        return self.result
-
-    def pid(self, role):
-        return next(p.popen.pid for p in self.procs if p.role == role)
-
-    def sent(self, kind):
-        return {m.step: m for m in self.record.decoded(kind, "tx")}
-
-    def received(self, kind):
-        return {m.step: m for m in self.record.decoded(kind, "rx")}
-
-
-@contextmanager
-def harness(tmp_path, bus_overrides, *overrides):
-    h = Harness(tmp_path, bus_overrides + list(overrides))
-    try:
-        yield h
-    finally:
-        h.exit_codes = stop_local_endpoints(h.procs)
 
 
 def test_lockstep_keeps_the_step_order_with_one_step_of_latency(tmp_path, bus_overrides):
@@ -330,12 +289,3 @@ def test_a_missing_endpoint_is_named_after_the_wait(tmp_path, bus_overrides):
     assert result.outcome == "fault"
     assert "culture/0 did not appear" in result.reason and "body" not in result.reason
     assert h.record.manifest["outcome"] == "fault"
-
-
-def wait_for(condition, timeout_s=10.0):
-    """Wait until ``condition()`` holds (polling); fail the test after ``timeout_s``."""
-    deadline = time.monotonic() + timeout_s
-    while not condition():
-        if time.monotonic() > deadline:
-            raise AssertionError("condition not reached in time")
-        time.sleep(0.01)
