@@ -6,7 +6,8 @@
 Spontaneous mode prints MFR, MBR, MNBR, network-burst duration and the excitatory share of
 network-burst spikes against the paper's values; `--evoked` stimulates one excitatory neuron
 near the centre with the paper's 10 ms, 100 µA, 0.2 Hz pulses and prints the PSTH peak.
-The last line is a JSON object with the figures.
+The figures are computed by `hub.analysis` (through `sim_network.activity`), the project's
+one definition of bursts and network bursts. The last line is a JSON object with the figures.
 """
 
 from __future__ import annotations
@@ -18,19 +19,12 @@ import tomllib
 
 import numpy as np
 
-from sim_network.activity import psth, summarize
+from hub.analysis.metrics import AnalysisParams
+from hub.analysis.paper import PAPER_TARGETS, relative_error
+from sim_network.activity import analyze_culture
 from sim_network.config import NetworkConfig, config_from_dict, config_to_dict, load_config
 from sim_network.network import Network
 from sim_network.records import PeriodicStimulus, Spikes
-
-PAPER = {
-    "mfr_mean": 3.41,
-    "mfr_sd": 6.32,
-    "mbr_per_min": 3.12,
-    "nb_per_min": 7.07,
-    "nb_duration_mean_ms": 71.29,
-    "nb_duration_sd_ms": 6.36,
-}
 
 
 def with_overrides(cfg: NetworkConfig, overrides: list[str]) -> NetworkConfig:
@@ -89,21 +83,34 @@ def main(argv: list[str] | None = None) -> dict:
         stim = PeriodicStimulus((target,), 100.0, 10.0, 5000.0, t0 + 1000.0, count)
     sp = record(net, args.seconds, stim=stim)
     wall = time.perf_counter() - wall
-    out = summarize(sp.channel, sp.t_ms, net.layout.cell_type, t0, net.t_ms).as_dict()
+    stim_ms = stim.onsets_ms() if stim is not None else None
+    # skip the direct response during the pulse itself when looking for the evoked peak
+    params = AnalysisParams(psth_min_latency_ms=10.0)
+    res = analyze_culture(sp, net.layout, t0, net.t_ms, stim_ms, params)
+    out = dict(res.metrics)
     out["x_realtime"] = round(args.seconds / wall, 2)
     if stim is not None:
-        edges, counts = psth(sp.t_ms, stim.onsets_ms(), 300.0, 5.0)
-        base = counts[edges >= 200].mean()
-        peak = int(np.argmax(counts))
-        out["psth_peak_ms"] = float(edges[peak] + 2.5)
-        out["psth_peak_spikes_per_bin"] = round(float(counts[peak]), 2)
-        out["psth_baseline_spikes_per_bin"] = round(float(base), 2)
+        rate = res.psth.rate_hz
         out["stim_neuron"] = stim.channels[0]
-        print("PSTH (5 ms bins, spikes per trial):", np.round(counts[:40], 1).tolist())
-    for key, ref in PAPER.items():
-        print(f"{key:>22}: {out[key]:9.3f}   paper {ref}")
-    for key in ("mfr_exc", "mfr_inh", "nb_exc_spike_fraction", "n_network_bursts", "x_realtime"):
-        print(f"{key:>22}: {out[key]}")
+        out["psth_baseline_hz"] = float(rate[res.psth.edges_ms[:-1] >= 200.0].mean())
+        out["psth_peak_hz"] = float(rate.max())
+        print("PSTH (5 ms bins, spikes/s per neuron):", np.round(rate[:40], 1).tolist())
+    for key, ref in PAPER_TARGETS.items():
+        value = out[key] if out[key] is not None else float("nan")
+        err = relative_error(value, ref)
+        print(f"{key:>22}: {value:9.3f}   paper {ref:7.2f}   {100 * err:+5.0f} %")
+    for key in (
+        "mfr_exc_hz",
+        "mfr_inh_hz",
+        "nb_core_duration_ms",
+        "nb_participation",
+        "nb_exc_spike_fraction",
+        "n_network_bursts",
+        "psth_peak_ms",
+        "x_realtime",
+    ):
+        if key in out:
+            print(f"{key:>22}: {out[key]}")
     print(json.dumps(out))
     return out
 

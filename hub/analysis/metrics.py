@@ -16,7 +16,10 @@ Metric keys (NaN becomes ``None`` so the dict is valid JSON):
 ``n_bursts``, ``mbr_per_min``   bursts, and bursts per minute per channel averaged over all
                             channels (MBR; silent channels count as 0)
 ``n_network_bursts``, ``mnbr_per_min``  network bursts and network bursts per minute (MNBR)
-``nb_duration_ms``, ``nb_duration_sd_ms``  mean and s.d. of network-burst duration
+``nb_duration_ms``, ``nb_duration_sd_ms``  mean and s.d. of network-burst duration: the
+                            extent, first to last spike of the participating bursts (the MEA
+                            reading; see ``network_bursts``)
+``nb_core_duration_ms``     mean time at or above the network-burst threshold (the core)
 ``nb_participation``        mean fraction of channels taking part in a network burst
 ``isi_median_ms``           median inter-spike interval within channels
 ``ibi_mean_ms``, ``ibi_cv``  mean and coefficient of variation of the intervals between
@@ -188,6 +191,7 @@ def analyze(
         "mnbr_per_min": len(nbs) / (duration_ms / 60_000.0),
         "nb_duration_ms": nb_dur,
         "nb_duration_sd_ms": nb_dur_sd,
+        "nb_core_duration_ms": _mean_sd(nbs.core_duration_ms)[0],
         "nb_participation": float(nbs.n_channels.mean() / n_channels) if len(nbs) else math.nan,
         "isi_median_ms": float(np.median(isis)) if isis.size else math.nan,
         "ibi_mean_ms": ibi_mean,

@@ -6,9 +6,16 @@ Definition used here (and, identically, by the online detector in ``online.py``)
    ``B(t)`` is the number of bursts covering time ``t``.
 2. A network-burst *segment* is a maximal interval where ``B(t) >= ceil(min_fraction *
    n_channels)`` (at least 1). Segments whose gap (next start minus previous end) is
-   ``<= merge_gap_ms`` are merged into one network burst.
-3. A network burst's participating channels are those with a burst overlapping its
-   ``[start_ms, end_ms]`` (so they include channels that burst during a merged gap).
+   ``<= merge_gap_ms`` are merged into one network burst; the merged interval is its *core*
+   (``core_start_ms``, ``core_end_ms``: the time the threshold is held).
+3. A network burst's participating bursts are the single-channel bursts overlapping its core
+   (closed intervals; so they include channels that burst during a merged gap), and its
+   participating channels are their channels.
+4. A network burst's ``start_ms`` / ``end_ms`` are its *extent*: the start of the earliest and
+   the end of the latest participating burst, i.e. its first and last participating spike
+   (the usual MEA reading of "network-burst duration"; the core is ~5x shorter). The extent
+   always contains the core. Extents of consecutive network bursts may overlap when one
+   long single-channel burst takes part in both.
 """
 
 from __future__ import annotations
@@ -48,11 +55,21 @@ class NetworkBurstParams:
 
 @dataclass(frozen=True)
 class NetworkBursts:
-    """Network bursts of a record, sorted by start; ``channels[i]`` are the participants of i."""
+    """Network bursts of a record, sorted by core start; ``channels[i]`` are the participants of
+    i. ``start_ms``/``end_ms`` are the extents, ``core_start_ms``/``core_end_ms`` the time at or
+    above the threshold (see the module docstring); the core defaults to the extent."""
 
     start_ms: np.ndarray
     end_ms: np.ndarray
     channels: list[np.ndarray] = field(default_factory=list)
+    core_start_ms: np.ndarray | None = None
+    core_end_ms: np.ndarray | None = None
+
+    def __post_init__(self):
+        if self.core_start_ms is None:
+            object.__setattr__(self, "core_start_ms", np.asarray(self.start_ms).copy())
+        if self.core_end_ms is None:
+            object.__setattr__(self, "core_end_ms", np.asarray(self.end_ms).copy())
 
     def __len__(self) -> int:
         return int(self.start_ms.size)
@@ -62,6 +79,11 @@ class NetworkBursts:
         return self.end_ms - self.start_ms
 
     @property
+    def core_duration_ms(self) -> np.ndarray:
+        """Time spent at or above the threshold (merged gaps included)."""
+        return self.core_end_ms - self.core_start_ms
+
+    @property
     def n_channels(self) -> np.ndarray:
         """Number of participating channels of each network burst."""
         return np.array([c.size for c in self.channels], dtype=np.int64)
@@ -69,11 +91,17 @@ class NetworkBursts:
     def select(self, mask) -> NetworkBursts:
         """The network bursts where boolean ``mask`` is true."""
         idx = np.flatnonzero(np.asarray(mask, dtype=bool))
-        return NetworkBursts(self.start_ms[idx], self.end_ms[idx], [self.channels[i] for i in idx])
+        return NetworkBursts(
+            self.start_ms[idx],
+            self.end_ms[idx],
+            [self.channels[i] for i in idx],
+            self.core_start_ms[idx],
+            self.core_end_ms[idx],
+        )
 
     @classmethod
     def empty(cls) -> NetworkBursts:
-        return cls(np.empty(0), np.empty(0), [])
+        return cls(np.empty(0), np.empty(0), [], np.empty(0), np.empty(0))
 
 
 def detect_network_bursts(
@@ -107,12 +135,14 @@ def detect_network_bursts(
     new[1:] = seg_start[1:] - seg_end[:-1] > p.merge_gap_ms
     first = np.flatnonzero(new)
     last = np.append(first[1:] - 1, seg_start.size - 1)
-    start_ms, end_ms = seg_start[first], seg_end[last]
-    return NetworkBursts(start_ms, end_ms, _participants(bursts, start_ms, end_ms))
+    core_start, core_end = seg_start[first], seg_end[last]
+    channels, start_ms, end_ms = _participants(bursts, core_start, core_end)
+    return NetworkBursts(start_ms, end_ms, channels, core_start, core_end)
 
 
-def _participants(bursts: np.ndarray, start_ms: np.ndarray, end_ms: np.ndarray) -> list:
-    """Channels with a burst overlapping each ``[start_ms[i], end_ms[i]]``."""
+def _participants(bursts: np.ndarray, start_ms: np.ndarray, end_ms: np.ndarray):
+    """Channels with a burst overlapping each ``[start_ms[i], end_ms[i]]``, and the earliest
+    start and latest end of those bursts (the extent)."""
     order = np.argsort(bursts["start_ms"], kind="stable")
     b_start = bursts["start_ms"][order]
     b_end = bursts["end_ms"][order]
@@ -121,14 +151,19 @@ def _participants(bursts: np.ndarray, start_ms: np.ndarray, end_ms: np.ndarray) 
     lo = np.searchsorted(b_start, start_ms - longest, side="left")
     hi = np.searchsorted(b_start, end_ms, side="right")
     out = []
+    ext_start = np.empty(start_ms.size)
+    ext_end = np.empty(start_ms.size)
     for i in range(start_ms.size):
         sl = slice(lo[i], hi[i])
-        out.append(np.unique(b_ch[sl][b_end[sl] >= start_ms[i]]).astype(np.uint32))
-    return out
+        hit = b_end[sl] >= start_ms[i]
+        out.append(np.unique(b_ch[sl][hit]).astype(np.uint32))
+        ext_start[i] = b_start[sl][hit].min()
+        ext_end[i] = b_end[sl][hit].max()
+    return out, ext_start, ext_end
 
 
 def inter_burst_intervals_ms(network_bursts: NetworkBursts) -> np.ndarray:
-    """IBI: intervals between the starts of consecutive network bursts (ms)."""
+    """IBI: intervals between the starts (extent) of consecutive network bursts (ms)."""
     return np.diff(network_bursts.start_ms)
 
 

@@ -12,7 +12,9 @@ When is an event complete? With a watermark ``W`` (every spike before ``W`` has 
   ``W > end_ms + isi_limit`` with no spike in between;
 - every burst starting before ``S`` is known, where ``S`` is the earliest of ``W``, the start of
   any open burst and the earliest non-final spike; the bursting count is final before ``S``, so
-  a network burst is complete once ``end_ms + merge_gap_ms < S``.
+  a network burst is complete once ``core_end_ms + merge_gap_ms < S``. Its extent (the earliest
+  start and latest end of the bursts overlapping its core) is then known too, since every
+  burst is reported whole, with its end.
 
 The delay from a burst's last spike to its report is thus about ``window_ms + max_isi_ms`` (40 ms
 by default); a network burst follows its last participating burst's report.
@@ -45,11 +47,16 @@ class Burst:
 
 @dataclass(frozen=True)
 class NetworkBurst:
-    """One complete network burst and its participating channels (sorted)."""
+    """One complete network burst and its participating channels (sorted).
+
+    ``start_ms``/``end_ms`` are its extent, ``core_*`` the time at or above the threshold (as
+    in ``network_bursts``)."""
 
     start_ms: float
     end_ms: float
     channels: tuple[int, ...]
+    core_start_ms: float
+    core_end_ms: float
 
     @property
     def duration_ms(self) -> float:
@@ -90,11 +97,17 @@ class OnlineBurstDetector:
         self._channels: dict[int, _Channel] = {}  # only channels with queued spikes or open burst
         self._watermark = -np.inf
         # network-burst sweep state
-        self._events: list[tuple[float, int, int]] = []  # heap of (time, 0 start | 1 end, channel)
+        # heap of (time, 0 start | 1 end, channel, other end of the burst)
+        self._events: list[tuple[float, int, int, float]] = []
         self._count = 0
         self._active: dict[int, int] = {}  # channel -> number of its bursts covering now
-        self._cand: list | None = None  # [start_ms, end_ms or None while above, set(channels)]
+        self._open: dict[tuple[int, float], int] = {}  # (channel, start) -> bursts covering now
+        self._open_end: dict[tuple[int, float], float] = {}  # ... and their end
+        # candidate: [core start, core end or None while above, set(channels), extent start,
+        # extent end]
+        self._cand: list | None = None
         self._pending: set[int] = set()  # channels starting a burst in a candidate's gap
+        self._pending_end = -np.inf  # latest end of the bursts starting in the gap
         self._bursts: list[Burst] = []
         self._network_bursts: list[NetworkBurst] = []
 
@@ -147,6 +160,8 @@ class OnlineBurstDetector:
             np.array([n.start_ms for n in nbs], dtype=np.float64),
             np.array([n.end_ms for n in nbs], dtype=np.float64),
             [np.array(n.channels, dtype=np.uint32) for n in nbs],
+            np.array([n.core_start_ms for n in nbs], dtype=np.float64),
+            np.array([n.core_end_ms for n in nbs], dtype=np.float64),
         )
 
     # ------------------------------------------------------------------ bursts
@@ -202,8 +217,8 @@ class OnlineBurstDetector:
             b = Burst(c, st.open_start, st.open_last, st.open_n)
             self._bursts.append(b)
             out.append(b)
-            heapq.heappush(self._events, (b.start_ms, 0, c))
-            heapq.heappush(self._events, (b.end_ms, 1, c))
+            heapq.heappush(self._events, (b.start_ms, 0, c, b.end_ms))
+            heapq.heappush(self._events, (b.end_ms, 1, c, b.start_ms))
         st.open_start = None
         st.open_n = 0
 
@@ -212,7 +227,7 @@ class OnlineBurstDetector:
         """Run the bursting-count sweep over all events before ``safe``."""
         ev = self._events
         while ev and ev[0][0] < safe:
-            t, kind, c = heapq.heappop(ev)
+            t, kind, c, other = heapq.heappop(ev)
             cand = self._cand
             if cand is not None and cand[1] is not None and t - cand[1] > self._gap:
                 self._emit(out)
@@ -220,17 +235,30 @@ class OnlineBurstDetector:
             if kind == 0:
                 self._count += 1
                 self._active[c] = self._active.get(c, 0) + 1
+                key = (c, t)
+                self._open[key] = self._open.get(key, 0) + 1
+                self._open_end[key] = max(self._open_end.get(key, -np.inf), other)
                 if cand is None:
                     if self._count == self._threshold:
-                        self._cand = [t, None, set(self._active)]
+                        self._cand = [
+                            t,
+                            None,
+                            set(self._active),
+                            min(s for _, s in self._open),
+                            max(self._open_end.values()),
+                        ]
                 elif cand[1] is None:
                     cand[2].add(c)
+                    cand[4] = max(cand[4], other)
                 else:  # inside a candidate's gap
                     self._pending.add(c)
+                    self._pending_end = max(self._pending_end, other)
                     if self._count == self._threshold:
                         cand[1] = None
                         cand[2] |= self._pending
+                        cand[4] = max(cand[4], self._pending_end)
                         self._pending = set()
+                        self._pending_end = -np.inf
             else:
                 self._count -= 1
                 n = self._active[c] - 1
@@ -238,6 +266,13 @@ class OnlineBurstDetector:
                     self._active[c] = n
                 else:
                     del self._active[c]
+                key = (c, other)
+                n = self._open[key] - 1
+                if n:
+                    self._open[key] = n
+                else:
+                    del self._open[key]
+                    del self._open_end[key]
                 if cand is not None and cand[1] is None and self._count == self._threshold - 1:
                     cand[1] = t
         cand = self._cand
@@ -245,9 +280,10 @@ class OnlineBurstDetector:
             self._emit(out)
 
     def _emit(self, out: list) -> None:
-        start, end, chans = self._cand
-        nb = NetworkBurst(start, end, tuple(sorted(chans)))
+        core_start, core_end, chans, ext_start, ext_end = self._cand
+        nb = NetworkBurst(ext_start, ext_end, tuple(sorted(chans)), core_start, core_end)
         self._network_bursts.append(nb)
         out.append(nb)
         self._cand = None
         self._pending = set()
+        self._pending_end = -np.inf

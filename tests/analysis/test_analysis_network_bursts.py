@@ -33,12 +33,27 @@ def test_too_few_channels_is_not_a_network_burst():
     assert len(detect_network_bursts(detect_bursts(ch, t), 20, p)) == 1
 
 
-def test_network_burst_lasts_while_enough_channels_overlap():
+def test_network_burst_extent_runs_from_first_to_last_participating_spike():
     # 4 channels of 10: two burst over [0, 50], two over [30, 100] -> >= 3 only on [30, 50]
     ch, t = merge(network_burst([0, 1], 0.0, 50.0), network_burst([2, 3], 30.0, 70.0))
     nbs = detect_network_bursts(detect_bursts(ch, t), 10)
-    assert (nbs.start_ms.tolist(), nbs.end_ms.tolist()) == ([30.0], [50.0])
+    # the core is the time at >= 30 %; the duration is the extent of the bursts overlapping it
+    assert (nbs.core_start_ms.tolist(), nbs.core_end_ms.tolist()) == ([30.0], [50.0])
+    assert (nbs.start_ms.tolist(), nbs.end_ms.tolist()) == ([0.0], [100.0])
+    assert nbs.duration_ms.tolist() == [100.0] and nbs.core_duration_ms.tolist() == [20.0]
     assert nbs.channels[0].tolist() == [0, 1, 2, 3]
+
+
+def test_bursts_not_overlapping_the_core_do_not_widen_the_extent():
+    # channels 0-2 burst over [100, 160]; channel 3 bursts just before, channel 4 just after
+    ch, t = merge(
+        network_burst([0, 1, 2], 100.0, 60.0),
+        network_burst([3], 40.0, 50.0),
+        network_burst([4], 170.0, 50.0),
+    )
+    nbs = detect_network_bursts(detect_bursts(ch, t), 10)
+    assert (nbs.start_ms.tolist(), nbs.end_ms.tolist()) == ([100.0], [160.0])
+    assert nbs.channels[0].tolist() == [0, 1, 2]
 
 
 def test_segments_closer_than_merge_gap_are_one_network_burst():

@@ -1,45 +1,47 @@
-"""Calibration statistics follow the paper's definitions of bursts and network bursts."""
+"""The calibration statistics are hub.analysis's, fed with the culture's neurons and layout."""
 
 import numpy as np
 import pytest
 
-from sim_network.activity import find_bursts, network_bursts, psth, summarize
+from hub.analysis.metrics import compute_metrics
+from sim_network import Spikes, load_config
+from sim_network.activity import analyze_culture, summarize
+from sim_network.layout import build_layout
 
 
-def test_three_spikes_within_20_ms_make_one_burst_and_overlaps_merge():
-    neuron = np.array([0, 0, 0, 0, 1, 1, 1, 2, 2, 2])
-    t = np.array([100.0, 105, 110, 118, 0, 15, 30, 50, 60, 70.0])
-    b = find_bursts(neuron, t)
-    # neuron 0: windows (100,110) and (105,118) merge into one burst 100–118
-    # neuron 1: 30 ms for three spikes: no burst; neuron 2: exactly 20 ms: a burst
-    assert list(b.neuron) == [0, 2]
-    assert list(b.start_ms) == [100.0, 50.0]
-    assert list(b.end_ms) == [118.0, 70.0]
+def _layout():
+    cfg = load_config("configs/culture_1024.toml")
+    return build_layout(cfg.layout, np.random.default_rng(0))
 
 
-def test_network_burst_needs_thirty_percent_bursting_together():
-    n = 10
-    # neurons 0-2 burst at 100-110 ms (30 %), neurons 0-1 at 500-510 ms (20 %)
-    neuron = np.repeat([0, 1, 2, 0, 1], 3)
-    t = np.concatenate([[100.0, 105, 110]] * 3 + [[500.0, 505, 510]] * 2)
-    start, end = network_bursts(find_bursts(neuron, t), n, 1000.0)
-    assert list(start) == [100.0]
-    assert end[0] == pytest.approx(111.0)
+def _planted_network_burst(layout, start_ms, duration_ms, fraction=0.4):
+    """`fraction` of all neurons burst from start_ms to start_ms + duration_ms (5 ms ISI)."""
+    n_burst = int(fraction * layout.n)
+    t_one = np.arange(start_ms, start_ms + duration_ms + 1e-9, 5.0)
+    ch = np.repeat(np.arange(n_burst), t_one.size)
+    t = np.tile(t_one, n_burst)
+    order = np.argsort(t, kind="stable")
+    return Spikes(ch[order].astype(np.uint32), t[order])
 
 
-def test_summary_rates_and_excitatory_share():
-    cell_type = np.array([0, 0, 0, 1])
-    neuron = np.array([0, 1, 2, 3, 3, 3, 3])
-    t = np.array([100.0, 101, 102, 103, 104, 105, 900])
-    s = summarize(neuron, t, cell_type, 0.0, 1000.0)
-    assert s.mfr_mean == pytest.approx(7 / 4)
-    assert s.mfr_exc == pytest.approx(1.0) and s.mfr_inh == pytest.approx(4.0)
-    assert s.mbr_per_min == pytest.approx(1 / 4 * 60)  # one burst (neuron 3) in 1 s, 4 neurons
-    assert s.n_network_bursts == 0  # one bursting neuron of four is 25 % < 30 %
+def test_summary_is_hub_analysis_on_neuron_channels_with_layout_cell_types():
+    layout = _layout()
+    sp = _planted_network_burst(layout, 1_000.0, 60.0)
+    m = summarize(sp, layout, 0.0, 10_000.0)
+    ref = compute_metrics(
+        sp.channel, sp.t_ms, layout.n, 0.0, 10_000.0, layout.cell_type, layout.x_um, layout.y_um
+    )
+    assert m == ref
+    assert m["n_network_bursts"] == 1
+    # the duration is the network burst's extent (first to last participating spike)
+    assert m["nb_duration_ms"] == pytest.approx(60.0)
+    exc = layout.cell_type[: int(0.4 * layout.n)] == 0
+    assert m["nb_exc_spike_fraction"] == pytest.approx(exc.mean())
 
 
-def test_psth_counts_per_trial():
-    t = np.array([12.0, 13.0, 112.0, 250.0])
-    edges, counts = psth(t, np.array([0.0, 100.0]), 50.0, 5.0)
-    assert edges[2] == 10.0 and counts[2] == pytest.approx(1.5)
-    assert counts.sum() == pytest.approx(1.5)
+def test_stimulus_times_give_the_psth_and_the_evoked_split():
+    layout = _layout()
+    sp = _planted_network_burst(layout, 1_050.0, 40.0)
+    res = analyze_culture(sp, layout, 0.0, 5_000.0, stim_ms=[1_000.0, 3_000.0])
+    assert res.evoked.tolist() == [True]
+    assert 50.0 <= res.metrics["psth_peak_ms"] <= 90.0
