@@ -164,6 +164,11 @@ def _ranges(sensors: SensorReading, n_sensors: int) -> np.ndarray:
     return ranges.astype(np.float64)
 
 
+def _last_onset_ms(period_ms: float) -> float:
+    """The latest onset inside a step, as the wire's float32 can say it (strictly < period)."""
+    return float(np.nextafter(np.float32(period_ms), np.float32(0.0)))
+
+
 def _pulse_params(ctx: SchemeContext) -> tuple[float, float]:
     width_ms = ctx.param("width_ms", WIDTH_MS, gt=0.0)
     max_amplitude_ua = ctx.param("max_amplitude_ua", MAX_AMPLITUDE_UA, gt=0.0)
@@ -195,6 +200,7 @@ def _amplitude_code(ctx: SchemeContext, *, inverse: bool) -> Coder:
         )
     sites = _Sites(stimulation_sites(ctx))
     n_sensors = body.n_sensors
+    last_onset_ms = _last_onset_ms(period_ms)
 
     def code(sensors: SensorReading, step: int) -> Stimulation:
         t0_ms = step * period_ms
@@ -218,7 +224,7 @@ def _amplitude_code(ctx: SchemeContext, *, inverse: bool) -> Coder:
             channel=np.tile(sites.channel[on], n_t),
             amplitude_ua=np.tile(amp_site[on], n_t),
             width_ms=np.full(n_on * n_t, width_ms),
-            onset_ms=np.repeat(np.maximum(onsets, 0.0), n_on),
+            onset_ms=np.repeat(np.clip(onsets, 0.0, last_onset_ms), n_on),
         )
 
     return code
@@ -290,6 +296,7 @@ def rate(ctx: SchemeContext) -> Coder:
     n_sensors = body.n_sensors
     period_ms = float(ctx.period_ms)
     period_s = period_ms / 1e3
+    last_onset_ms = _last_onset_ms(period_ms)
     phase = np.ones(n_sensors)  # one phase per sensor: a sensor's sites pulse together
     channels = [sites.channel[sites.sensor == s] for s in range(n_sensors)]
 
@@ -297,8 +304,9 @@ def rate(ctx: SchemeContext) -> Coder:
         d = np.clip(_ranges(sensors, n_sensors), 0.0, max_range_m)
         hz = min_hz + (max_hz - min_hz) * (1.0 - d / max_range_m)
         end = phase + hz * period_s
-        # pulses where the phase crosses j = 1, 2, … with j < end (end itself is next step's)
-        n = np.maximum(np.ceil(end) - 1.0, 0.0).astype(np.int64)
+        # pulses where the phase crosses j = 1, 2, … with j < end (a crossing at the very end,
+        # within rounding, is left to the next step's start)
+        n = np.maximum(np.ceil(end - 1e-9) - 1.0, 0.0).astype(np.int64)
         if not n.any():
             phase[:] = end
             return Stimulation(step=step)
@@ -306,9 +314,7 @@ def rate(ctx: SchemeContext) -> Coder:
         for s in np.flatnonzero(n):
             t_ms = (np.arange(1, n[s] + 1) - phase[s]) / hz[s] * 1e3
             chan.append(np.tile(channels[s], t_ms.size))
-            onset.append(
-                np.repeat(np.clip(t_ms, 0.0, np.nextafter(period_ms, 0)), channels[s].size)
-            )
+            onset.append(np.repeat(np.clip(t_ms, 0.0, last_onset_ms), channels[s].size))
         phase[:] = end - n
         chan = np.concatenate(chan)
         return Stimulation(
