@@ -1,35 +1,90 @@
 """What a finished run leaves beside its record: ``summary.json`` and pictures.
 
 Called by ``neuvision run`` and ``neuvision hub`` after every run that did not
-fault. The loop's timing figures and counts always go in; the products of
-other parts (behaviour metrics, trajectory, raster) are added when the run's
-endpoints are of kinds that have them.
+fault, and usable on any run folder (:func:`summarize_run`). Everything is
+computed from the record, so a summary always describes what was recorded:
+
+- the loop's timing figures and counts (always);
+- the behaviour metrics and ``trajectory.png``/``.svg`` when the body was a
+  simulated robot whose world file is known (``body.params.world``);
+- ``raster.png``/``.svg`` of the culture's activity when spikes were recorded.
 """
 
 from __future__ import annotations
 
 import json
 import logging
+from pathlib import Path
 
-from hub.config import ExperimentConfig
-from hub.loop import RunResult
+from hub.record import read_run
 
 log = logging.getLogger(__name__)
 
 SUMMARY_FILE = "summary.json"
 
 
-def after_run(result: RunResult, cfg: ExperimentConfig) -> dict:
-    """Write ``summary.json`` (and pictures where possible) into the run folder."""
+def after_run(result, cfg) -> dict:
+    """Summarise a finished run into its folder (nothing to do without one)."""
+    if result.run_dir is None or not cfg.record.enabled:
+        return {}
+    return summarize_run(result.run_dir)
+
+
+def world_of(config: dict) -> str | None:
+    """The world file of a run's simulated body, from its recorded config."""
+    body = config.get("body", {})
+    if body.get("kind") != "sim_robot":
+        return None
+    from sim_robot.endpoint import DEFAULT_WORLD
+
+    return body.get("params", {}).get("world", DEFAULT_WORLD)
+
+
+def summarize_run(run_dir: str | Path) -> dict:
+    """Write ``summary.json`` and the pictures of a recorded run; return the summary."""
+    run_dir = Path(run_dir)
+    rec = read_run(run_dir)
+    m = rec.manifest
+    config = m.get("config", {})
+    period_ms = config.get("loop", {}).get("period_ms", 0.0)
     summary = {
-        "name": cfg.experiment.name,
-        "seed": cfg.experiment.seed,
-        "outcome": result.outcome,
-        "steps": result.steps,
-        "simulated_s": result.steps * cfg.loop.period_ms / 1e3,
-        "timing": result.timing,
-        "counts": result.counts,
+        "name": m.get("name"),
+        "seed": m.get("seed"),
+        "outcome": m.get("outcome"),
+        "steps": m.get("steps"),
+        "simulated_s": (m.get("steps") or 0) * period_ms / 1e3,
+        "timing": m.get("timing", {}),
+        "counts": m.get("counts", {}),
+        "figures": [],
     }
-    if result.run_dir is not None:
-        (result.run_dir / SUMMARY_FILE).write_text(json.dumps(summary, indent=2))
+    t_s, poses = rec.trajectory()
+    world_path = world_of(config)
+    if world_path and len(t_s) > 1:
+        from sim_robot import load_world
+        from sim_robot.metrics import trajectory_metrics
+        from sim_robot.render import save_trajectory
+
+        world = load_world(world_path)
+        summary["behaviour"] = trajectory_metrics(world, t_s, poses)
+        title = f"{m.get('name')} (seed {m.get('seed')})"
+        for suffix in (".png", ".svg"):
+            path = save_trajectory(world, t_s, poses, run_dir / f"trajectory{suffix}", title=title)
+            summary["figures"].append(path.name)
+    channel, t_ms = rec.spikes()
+    if channel.size:
+        from hub.analysis.figures import plot_raster
+
+        culture = rec.descriptions().get("culture")
+        cell_type = culture.cell_type if culture is not None else None
+        paths = plot_raster(channel, t_ms, run_dir / "raster", cell_type=cell_type)
+        summary["figures"] += [Path(p).name for p in paths]
+        summary["spikes"] = int(channel.size)
+    summary["stimulation_pulses"] = _pulse_count(rec)
+    (run_dir / SUMMARY_FILE).write_text(json.dumps(summary, indent=2))
     return summary
+
+
+def _pulse_count(rec) -> int:
+    from hub.protocol import Stimulation
+
+    return sum(s.n_pulses for s in rec.decoded(Stimulation, "tx"))
