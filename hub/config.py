@@ -117,6 +117,17 @@ class RecordSection:
 
 
 @dataclass(frozen=True)
+class OnlineSection:
+    """Burst and network-burst detection on the live spike stream (paper: "on the fly")."""
+
+    enabled: bool = True
+    # Keyword arguments of hub.analysis BurstParams and NetworkBurstParams (their
+    # defaults are the paper's: >= 3 spikes in 20 ms; >= 30 % of channels).
+    burst: dict = field(default_factory=dict)
+    network: dict = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
 class ExperimentConfig:
     """A whole experiment file, validated."""
 
@@ -133,6 +144,7 @@ class ExperimentConfig:
     body: EndpointSection = field(default_factory=lambda: EndpointSection(kind="sim_robot"))
     culture: EndpointSection = field(default_factory=lambda: EndpointSection(kind="sim_network"))
     record: RecordSection = field(default_factory=RecordSection)
+    online: OnlineSection = field(default_factory=OnlineSection)
     source: str = field(default="", metadata={"internal": True})
 
     def endpoint(self, role: str) -> EndpointSection:

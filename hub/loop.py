@@ -24,8 +24,11 @@ from pathlib import Path
 import numpy as np
 import zenoh
 
+from hub.analysis.bursts import BurstParams
+from hub.analysis.network_bursts import NetworkBurstParams
+from hub.analysis.online import NetworkBurst, OnlineBurstDetector
 from hub.bus import LOOP_PUBLISH, TELEMETRY_PUBLISH, open_session, payload_bytes
-from hub.config import ExperimentConfig
+from hub.config import ConfigError, ExperimentConfig
 from hub.protocol import (
     OUTPUT_TYPE,
     ROLES,
@@ -131,6 +134,8 @@ class Hub:
         self.lateness_s = np.full(n, np.nan)
         self.step_wall_s = np.full(n, np.nan)
         self.recorder: Recorder | None = None
+        self.online: OnlineBurstDetector | None = None
+        self.bursts = self.network_bursts = 0
 
     # ================================================================ public
 
@@ -168,7 +173,7 @@ class Hub:
             if self._stop_reason:
                 outcome = "interrupted" if self._stop_reason == "interrupted" else "stopped"
                 reason = self._stop_reason
-        except HubError as exc:
+        except (HubError, ConfigError) as exc:
             outcome, reason = "fault", str(exc)
             log.error("%s", exc)
             self._record_event("fault", reason=reason)
@@ -221,6 +226,8 @@ class Hub:
             self._send("culture", self._stim_for(k, prev["body"]))
             late = self._collect(k, self._deadline(k, period_s))
             prev = {role: self.replies.get(role) for role in ROLES}
+            if prev["culture"] is not None and self.online is not None:
+                self._analyse_online(prev["culture"])
             self.step_wall_s[k] = time.monotonic() - t0
             self.late_steps += bool(late or self.lateness_s[k] > LATE_START_SHARE * period_s)
             self.k_done = k + 1
@@ -252,6 +259,23 @@ class Hub:
         if not isinstance(message, kind) or message.step != k:
             raise HubError(f"scheme returned {message!r}, expected a {kind.__name__} for step {k}")
         return message
+
+    def _analyse_online(self, spikes: SpikeBatch) -> None:
+        """Feed the step's spikes to the online detector; record each network burst."""
+        t_ms = spikes.t0_s * 1e3 + spikes.t_ms.astype(np.float64)
+        index = self._channel_index[spikes.channel]
+        for event in self.online.feed(index, t_ms, until_ms=spikes.t1_s * 1e3):
+            if isinstance(event, NetworkBurst):
+                self.network_bursts += 1
+                self._record_event(
+                    "network_burst",
+                    start_ms=event.start_ms,
+                    end_ms=event.end_ms,
+                    n_channels=len(event.channels),
+                    at_step=self.k,
+                )
+            else:
+                self.bursts += 1
 
     # ================================================================ timing
 
@@ -499,6 +523,8 @@ class Hub:
             if role == "culture":
                 self._known_channel = np.zeros(int(desc.channel.max(initial=0)) + 1, bool)
                 self._known_channel[desc.channel] = True
+                self._channel_index = np.zeros(self._known_channel.size, np.int64)
+                self._channel_index[desc.channel] = np.arange(desc.channel.size)
             self._record_event("described", role=role, id=i, kind=desc.kind)
 
     def _build_schemes(self) -> None:
@@ -517,6 +543,15 @@ class Hub:
         )
         self.last_motor = MotorCommand.stop(0)
         self.last_sensors: SensorReading | None = None
+        if cfg.online.enabled:
+            params = {}
+            for name, kind in (("burst", BurstParams), ("network", NetworkBurstParams)):
+                try:
+                    params[name] = kind(**getattr(cfg.online, name))
+                except (TypeError, ValueError) as exc:
+                    raise ConfigError(f"online.{name}: {exc}") from None
+            n_channels = self.descriptions["culture"].channel.size
+            self.online = OnlineBurstDetector(n_channels, params["burst"], params["network"])
 
     # ================================================================ output
 
@@ -550,7 +585,11 @@ class Hub:
             alive=sorted(f"{r}/{i}" for r, i in self.alive),
             wall_s=wall,
             steps_per_s=done / wall if wall > 0 else 0.0,
-            extra={"late_steps": self.late_steps},
+            extra={
+                "late_steps": self.late_steps,
+                "bursts": self.bursts,
+                "network_bursts": self.network_bursts,
+            },
         )
 
     def _publish_status(self) -> None:
@@ -594,6 +633,8 @@ class Hub:
 
     def counts(self) -> dict:
         return {
+            "bursts_online": self.bursts,
+            "network_bursts_online": self.network_bursts,
             "late": dict(self.late),
             "missing": {r: len(s) for r, s in self.missed.items() if s},
             "dropped": {r: dict(c) for r, c in self.dropped.items()},
