@@ -1,0 +1,181 @@
+"""Offline analysis of one recorded run: ``metrics.json``, figures and a ``report.html``.
+
+``analyze_run(run_dir, out_dir=None)`` is what ``neuvision analyze RUN_DIR [--out DIR]`` calls.
+It reads the record with ``hub.record.read_run`` and uses, from it:
+
+- the culture's spikes (``SpikeBatch`` received or late), in absolute ms; the analysed span is
+  from the first batch's ``t0_s`` to the last batch's ``t1_s``;
+- the culture's ``Description`` (channel ids, positions, cell types), when there is one;
+  channel ids are mapped to indices ``0..n-1`` in the order of the description;
+- the sent ``Stimulation`` messages: each distinct pulse onset
+  ``step * loop.period_ms + onset_ms`` is one stimulus of the PSTH (pulses into several
+  channels at the same time count once);
+- the body's poses and, when the config names a ``sim_robot`` world, the trajectory picture
+  and behaviour metrics of ``sim_robot``;
+- the manifest's config and timing, shown in the report.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from hub.analysis.figures import FORMATS, plot_all
+from hub.analysis.metrics import AnalysisParams, analyze
+from hub.analysis.report import write_report
+from hub.analysis.spikes import AnalysisInputError
+
+ANALYSIS_DIR = "analysis"
+METRICS_FILE = "metrics.json"
+REPORT_FILE = "report.html"
+
+
+def stimulus_onsets_ms(stimulations, period_ms: float) -> tuple[np.ndarray, np.ndarray]:
+    """Distinct pulse onsets (absolute ms, sorted) and the stimulated channel ids.
+
+    ``stimulations`` are ``hub.protocol.Stimulation`` messages; a pulse of step k starts at
+    ``k * period_ms + onset_ms``.
+    """
+    onsets = [m.step * period_ms + m.onset_ms.astype(np.float64) for m in stimulations]
+    chans = [m.channel for m in stimulations]
+    if not onsets or not sum(o.size for o in onsets):
+        return np.empty(0), np.empty(0, np.uint32)
+    return np.unique(np.concatenate(onsets)), np.unique(np.concatenate(chans))
+
+
+def _culture_arrays(culture, channel: np.ndarray):
+    """Map channel ids to indices; return (index per spike, keep mask, n, cell_type, x, y)."""
+    if culture is None or culture.channel is None or culture.channel.size == 0:
+        n = int(channel.max()) + 1 if channel.size else 1
+        return channel.astype(np.int64), np.ones(channel.size, bool), n, None, None, None
+    ids = np.asarray(culture.channel, dtype=np.int64)
+    order = np.argsort(ids)
+    pos = np.searchsorted(ids[order], channel)
+    pos = np.minimum(pos, ids.size - 1)
+    keep = ids[order][pos] == channel
+    index = order[pos]
+    ct = None if culture.cell_type is None else np.asarray(culture.cell_type, dtype=np.uint8)
+    x = np.asarray(culture.x_um, dtype=np.float64)
+    y = np.asarray(culture.y_um, dtype=np.float64)
+    return index, keep, int(ids.size), ct, x, y
+
+
+def _span_ms(batches, manifest: dict, period_ms: float | None) -> tuple[float, float]:
+    if batches:
+        return (
+            min(b.t0_s for b in batches) * 1e3,
+            max(b.t1_s for b in batches) * 1e3,
+        )
+    steps = manifest.get("steps") or 0
+    if period_ms and steps:
+        return 0.0, steps * period_ms
+    raise AnalysisInputError("the run has no spike batches and no steps: nothing to analyse")
+
+
+def _trajectory(rec, config: dict, out: Path, title: str, metrics: dict) -> list[Path]:
+    """The body's trajectory picture (and behaviour metrics) when a sim_robot world is named."""
+    from hub.postrun import world_of  # the one rule for "the world of a run"
+
+    t_s, poses = rec.trajectory()
+    world_path = world_of(config)
+    if world_path is None or len(t_s) < 2:
+        return []
+    from sim_robot import load_world
+    from sim_robot.metrics import trajectory_metrics
+    from sim_robot.render import save_trajectory
+
+    world = load_world(world_path)
+    for key, value in trajectory_metrics(world, t_s, poses).items():
+        if isinstance(value, (int, float, bool)):
+            metrics[f"body_{key}"] = value
+    return [
+        save_trajectory(world, t_s, poses, out / f"trajectory.{fmt}", title=title)
+        for fmt in FORMATS
+    ]
+
+
+def analyze_run(run_dir, out_dir=None, params: AnalysisParams | None = None) -> dict:
+    """Analyse a recorded run; write ``metrics.json``, figures and ``report.html``.
+
+    Parameters
+    ----------
+    run_dir : the run folder (``manifest.json`` + ``record.nvrec``).
+    out_dir : where to write; default ``RUN_DIR/analysis``. Created if needed.
+    params : analysis parameters; default ``AnalysisParams.from_dict(config["analysis"])`` when
+        the run's config has an ``analysis`` table, else the paper's defaults.
+
+    Returns
+    -------
+    dict with ``metrics`` (the dict written to ``metrics.json``), ``out_dir``, ``metrics_path``,
+    ``report_path`` and ``figures`` (paths written).
+    """
+    from hub.protocol import SpikeBatch, Stimulation
+    from hub.record import DATA_DIRECTIONS, read_run
+
+    run_dir = Path(run_dir)
+    if not run_dir.is_dir():
+        raise AnalysisInputError(f"run_dir {run_dir} is not a folder")
+    rec = read_run(run_dir)
+    manifest = rec.manifest
+    config = manifest.get("config", {}) or {}
+    if params is None:
+        params = AnalysisParams.from_dict(config.get("analysis"))
+    out = Path(out_dir) if out_dir is not None else run_dir / ANALYSIS_DIR
+    out.mkdir(parents=True, exist_ok=True)
+    period_ms = config.get("loop", {}).get("period_ms")
+
+    batches = rec.decoded(SpikeBatch, *DATA_DIRECTIONS)
+    t_start_ms, t_stop_ms = _span_ms(batches, manifest, period_ms)
+    channel, t_ms = rec.spikes()
+    order = np.argsort(t_ms, kind="stable")  # late batches may arrive out of order
+    channel, t_ms = channel[order].astype(np.int64), t_ms[order]
+    culture = rec.descriptions().get("culture")
+    index, keep, n_channels, cell_type, x_um, y_um = _culture_arrays(culture, channel)
+    index, t_ms = index[keep], t_ms[keep]
+
+    stimulations = rec.decoded(Stimulation, "tx")
+    stim_ms, stim_ids = None, None
+    if stimulations:
+        if not period_ms:
+            raise AnalysisInputError(
+                "config.loop.period_ms is needed to place the recorded stimulations in time"
+            )
+        stim_ms, stim_ids = stimulus_onsets_ms(stimulations, float(period_ms))
+        if stim_ms.size == 0:
+            stim_ms = None
+
+    result = analyze(
+        index, t_ms, n_channels, t_start_ms, t_stop_ms, cell_type, x_um, y_um, stim_ms, params
+    )
+    metrics = dict(result.metrics)
+    metrics["n_stimuli"] = int(stim_ms.size) if stim_ms is not None else 0
+    metrics["n_unknown_channel_spikes"] = int((~keep).sum())
+
+    stim_channels = None
+    if stim_ids is not None and culture is not None and culture.channel is not None:
+        stim_channels = np.flatnonzero(np.isin(culture.channel, stim_ids))
+    figures = plot_all(
+        out, index, t_ms, result, t_start_ms, t_stop_ms, cell_type, x_um, y_um, stim_channels
+    )
+    name = manifest.get("name") or run_dir.name
+    title = f"{name} (seed {manifest.get('seed')})"
+    figures += _trajectory(rec, config, out, title, metrics)
+
+    metrics_path = out / METRICS_FILE
+    metrics_path.write_text(json.dumps(metrics, indent=2))
+    timing = dict(manifest.get("timing") or {})
+    for key in ("outcome", "reason", "start_utc", "end_utc", "steps"):
+        if manifest.get(key) not in (None, ""):
+            timing[key] = manifest[key]
+    report_path = write_report(
+        out / REPORT_FILE, metrics, config, figures, title=f"NeuVision run {name}", timing=timing
+    )
+    return {
+        "metrics": metrics,
+        "out_dir": out,
+        "metrics_path": metrics_path,
+        "report_path": report_path,
+        "figures": figures,
+    }

@@ -1,0 +1,162 @@
+"""`analyze_run` turns a recorded run into metrics.json, figures and a self-contained report."""
+
+import json
+
+import numpy as np
+import pytest
+
+from hub.analysis.run_analysis import analyze_run, stimulus_onsets_ms
+from hub.analysis.spikes import AnalysisInputError
+from hub.protocol import Description, SensorReading, SpikeBatch, Stimulation
+from hub.record import Recorder, write_manifest
+
+PERIOD_MS = 10.0
+N_CHANNELS = 20
+STIM_EVERY_STEPS = 100  # one pulse a second
+# every stimulus evokes, in channels 0-9 (50 %), spikes at these latencies: a network burst
+# whose fullest 5 ms PSTH bin is [60, 65) ms
+EVOKED_LATENCIES_MS = np.array([55.0, 60.0, 61.0, 62.0, 63.0, 64.0, 70.0, 80.0])
+
+
+def _write_run(run_dir, n_steps=600, world="configs/worlds/paper.toml"):
+    """A hand-made 6 s run: culture description, stimulations, spikes, body poses."""
+    config = {"loop": {"period_ms": PERIOD_MS, "mode": "lockstep"}}
+    if world is not None:
+        config["body"] = {"kind": "sim_robot", "params": {"world": world}}
+    manifest = {
+        "name": "handmade",
+        "seed": 7,
+        "config": config,
+        "steps": n_steps,
+        "outcome": "completed",
+        "timing": {"mode": "lockstep", "period_ms": PERIOD_MS, "steps": n_steps, "wall_s": 1.5},
+    }
+    write_manifest(run_dir, manifest)
+    rec = Recorder(run_dir)
+    ids = np.arange(100, 100 + N_CHANNELS, dtype=np.uint32)  # ids need not start at 0
+    desc = Description(
+        role="culture",
+        id="0",
+        kind="sim_network",
+        channel=ids,
+        x_um=(np.arange(N_CHANNELS) % 5 * 50.0).astype(np.float32),
+        y_um=(np.arange(N_CHANNELS) // 5 * 50.0).astype(np.float32),
+        cell_type=(np.arange(N_CHANNELS) % 5 == 4).astype(np.uint8),
+    )
+    rec.message("rx", "nv/s/culture/0/describe", desc.encode())
+    # absolute spike times: a sparse background on every channel plus the evoked bursts
+    stim_steps = np.arange(10, n_steps, STIM_EVERY_STEPS)
+    times, chans = [], []
+    for c in range(N_CHANNELS):
+        t = np.arange(7.0 + 13 * c, n_steps * PERIOD_MS, 250.0)  # 4 Hz, never a burst
+        times.append(t)
+        chans.append(np.full(t.size, c))
+    for k in stim_steps:
+        for c in range(10):
+            times.append(k * PERIOD_MS + 2.0 + EVOKED_LATENCIES_MS)  # onset_ms = 2
+            chans.append(np.full(EVOKED_LATENCIES_MS.size, c))
+    t_all = np.concatenate(times)
+    c_all = np.concatenate(chans)
+    order = np.argsort(t_all, kind="stable")
+    t_all, c_all = t_all[order], c_all[order]
+    for k in range(n_steps):
+        if k in stim_steps:
+            stim = Stimulation(
+                step=int(k),
+                channel=ids[[0, 1]],
+                amplitude_ua=np.full(2, 100.0, np.float32),
+                width_ms=np.full(2, 10.0, np.float32),
+                onset_ms=np.full(2, 2.0, np.float32),
+            )
+            rec.message("tx", "nv/s/culture/0/stim", stim.encode())
+        lo, hi = np.searchsorted(t_all, [k * PERIOD_MS, (k + 1) * PERIOD_MS])
+        batch = SpikeBatch(
+            step=k,
+            t0_s=k * PERIOD_MS / 1e3,
+            t1_s=(k + 1) * PERIOD_MS / 1e3,
+            channel=ids[c_all[lo:hi]],
+            t_ms=(t_all[lo:hi] - k * PERIOD_MS).astype(np.float32),
+        )
+        rec.message("rx", "nv/s/culture/0/spikes", batch.encode())
+        angle = k / n_steps * 2 * np.pi
+        reading = SensorReading(
+            step=k,
+            t_s=k * PERIOD_MS / 1e3,
+            ranges_m=[0.2],
+            pose=[0.3 * np.cos(angle), 0.3 * np.sin(angle), angle],
+            contact=False,
+        )
+        rec.message("rx", "nv/s/body/0/sensors", reading.encode())
+    rec.close()
+    return stim_steps
+
+
+def test_a_recorded_run_gives_metrics_figures_and_a_report(tmp_path):
+    run_dir = tmp_path / "run"
+    run_dir.mkdir()
+    stim_steps = _write_run(run_dir)
+    out = analyze_run(run_dir)
+
+    assert out["out_dir"] == run_dir / "analysis"
+    metrics = json.loads((run_dir / "analysis" / "metrics.json").read_text())
+    assert metrics == out["metrics"]
+    assert metrics["duration_s"] == pytest.approx(6.0)
+    assert metrics["n_channels"] == N_CHANNELS
+    # two pulses at the same time are one stimulus
+    assert metrics["n_stimuli"] == stim_steps.size
+    assert metrics["n_network_bursts"] == stim_steps.size
+    assert metrics["n_evoked_nb"] == stim_steps.size
+    assert metrics["psth_peak_ms"] == pytest.approx(62.5)  # centre of the planted [60, 65) bin
+    assert metrics["nb_duration_ms"] == pytest.approx(25.0)  # first to last evoked spike
+    assert metrics["body_distance_m"] > 1.5  # a circle of radius 0.3 m
+
+    names = {p.name for p in out["figures"]}
+    for stem in ("raster", "rate", "isi", "ibi", "psth", "cats_evoked", "trajectory"):
+        assert {f"{stem}.png", f"{stem}.svg"} <= names
+    for p in out["figures"]:
+        assert p.is_file() and p.stat().st_size > 1000
+    html = out["report_path"].read_text()
+    assert out["report_path"] == run_dir / "analysis" / "report.html"
+    assert html.count("data:image/png;base64,") == len(names) // 2  # one image per figure
+    assert "wall_s" in html and "period_ms" in html and "handmade" in html
+
+
+def test_the_output_folder_can_be_chosen_and_a_run_without_world_has_no_trajectory(tmp_path):
+    run_dir = tmp_path / "run"
+    run_dir.mkdir()
+    _write_run(run_dir, n_steps=200, world=None)
+    out = analyze_run(run_dir, tmp_path / "elsewhere")
+    assert (tmp_path / "elsewhere" / "metrics.json").is_file()
+    assert (tmp_path / "elsewhere" / "report.html").is_file()
+    assert not any(p.name.startswith("trajectory") for p in out["figures"])
+    assert "body_distance_m" not in out["metrics"]
+
+
+def test_a_run_without_spikes_or_steps_is_refused_with_a_clear_error(tmp_path):
+    write_manifest(tmp_path, {"name": "empty", "config": {"loop": {"period_ms": 10.0}}})
+    Recorder(tmp_path).close()
+    with pytest.raises(AnalysisInputError, match="no spike batches and no steps"):
+        analyze_run(tmp_path)
+
+
+def test_a_silent_culture_still_gets_metrics_and_report(tmp_path):
+    write_manifest(tmp_path, {"name": "silent", "config": {"loop": {"period_ms": 10.0}}})
+    rec = Recorder(tmp_path)
+    for k in range(100):
+        batch = SpikeBatch(step=k, t0_s=k * 0.01, t1_s=(k + 1) * 0.01)
+        rec.message("rx", "nv/s/culture/0/spikes", batch.encode())
+    rec.close()
+    out = analyze_run(tmp_path)
+    assert out["metrics"]["n_spikes"] == 0 and out["metrics"]["mfr_hz"] == 0.0
+    assert out["metrics"]["nb_duration_ms"] is None
+    assert out["report_path"].stat().st_size > 0
+
+
+def test_stimulus_onsets_are_step_times_plus_pulse_onsets():
+    msgs = [
+        Stimulation(step=3, channel=[1, 2], amplitude_ua=[1, 1], width_ms=[1, 1], onset_ms=[0, 0]),
+        Stimulation(step=5, channel=[4], amplitude_ua=[1], width_ms=[1], onset_ms=[2.5]),
+    ]
+    onsets, chans = stimulus_onsets_ms(msgs, 10.0)
+    assert onsets.tolist() == [30.0, 52.5]
+    assert chans.tolist() == [1, 2, 4]
