@@ -189,15 +189,8 @@ def load_config(path: str | Path | None = None, overrides: list[str] = ()) -> Ex
     ConfigError
         Naming the dotted key and the reason.
     """
-    data: dict[str, Any] = {}
-    if path is not None:
-        path = Path(path)
-        try:
-            data = tomllib.loads(path.read_text())
-        except FileNotFoundError:
-            raise ConfigError(f"config file {path} does not exist") from None
-        except tomllib.TOMLDecodeError as exc:
-            raise ConfigError(f"{path}: not valid TOML: {exc}") from None
+    data: dict[str, Any] = _read_toml(Path(path)) if path is not None else {}
+    # (A file may start with extends = "base.toml": see _read_toml.)
     for item in overrides:
         key, sep, text = item.partition("=")
         if not sep or not key.strip():
@@ -205,6 +198,37 @@ def load_config(path: str | Path | None = None, overrides: list[str] = ()) -> Ex
         _set_dotted(data, key.strip(), _parse_value(text.strip()))
     cfg = from_dict(data)
     return dataclasses.replace(cfg, source=str(path) if path else "")
+
+
+def _read_toml(path: Path, seen: tuple[Path, ...] = ()) -> dict[str, Any]:
+    """Read a TOML file; ``extends = "other.toml"`` (relative to it) is merged under it."""
+    try:
+        data = tomllib.loads(path.read_text())
+    except FileNotFoundError:
+        raise ConfigError(f"config file {path} does not exist") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{path}: not valid TOML: {exc}") from None
+    base_name = data.pop("extends", None)
+    if base_name is None:
+        return data
+    if not isinstance(base_name, str):
+        raise ConfigError(f"{path}: extends must be a file name, got {base_name!r}")
+    base_path = (path.parent / base_name).resolve()
+    if base_path in seen:
+        raise ConfigError(f"{path}: extends {base_name} makes a cycle")
+    return _merge(_read_toml(base_path, seen + (path.resolve(),)), data)
+
+
+def _merge(base: dict, over: dict) -> dict:
+    """Tables merge key by key, except ``params`` tables, which replace (they belong
+    to one scheme or endpoint kind, and the extending file may name another)."""
+    out = dict(base)
+    for key, value in over.items():
+        if isinstance(value, dict) and isinstance(out.get(key), dict) and key != "params":
+            out[key] = _merge(out[key], value)
+        else:
+            out[key] = value
+    return out
 
 
 def from_dict(data: dict[str, Any]) -> ExperimentConfig:

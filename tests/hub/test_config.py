@@ -66,3 +66,24 @@ def test_the_config_is_recorded_as_plain_data():
     d = load_config(None, ["loop.period_ms=2"]).to_dict()
     assert d["loop"]["period_ms"] == 2.0
     assert d["bus"]["listen"] == ["tcp/127.0.0.1:7447"]
+
+
+def test_a_file_can_extend_another_and_params_tables_replace(tmp_path):
+    (tmp_path / "base.toml").write_text(
+        '[experiment]\nname = "base"\nseed = 4\n'
+        '[coding]\nscheme = "a:b"\nparams = { gain = 2.0, width_ms = 1.0 }\n'
+    )
+    (tmp_path / "child.toml").write_text(
+        'extends = "base.toml"\n[experiment]\nname = "child"\n'
+        '[coding]\nscheme = "c:d"\nparams = { rate = 1.0 }\n'
+    )
+    cfg = load_config(tmp_path / "child.toml")
+    assert cfg.experiment.name == "child" and cfg.experiment.seed == 4
+    assert cfg.coding.scheme == "c:d" and cfg.coding.params == {"rate": 1.0}
+
+
+def test_an_extends_cycle_is_an_error(tmp_path):
+    (tmp_path / "a.toml").write_text('extends = "b.toml"\n')
+    (tmp_path / "b.toml").write_text('extends = "a.toml"\n')
+    with pytest.raises(ConfigError, match="cycle"):
+        load_config(tmp_path / "a.toml")
