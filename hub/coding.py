@@ -146,22 +146,26 @@ def stimulation_sites(ctx: SchemeContext) -> list[np.ndarray]:
 # --------------------------------------------------------------------------- pulses
 
 
-class _Sites:
-    """Flattened sites: ``channel[i]`` belongs to sensor ``sensor[i]``."""
-
-    def __init__(self, sites: list[np.ndarray]):
-        self.channel = np.concatenate(sites).astype(np.uint32)
-        self.sensor = np.repeat(np.arange(len(sites)), [s.size for s in sites])
-
-
-def _ranges(sensors: SensorReading, n_sensors: int) -> np.ndarray:
+def _ranges(sensors: SensorReading, n_sensors: int) -> list[float]:
+    """The reading's ranges as Python floats (a handful: plain Python beats numpy here)."""
     ranges = sensors.ranges_m
     if ranges.size != n_sensors:
         raise ValueError(
             f"sensor reading of step {sensors.step} has {ranges.size} ranges, "
             f"the body described {n_sensors}"
         )
-    return ranges.astype(np.float64)
+    return ranges.tolist()
+
+
+def _stimulation(step, channel, amplitude_ua, width_ms, onset_ms) -> Stimulation:
+    """A Stimulation from Python lists, built directly in the wire's dtypes."""
+    return Stimulation(
+        step=step,
+        channel=np.array(channel, dtype=np.uint32),
+        amplitude_ua=np.array(amplitude_ua, dtype=np.float32),
+        width_ms=np.full(len(channel), width_ms, dtype=np.float32),
+        onset_ms=np.array(onset_ms, dtype=np.float32),
+    )
 
 
 def _last_onset_ms(period_ms: float) -> float:
@@ -198,7 +202,7 @@ def _amplitude_code(ctx: SchemeContext, *, inverse: bool) -> Coder:
             f"{ctx.section}.params.pulse_period_ms must be >= width_ms ({width_ms}) so that a "
             f"site's pulses do not overlap, got {pulse_period_ms}"
         )
-    sites = _Sites(stimulation_sites(ctx))
+    sites = [site.tolist() for site in stimulation_sites(ctx)]
     n_sensors = body.n_sensors
     last_onset_ms = _last_onset_ms(period_ms)
 
@@ -209,22 +213,23 @@ def _amplitude_code(ctx: SchemeContext, *, inverse: bool) -> Coder:
         m1 = math.ceil((t0_ms + period_ms) / pulse_period_ms - 1e-9)
         if m1 <= m0:
             return Stimulation(step=step)
-        d = np.clip(_ranges(sensors, n_sensors), 0.0, max_range_m)
-        amp = gain * ((max_range_m - d) if inverse else d)
-        np.minimum(amp, max_ua, out=amp)
-        amp_site = amp[sites.sensor]
-        on = amp_site >= min_ua if min_ua > 0 else amp_site > 0
-        n_on = int(on.sum())
-        if n_on == 0:
+        channel, amplitude = [], []
+        for chans, d in zip(sites, _ranges(sensors, n_sensors), strict=True):
+            d = min(max(d, 0.0), max_range_m)
+            amp = min(gain * ((max_range_m - d) if inverse else d), max_ua)
+            if amp > 0.0 and amp >= min_ua:
+                channel += chans
+                amplitude += [amp] * len(chans)
+        if not channel:
             return Stimulation(step=step)
-        onsets = np.arange(m0, m1) * pulse_period_ms - t0_ms
-        n_t = onsets.size
-        return Stimulation(
-            step=step,
-            channel=np.tile(sites.channel[on], n_t),
-            amplitude_ua=np.tile(amp_site[on], n_t),
-            width_ms=np.full(n_on * n_t, width_ms),
-            onset_ms=np.repeat(np.clip(onsets, 0.0, last_onset_ms), n_on),
+        onsets = [min(max(m * pulse_period_ms - t0_ms, 0.0), last_onset_ms) for m in range(m0, m1)]
+        n_on = len(channel)
+        return _stimulation(
+            step,
+            channel * len(onsets),
+            amplitude * len(onsets),
+            width_ms,
+            [t for t in onsets for _ in range(n_on)],
         )
 
     return code
@@ -292,37 +297,32 @@ def rate(ctx: SchemeContext) -> Coder:
     amplitude_ua = min(ctx.param("amplitude_ua", FULL_SCALE_UA, gt=0.0), max_ua)
     min_hz = ctx.param("min_rate_hz", MIN_RATE_HZ, ge=0.0)
     max_hz = ctx.param("max_rate_hz", MAX_RATE_HZ, ge=min_hz, le=1000.0 / width_ms)
-    sites = _Sites(stimulation_sites(ctx))
+    sites = [site.tolist() for site in stimulation_sites(ctx)]
     n_sensors = body.n_sensors
     period_ms = float(ctx.period_ms)
     period_s = period_ms / 1e3
     last_onset_ms = _last_onset_ms(period_ms)
-    phase = np.ones(n_sensors)  # one phase per sensor: a sensor's sites pulse together
-    channels = [sites.channel[sites.sensor == s] for s in range(n_sensors)]
+    span_hz = max_hz - min_hz
+    phase = [1.0] * n_sensors  # one phase per sensor: a sensor's sites pulse together
 
     def code(sensors: SensorReading, step: int) -> Stimulation:
-        d = np.clip(_ranges(sensors, n_sensors), 0.0, max_range_m)
-        hz = min_hz + (max_hz - min_hz) * (1.0 - d / max_range_m)
-        end = phase + hz * period_s
-        # pulses where the phase crosses j = 1, 2, … with j < end (a crossing at the very end,
-        # within rounding, is left to the next step's start)
-        n = np.maximum(np.ceil(end - 1e-9) - 1.0, 0.0).astype(np.int64)
-        if not n.any():
-            phase[:] = end
+        channel, onset = [], []
+        for s, d in enumerate(_ranges(sensors, n_sensors)):
+            d = min(max(d, 0.0), max_range_m)
+            hz = min_hz + span_hz * (1.0 - d / max_range_m)
+            end = phase[s] + hz * period_s
+            # pulses where the phase crosses j = 1, 2, … with j < end (a crossing at the very
+            # end, within rounding, is left to the start of the next step)
+            n = max(math.ceil(end - 1e-9) - 1, 0)
+            if n:
+                chans = sites[s]
+                for j in range(1, n + 1):
+                    t_ms = min(max((j - phase[s]) / hz * 1e3, 0.0), last_onset_ms)
+                    channel += chans
+                    onset += [t_ms] * len(chans)
+            phase[s] = end - n
+        if not channel:
             return Stimulation(step=step)
-        chan, onset = [], []
-        for s in np.flatnonzero(n):
-            t_ms = (np.arange(1, n[s] + 1) - phase[s]) / hz[s] * 1e3
-            chan.append(np.tile(channels[s], t_ms.size))
-            onset.append(np.repeat(np.clip(t_ms, 0.0, last_onset_ms), channels[s].size))
-        phase[:] = end - n
-        chan = np.concatenate(chan)
-        return Stimulation(
-            step=step,
-            channel=chan,
-            amplitude_ua=np.full(chan.size, amplitude_ua),
-            width_ms=np.full(chan.size, width_ms),
-            onset_ms=np.concatenate(onset),
-        )
+        return _stimulation(step, channel, [amplitude_ua] * len(channel), width_ms, onset)
 
     return code

@@ -52,47 +52,57 @@ class SpikeWindow:
     spikes that fall in ``[t1 − window_ms, t1)`` (``t1`` the batch's end) and the length of
     culture time covered (less than ``window_ms`` until that much has been seen). A batch
     that starts before the previous one ended (a restarted culture) clears the window.
+
+    Each batch is kept as its spikes' weight rows and their total; only the oldest batch,
+    when the window starts inside it, is summed again. Channel ids index a table of weight
+    rows directly (ids up to ``DENSE_CHANNEL_IDS``; larger ids are looked up by bisection);
+    undescribed ids get a zero row, so their spikes count for nothing.
     """
 
-    def __init__(self, culture: Description, weights: np.ndarray, window_ms: float):
-        order = np.argsort(culture.channel, kind="stable")
-        self._sorted_channel = culture.channel[order]
-        self._row_of_sorted = order
-        self.weights = np.asarray(weights, dtype=np.float64)
-        self.window_ms = window_ms
-        self._ring: deque = deque()  # (t0_ms, t1_ms, t_abs_ms, cumsum rows with a 0 row first)
+    DENSE_CHANNEL_IDS = 1 << 16
 
-    def _rows(self, channel: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
-        """Weight rows of the spikes' channels, and a mask of known ones (None: all known)."""
-        pos = np.searchsorted(self._sorted_channel, channel)
-        np.minimum(pos, self._sorted_channel.size - 1, out=pos)
-        known = self._sorted_channel[pos] == channel
-        if known.all():
-            return self._row_of_sorted[pos], None
-        return self._row_of_sorted[pos[known]], known
+    def __init__(self, culture: Description, weights: np.ndarray, window_ms: float):
+        weights = np.asarray(weights, dtype=np.float64)
+        channel = culture.channel.astype(np.int64)
+        self._dense = int(channel.max()) < self.DENSE_CHANNEL_IDS
+        if self._dense:  # row c: the weights of channel id c; the last row, zeros, for the rest
+            table = np.zeros((int(channel.max()) + 2, weights.shape[1]))
+            table[channel] = weights
+        else:  # rows in sorted id order, then a zero row
+            order = np.argsort(channel, kind="stable")
+            self._sorted_ids = channel[order]
+            table = np.concatenate([weights[order], np.zeros((1, weights.shape[1]))])
+        self._table = table
+        self._zero_row = table.shape[0] - 1
+        self.window_ms = window_ms
+        self._ring: deque = deque()  # (t0_ms, t1_ms, t_ms, rows, total)
+
+    def _weight_rows(self, channel: np.ndarray) -> np.ndarray:
+        if self._dense:
+            return self._table.take(channel, axis=0, mode="clip")
+        pos = np.searchsorted(self._sorted_ids, channel)
+        np.minimum(pos, self._zero_row - 1, out=pos)
+        pos[self._sorted_ids[pos] != channel] = self._zero_row
+        return self._table[pos]
 
     def add(self, spikes: SpikeBatch) -> tuple[np.ndarray, float]:
         t0_ms, t1_ms = spikes.t0_s * 1e3, spikes.t1_s * 1e3
-        if self._ring and t0_ms < self._ring[-1][1] - 1e-6:
-            self._ring.clear()
-        rows, known = self._rows(spikes.channel)
-        w = self.weights[rows]
-        cums = np.zeros((w.shape[0] + 1, w.shape[1]))
-        np.cumsum(w, axis=0, out=cums[1:])
-        t_abs = t0_ms + (spikes.t_ms if known is None else spikes.t_ms[known])
-        self._ring.append((t0_ms, t1_ms, t_abs, cums))
+        ring = self._ring
+        if ring and t0_ms < ring[-1][1] - 1e-6:
+            ring.clear()
+        rows = self._weight_rows(spikes.channel)
+        ring.append((t0_ms, t1_ms, spikes.t_ms, rows, rows.sum(axis=0)))
         start_ms = t1_ms - self.window_ms
-        while self._ring and self._ring[0][1] <= start_ms:
-            self._ring.popleft()
-        total = np.zeros(self.weights.shape[1])
-        for b0, _b1, t_abs, cums in self._ring:
-            if b0 >= start_ms:
-                total += cums[-1]
-            else:
-                i = int(np.searchsorted(t_abs, start_ms, side="left"))
-                total += cums[-1] - cums[i]
-        covered_ms = t1_ms - max(start_ms, self._ring[0][0])
-        return total, covered_ms
+        while ring[0][1] <= start_ms:
+            ring.popleft()
+        b0, _, t_ms, rows, total = ring[0]
+        if b0 < start_ms:  # the window starts inside the oldest batch
+            total = rows[int(np.searchsorted(t_ms, start_ms - b0, side="left")) :].sum(axis=0)
+        else:
+            total = total.copy()
+        for i in range(1, len(ring)):
+            total += ring[i][4]
+        return total, t1_ms - max(start_ms, b0)
 
 
 def wheel_speeds(v_mps: float, omega_rad_s: float, body: Description) -> tuple[float, ...]:

@@ -58,6 +58,8 @@ class Endpoint(abc.ABC):
         self.id = str(id)
         self.input_timeout_s = input_timeout_s
         self.dropped: Counter[str] = Counter()
+        self.busy_s = 0.0  # time spent in step(): the model's or device's share of a run
+        self.steps = 0
         self.last_step = -1
         self._stop = threading.Event()
         self._session = None
@@ -113,8 +115,9 @@ class Endpoint(abc.ABC):
     # ------------------------------------------------------------ serving
 
     def description(self) -> Description:
-        """:meth:`describe` with this endpoint's drop counters attached."""
-        return dataclasses.replace(self.describe(), counters=dict(self.dropped))
+        """:meth:`describe` with this endpoint's counters: drops by kind, steps, busy time."""
+        counters = {"dropped": dict(self.dropped), "steps": self.steps, "busy_s": self.busy_s}
+        return dataclasses.replace(self.describe(), counters=counters)
 
     def request_stop(self) -> None:
         """Ask :meth:`serve` to return (thread-safe; used by signal handlers)."""
@@ -134,7 +137,10 @@ class Endpoint(abc.ABC):
             self._drop("future", f"step {message.step} far ahead of step {self.last_step}")
             return None
         self.last_step = message.step
+        t0 = time.perf_counter()
         output = self.step(message)
+        self.busy_s += time.perf_counter() - t0
+        self.steps += 1
         if not isinstance(output, OUTPUT_TYPE[self.role]) or output.step != message.step:
             raise TypeError(
                 f"{type(self).__name__}.step must return a {OUTPUT_TYPE[self.role].__name__} "

@@ -136,6 +136,7 @@ class Hub:
         self.recorder: Recorder | None = None
         self.online: OnlineBurstDetector | None = None
         self.bursts = self.network_bursts = 0
+        self.waiting_s = 0.0  # time the loop spent blocked, waiting for events
 
     # ================================================================ public
 
@@ -185,6 +186,7 @@ class Hub:
             raise
         finally:
             self._safe_stop_body()
+            endpoint_stats = self._final_counters(session) if outcome != "fault" else {}
             self.state = "stopped"
             self._publish_status()
             timing, counts = self.timing(), self.counts()
@@ -199,7 +201,8 @@ class Hub:
                     timing=timing,
                     counts=counts,
                     endpoints={
-                        r: {"kind": d.kind, "id": d.id} for r, d in self.descriptions.items()
+                        r: {"kind": d.kind, "id": d.id, **endpoint_stats.get(r, {})}
+                        for r, d in self.descriptions.items()
                     },
                 )
                 write_manifest(self.run_dir, manifest)
@@ -216,6 +219,7 @@ class Hub:
         self.k_done = 0
         self.state = "running"
         self._t_start = time.monotonic()
+        self.waiting_s = 0.0
         prev: dict[str, Message | None] = {"body": None, "culture": None}
         for k in range(self.cfg.n_steps):
             if not self._await_start(k, period_s):
@@ -264,7 +268,9 @@ class Hub:
         """Feed the step's spikes to the online detector; record each network burst."""
         t_ms = spikes.t0_s * 1e3 + spikes.t_ms.astype(np.float64)
         index = self._channel_index[spikes.channel]
-        for event in self.online.feed(index, t_ms, until_ms=spikes.t1_s * 1e3):
+        # A spike stamped at the window's very end may round a hair past it.
+        until_ms = max(spikes.t1_s * 1e3, t_ms[-1]) if t_ms.size else spikes.t1_s * 1e3
+        for event in self.online.feed(index, t_ms, until_ms=until_ms):
             if isinstance(event, NetworkBurst):
                 self.network_bursts += 1
                 self._record_event(
@@ -321,11 +327,14 @@ class Hub:
     def _next_event(self, until: float) -> bool:
         """Handle one event, waiting at most until ``until``; False if none came."""
         timeout = min(until - time.monotonic(), self._next_status - time.monotonic())
+        t0 = time.perf_counter()
         try:
             item = self.inbox.get(timeout=max(timeout, 0.0))
         except queue.Empty:
+            self.waiting_s += time.perf_counter() - t0
             self._tick()
             return False
+        self.waiting_s += time.perf_counter() - t0
         self._handle(item)
         return True
 
@@ -527,6 +536,20 @@ class Hub:
                 self._channel_index[desc.channel] = np.arange(desc.channel.size)
             self._record_event("described", role=role, id=i, kind=desc.kind)
 
+    def _final_counters(self, session: zenoh.Session) -> dict[str, dict]:
+        """Each endpoint's own counters at the end (drops, steps, busy time), if it answers."""
+        out = {}
+        for role, i in self.ids.items():
+            if (role, i) not in self.alive:
+                continue
+            for reply in session.get(self.keys.describe(role, i), timeout=2.0):
+                if reply.ok is not None:
+                    try:
+                        out[role] = Description.decode(payload_bytes(reply.ok)).counters or {}
+                    except ProtocolError:
+                        pass
+        return out
+
     def _build_schemes(self) -> None:
         cfg = self.cfg
         common = dict(
@@ -617,6 +640,7 @@ class Hub:
             "wall_s": wall,
             "steps_per_s": n / wall if wall > 0 else 0.0,
             "x_realtime": n * self.cfg.loop.period_ms / 1e3 / wall if wall > 0 else 0.0,
+            "hub_busy_s": max(wall - self.waiting_s, 0.0),
             "late_steps": int(self.late_steps),
             "late_share": self.late_steps / n if n else 0.0,
         }
