@@ -151,6 +151,16 @@ def test_channel_ids_need_not_be_indices():
     assert decode(batch(1, [3, 3, 3]), 2).omega_rad_s == pytest.approx(-math.pi / 2)
 
 
+def test_large_channel_ids_are_looked_up_too():
+    big = [1 << 31, 70_000, 12, 1 << 20]
+    culture = points([[-500, 0], [500, 0], [0, 1000], [0, -1000]], channels=big)
+    ctx = context("decoding", WIDE, culture, turn_gain_rad_s_per_rad=1.0)
+    m = center_of_activity(ctx)(batch(0, [1 << 31, 5, (1 << 31) + 1]), 1)
+    assert m.omega_rad_s == pytest.approx(math.pi / 2)  # only channel 2³¹ (left) counts
+    m = center_of_activity(ctx)(batch(0, [70_000] * 3 + [1 << 20]), 1)
+    assert m.omega_rad_s == pytest.approx(math.atan2(-375, -250))  # CA at (375, −250) µm
+
+
 def test_wheels_are_clipped_to_the_body_limit_keeping_the_turn():
     paper7 = body()  # wheels at most 0.2 m/s, wheel base 0.053 m
     decode = center_of_activity(
