@@ -1,0 +1,70 @@
+"""The quick reproduction runs end to end and writes the table, figures and report."""
+
+import json
+
+import numpy as np
+import pytest
+
+from hub.analysis.paper import PAPER_TARGETS
+from hub.analysis.reproduce import PROTOCOLS, reproduce, stimulation_targets
+from sim_network import load_config
+from sim_network.layout import build_layout
+
+KEYS = (
+    "mfr_hz",
+    "mfr_sd_hz",
+    "mbr_per_min",
+    "mnbr_per_min",
+    "nb_duration_ms",
+    "nb_duration_sd_ms",
+    "psth_peak_ms",
+    "cat_spread_evoked",
+    "cat_spread_spontaneous",
+)
+
+
+@pytest.mark.slow
+def test_quick_reproduction_end_to_end(tmp_path):
+    lines = []
+    r = reproduce(tmp_path, quick=True, seed=1, progress=lines.append)
+    saved = json.loads((tmp_path / "reproduction.json").read_text())
+    assert saved == json.loads(json.dumps(r))
+    for key in KEYS:
+        assert key in saved
+    assert saved["spontaneous_s"] == 60.0 and saved["quick"] is True
+    # the simulated culture is active and bursting
+    assert saved["mfr_hz"] > 0.5 and saved["mnbr_per_min"] > 0
+    assert set(saved["psth_peak_ms_by_protocol"]) == {p.name for p in PROTOCOLS}
+    table = (tmp_path / "reproduction.md").read_text()
+    assert "| MFR mean (spikes/s) | 3.41 |" in table
+    assert str(PAPER_TARGETS["mnbr_per_min"]) in table
+    for name in ("spontaneous/raster.png", "spontaneous/cats_all.png", "exc_1/psth.png"):
+        assert (tmp_path / name).stat().st_size > 1000
+    html = (tmp_path / "report.html").read_text()
+    assert html.count("data:image/png;base64,") >= 10
+    # progress: simulated minutes, ending with the done line
+    assert any("spontaneous: 1.0 of" in line for line in lines)
+    assert lines[-1].startswith("reproduce: done")
+
+
+def _layout():
+    return build_layout(load_config("configs/culture_1024.toml").layout, np.random.default_rng(3))
+
+
+@pytest.mark.parametrize("cell_type", [0, 1])
+def test_stimulation_targets_are_adjacent_neurons_of_one_type_near_the_centre(cell_type):
+    layout = _layout()
+    (one,) = stimulation_targets(layout, cell_type, 1)
+    four = stimulation_targets(layout, cell_type, 4)
+    assert layout.cell_type[one] == cell_type
+    assert len(set(four)) == 4 and all(layout.cell_type[i] == cell_type for i in four)
+    centre = np.array([layout.width_um / 2, layout.height_um / 2])
+    xy = np.column_stack([layout.x_um, layout.y_um]).astype(float)
+    d = np.linalg.norm(xy - centre, axis=1)
+    assert d[one] == d[layout.cell_type == cell_type].min()
+    # "adjacent": the four lie within a few grid cells of each other
+    spread = np.linalg.norm(xy[list(four)] - xy[list(four)].mean(axis=0), axis=1).max()
+    assert spread <= 3 * layout.spacing_um
+    if cell_type == 0:  # excitatory cells are common enough for a 2 x 2 block
+        rows, cols = layout.row[list(four)], layout.col[list(four)]
+        assert np.ptp(rows) == 1 and np.ptp(cols) == 1
