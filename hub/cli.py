@@ -15,6 +15,7 @@ import os
 import signal
 import sys
 import time
+from pathlib import Path
 
 from hub.config import ConfigError, load_config
 
@@ -67,6 +68,20 @@ def build_parser() -> argparse.ArgumentParser:
     _add_config_args(p, shortcuts=False)
     p = sub.add_parser("record-info", help="summarise a recorded run")
     p.add_argument("run_dir")
+    p = sub.add_parser("compare", help="run conditions over several seeds and compare them")
+    p.add_argument("configs", nargs="+", help="experiment files, one per condition")
+    p.add_argument("--seeds", type=int, default=8, help="seeds 1..N per condition (default 8)")
+    p.add_argument("--jobs", type=int, help="runs at a time (default: the number of cores)")
+    p.add_argument("--out", type=Path, help="folder for the comparison (default: a new one)")
+    p.add_argument("--duration-s", type=float, help="experiment.duration_s for every run")
+    p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override for every run")
+    p = sub.add_parser("analyze", help="metrics, figures and report.html of a recorded run")
+    p.add_argument("run_dir", type=Path)
+    p.add_argument("--out", type=Path, help="output folder (default: the run folder)")
+    p = sub.add_parser("reproduce", help="run the paper's validation of the simulated culture")
+    p.add_argument("--out", type=Path, help="output folder (default: a new run folder)")
+    p.add_argument("--quick", action="store_true", help="a shortened version (for tests)")
+    p.add_argument("--seed", type=int, default=1)
     return parser
 
 
@@ -216,11 +231,43 @@ class ProgressBar:
             self.stream.flush()
 
 
+def cmd_compare(args) -> int:
+    from hub.compare import compare
+
+    overrides = list(args.set or [])
+    if args.duration_s is not None:
+        overrides.append(f"experiment.duration_s={args.duration_s}")
+    result = compare(args.configs, args.seeds, args.out, args.jobs, overrides)
+    failed = [r for r in result["runs"] if not r["ok"]]
+    return EXIT_FAULT if failed else EXIT_OK
+
+
+def cmd_analyze(args) -> int:
+    from hub.analysis.run_analysis import analyze_run
+
+    metrics = analyze_run(args.run_dir, args.out)
+    print(json.dumps(metrics, indent=2, default=str))
+    return EXIT_OK
+
+
+def cmd_reproduce(args) -> int:
+    from hub.analysis.reproduce import reproduce
+    from hub.record import new_run_dir
+
+    out = args.out or new_run_dir("runs", "reproduce")
+    reproduce(out, quick=args.quick, seed=args.seed)
+    print(f"neuvision: reproduction in {out}", file=sys.stderr)
+    return EXIT_OK
+
+
 COMMANDS = {
     "run": cmd_run,
     "hub": cmd_hub,
     "endpoint": cmd_endpoint,
     "record-info": cmd_record_info,
+    "compare": cmd_compare,
+    "analyze": cmd_analyze,
+    "reproduce": cmd_reproduce,
 }
 
 if __name__ == "__main__":
