@@ -67,6 +67,7 @@ def write_report(
     figures,
     title: str = "NeuVision run report",
     timing: dict | None = None,
+    summary: str | None = None,
 ) -> Path:
     """Write the self-contained HTML report and return its path.
 
@@ -77,6 +78,7 @@ def write_report(
     config : the run's config (any JSON-able mapping); shown as formatted JSON.
     figures : paths of PNG/SVG figure files, embedded in the given order.
     timing : optional mapping (e.g. wall time, steps, late replies) shown as a table.
+    summary : optional preformatted text (e.g. a markdown table) shown first.
     """
     out = Path(path)
     parts = [
@@ -84,6 +86,10 @@ def write_report(
         f"<title>{html.escape(title)}</title><style>{_CSS}</style></head><body>",
         f"<h1>{html.escape(title)}</h1>",
         f"<p>Written {_dt.datetime.now(_dt.UTC).isoformat(timespec='seconds')}.</p>",
+    ]
+    if summary:
+        parts += ["<h2>Summary</h2>", f"<pre>{html.escape(summary)}</pre>"]
+    parts += [
         "<h2>Metrics</h2>",
         _table(metrics),
     ]

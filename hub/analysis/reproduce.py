@@ -381,7 +381,8 @@ def reproduce(
         simulated_s=clock.done_s,
         wall_s=time.perf_counter() - wall0,
     )
-    (out / RESULT_TABLE).write_text(_table(r), encoding="utf-8")
+    table = _table(r)
+    (out / RESULT_TABLE).write_text(table, encoding="utf-8")
     (out / RESULT_JSON).write_text(json.dumps(r, indent=2), encoding="utf-8")
     flat = {k: v for k, v in r.items() if isinstance(v, (int, float, bool, str)) or v is None}
     write_report(
@@ -395,6 +396,7 @@ def reproduce(
             "simulated_s": r["simulated_s"],
             "x_realtime": r["simulated_s"] / r["wall_s"],
         },
+        summary=table,
     )
     if progress:
         progress(f"reproduce: done in {r['wall_s']:.0f} s; table in {out / RESULT_TABLE}")

@@ -42,6 +42,7 @@ def test_quick_reproduction_end_to_end(tmp_path):
         assert (tmp_path / name).stat().st_size > 1000
     html = (tmp_path / "report.html").read_text()
     assert html.count("data:image/png;base64,") >= 10
+    assert "MNBR (network bursts/min)" in html  # the table heads the report
     # progress: simulated minutes, ending with the done line
     assert any("spontaneous: 1.0 of" in line for line in lines)
     assert lines[-1].startswith("reproduce: done")
