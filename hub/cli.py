@@ -115,7 +115,12 @@ def cmd_endpoint(args) -> int:
 
 def cmd_hub(args, local: bool = False) -> int:
     from hub.bus import free_tcp_port
-    from hub.launch import start_local_endpoints, stop_local_endpoints
+    from hub.launch import (
+        endpoint_class,
+        start_local_endpoints,
+        stop_local_endpoints,
+        watch_local_endpoints,
+    )
     from hub.loop import Hub
     from hub.record import new_run_dir
 
@@ -125,6 +130,9 @@ def cmd_hub(args, local: bool = False) -> int:
         # Everything on this machine: a free loopback port keeps parallel runs apart.
         overrides.append(f'bus.listen=["tcp/127.0.0.1:{free_tcp_port()}"]')
         cfg = load_config(args.config, overrides)
+    for role in ("body", "culture"):  # an unknown kind fails here, before anything starts
+        if local and cfg.endpoint(role).launch == "local":
+            endpoint_class(role, cfg.endpoint(role).kind)
     run_dir = new_run_dir(cfg.experiment.runs_dir, cfg.experiment.name)
     print(f"neuvision: run folder {run_dir}", file=sys.stderr)
     procs = start_local_endpoints(args.config, overrides, cfg, run_dir) if local else []
@@ -132,9 +140,11 @@ def cmd_hub(args, local: bool = False) -> int:
     hub = Hub(cfg, run_dir=run_dir, progress=bar)
     previous = signal.signal(signal.SIGINT, lambda *_: hub.request_stop("interrupted"))
     signal.signal(signal.SIGTERM, lambda *_: hub.request_stop("interrupted"))
+    watching = watch_local_endpoints(procs, hub.request_stop)
     try:
         result = hub.run()
     finally:
+        watching.set()
         signal.signal(signal.SIGINT, previous)
         if bar:
             bar.close()

@@ -15,6 +15,7 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -100,3 +101,29 @@ def stop_local_endpoints(procs: list[LocalProcess], timeout_s: float = 10.0) -> 
             p.popen.kill()
             codes[p.role] = p.popen.wait()
     return codes
+
+
+def watch_local_endpoints(procs: list[LocalProcess], on_exit) -> threading.Event:
+    """Call ``on_exit(message)`` once if a local endpoint process ends on its own.
+
+    Returns an event; set it to stop watching (before stopping the processes).
+    """
+    done = threading.Event()
+
+    def watch():
+        while not done.wait(0.1):
+            for p in procs:
+                code = p.popen.poll()
+                if code is not None:
+                    on_exit(f"{p.role} endpoint exited with status {code}{_last_line(p.log_path)}")
+                    return
+
+    threading.Thread(target=watch, name="endpoint-watch", daemon=True).start()
+    return done
+
+
+def _last_line(path: Path | None) -> str:
+    if path is None or not path.exists():
+        return ""
+    lines = [ln for ln in path.read_text(errors="replace").splitlines() if ln.strip()]
+    return f": {lines[-1].strip()}" if lines else ""

@@ -1,0 +1,115 @@
+"""The paper's closed loop end to end: `neuvision run` on the shipped experiment files."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from hub.protocol import MotorCommand, SensorReading, SpikeBatch, Stimulation
+from hub.record import read_run
+
+pytestmark = pytest.mark.bus
+
+
+def neuvision(*args, cwd=None):
+    return subprocess.run(
+        [sys.executable, "-m", "hub.cli", *args],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        cwd=cwd,
+    )
+
+
+def _run(tmp_path, config, bus_overrides, *extra):
+    sets = [a for o in bus_overrides if not o.startswith("bus.listen") for a in ("--set", o)]
+    proc = neuvision(
+        "run", config, "--duration-s", "3", "--runs-dir", str(tmp_path), "--quiet", *sets, *extra
+    )
+    assert proc.returncode == 0, proc.stderr
+    (run_dir,) = [p for p in tmp_path.iterdir() if p.is_dir()]
+    return run_dir, proc
+
+
+def test_the_closed_loop_run_leaves_a_record_a_summary_and_pictures(tmp_path, bus_overrides):
+    run_dir, proc = _run(tmp_path, "configs/closed_loop.toml", bus_overrides)
+    assert "completed after 300 steps" in proc.stderr
+    for name in ("manifest.json", "record.nvrec", "summary.json", "trajectory.png", "raster.png"):
+        assert (run_dir / name).stat().st_size > 0, name
+    summary = json.loads((run_dir / "summary.json").read_text())
+    behaviour = summary["behaviour"]
+    for key in (
+        "distance_m",
+        "obstacle_entries",
+        "arena_exits",
+        "time_in_obstacles_s",
+        "coverage_fraction",
+        "mean_speed_mps",
+    ):
+        assert key in behaviour
+    assert summary["timing"]["steps"] == 300 and summary["timing"]["x_realtime"] > 0
+    rec = read_run(run_dir)
+    assert rec.manifest["outcome"] == "completed"
+    assert len(rec.decoded(SpikeBatch, "rx")) == 300
+    assert len(rec.decoded(SensorReading, "rx")) == 300
+    # With feedback, the sensors are coded into pulses on the culture.
+    assert sum(s.n_pulses for s in rec.decoded(Stimulation, "tx")) > 0
+    t_s, poses = rec.trajectory()
+    assert behaviour["distance_m"] == pytest.approx(
+        np.hypot(*np.diff(poses[:, :2], axis=0).T).sum(), rel=1e-6
+    )
+
+
+def test_a_blind_run_sends_no_stimulation(tmp_path, bus_overrides):
+    run_dir, _ = _run(tmp_path, "configs/closed_loop_blind.toml", bus_overrides)
+    rec = read_run(run_dir)
+    stims = rec.decoded(Stimulation, "tx")
+    assert len(stims) == 300 and all(s.n_pulses == 0 for s in stims)
+    # The culture still drives the robot on its spontaneous activity.
+    assert any(m.left_mps != 0 or m.right_mps != 0 for m in rec.decoded(MotorCommand, "tx"))
+
+
+def test_lockstep_runs_with_the_same_seed_are_identical(tmp_path, bus_overrides):
+    a, _ = _run(tmp_path / "a", "configs/closed_loop.toml", bus_overrides, "--seed", "5")
+    b, _ = _run(tmp_path / "b", "configs/closed_loop.toml", bus_overrides, "--seed", "5")
+    ra, rb = read_run(a), read_run(b)
+    for kind in (SpikeBatch, SensorReading):
+        assert [m.encode() for m in ra.decoded(kind, "rx")] == [
+            m.encode() for m in rb.decoded(kind, "rx")
+        ]
+
+
+def test_a_bad_config_names_the_key_and_starts_nothing(tmp_path):
+    proc = neuvision(
+        "run", "configs/closed_loop.toml", "--set", "loop.period_ms=-5", "--runs-dir", str(tmp_path)
+    )
+    assert proc.returncode == 3
+    assert "loop.period_ms must be > 0, got -5" in proc.stderr
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_record_info_summarises_a_run(tmp_path, bus_overrides):
+    run_dir, _ = _run(tmp_path, "configs/closed_loop_blind.toml", bus_overrides)
+    proc = neuvision("record-info", str(run_dir))
+    info = json.loads(proc.stdout)
+    assert info["outcome"] == "completed" and info["steps"] == 300
+    assert any(k.endswith("/spikes") for k in info["messages"])
+
+
+def test_an_endpoint_that_cannot_start_ends_the_run_at_once_with_its_reason(tmp_path):
+    proc = neuvision(
+        "run",
+        "configs/closed_loop.toml",
+        "--set",
+        'body.params.world="no/such/world.toml"',
+        "--runs-dir",
+        str(tmp_path),
+        "--quiet",
+    )
+    assert proc.returncode == 2
+    assert "body endpoint exited with status 3" in proc.stderr
+    assert "body.params.world (no/such/world.toml): world file not found" in proc.stderr
