@@ -150,6 +150,12 @@ def center_of_activity(ctx: SchemeContext) -> Decoder:
 
     then wheels by :func:`wheel_speeds` (radius: see :class:`~hub.coding.CultureFrame`).
 
+    The centre is the culture's geometric centre (the paper). With ``centre_tau_s > 0`` it is
+    instead a running mean of the CA itself (exponential, time constant ``centre_tau_s``,
+    starting at the geometric centre, updated at every step whose window has spikes), so a
+    culture whose spontaneous activity sits off-centre does not steer the robot by that bias
+    alone; only departures from its usual CA do (an extension, not in the paper).
+
     Parameters (``decoding.params``)
     --------------------------------
     window_ms : float, default 50
@@ -163,6 +169,8 @@ def center_of_activity(ctx: SchemeContext) -> Decoder:
         Angular speed per radian of CA angle.
     dead_zone_frac : float, default 0.05
         Radius of the "centre", as a fraction of the culture's radius.
+    centre_tau_s : float, default 0
+        0: the geometric centre; > 0: the CA's running mean over about this time.
     """
     ctx.check_params(
         {
@@ -172,6 +180,7 @@ def center_of_activity(ctx: SchemeContext) -> Decoder:
             "speed_gain_mps",
             "turn_gain_rad_s_per_rad",
             "dead_zone_frac",
+            "centre_tau_s",
         }
     )
     body, culture = ctx.body, ctx.culture
@@ -181,6 +190,10 @@ def center_of_activity(ctx: SchemeContext) -> Decoder:
     speed_gain = ctx.param("speed_gain_mps", float(body.max_wheel_mps), ge=0.0)
     turn_gain = ctx.param("turn_gain_rad_s_per_rad", TURN_GAIN_RAD_S_PER_RAD)
     dead_zone = ctx.param("dead_zone_frac", DEAD_ZONE_FRAC, ge=0.0)
+    centre_tau_s = ctx.param("centre_tau_s", 0.0, ge=0.0)
+    # share of the way the running centre moves toward the CA at each step (0: fixed centre)
+    follow = min(1.0, ctx.period_ms / 1e3 / centre_tau_s) if centre_tau_s > 0 else 0.0
+    centre = [0.0, 0.0]  # relative to the geometric centre
     frame = CultureFrame.of(culture)
     rel = np.stack(
         [
@@ -197,7 +210,10 @@ def center_of_activity(ctx: SchemeContext) -> Decoder:
         (sx, sy, n), _ = window.add(spikes)
         if n == 0:
             return _command(step, min_speed, 0.0, body)
-        dx, dy = sx / n, sy / n
+        dx, dy = sx / n - centre[0], sy / n - centre[1]
+        if follow:
+            centre[0] += follow * dx
+            centre[1] += follow * dy
         d_um = math.hypot(dx, dy)
         if d_um < dead_zone_um:
             return _command(step, min_speed, 0.0, body)

@@ -102,6 +102,19 @@ def test_no_spike_in_the_window_goes_straight_at_the_minimum_speed():
     )
 
 
+def test_a_running_centre_follows_the_ca_so_a_lasting_bias_stops_steering():
+    decode = ca_decoder(centre_tau_s=0.05)  # moves 10 ms / 50 ms = 1/5 of the way each step
+    m = decode(batch(0, [LEFT]), 1)  # the first CA is judged from the geometric centre
+    assert (m.v_mps, m.omega_rad_s) == pytest.approx((0.2, math.pi / 2))
+    m = decode(batch(1, [LEFT]), 2)  # centre now at (−100, 0): CA 400 µm left of it
+    assert (m.v_mps, m.omega_rad_s) == pytest.approx((0.16, math.pi / 2))
+    for k in range(2, 60):  # activity stays on the left: the centre catches up
+        m = decode(batch(k, [LEFT]), k + 1)
+    assert (m.v_mps, m.omega_rad_s) == pytest.approx((0.02, 0.0))
+    m = decode(batch(60, [RIGHT] * 20), 61)  # a departure from the usual CA steers again
+    assert m.omega_rad_s == pytest.approx(-math.pi / 2)
+
+
 def test_speed_is_limited_to_max_speed():
     m = ca_decoder(speed_gain_mps=10.0, max_speed_mps=0.3)(batch(0, [FRONT]), 1)
     assert m.v_mps == pytest.approx(0.3)
@@ -214,6 +227,7 @@ def test_wheel_speeds_pass_feasible_commands_unchanged_and_slow_down_to_keep_a_t
         ({"dead_zone_frac": -0.1}, "dead_zone_frac"),
         ({"turn_gain_rad_s_per_rad": "2"}, "turn_gain_rad_s_per_rad"),
         ({"window": 50.0}, "window"),
+        ({"centre_tau_s": -1.0}, "centre_tau_s"),
     ],
 )
 def test_bad_ca_parameters_are_refused_naming_the_key(params, key):
