@@ -51,6 +51,8 @@ log = logging.getLogger(__name__)
 # A realtime step whose start lags its schedule by more than this share of a
 # period is counted late (its window is visibly shortened).
 LATE_START_SHARE = 0.25
+# The online burst detector is fed this much simulated time at once.
+ONLINE_EVERY_MS = 100.0
 
 
 class HubError(RuntimeError):
@@ -136,6 +138,9 @@ class Hub:
         self.recorder: Recorder | None = None
         self.online: OnlineBurstDetector | None = None
         self.bursts = self.network_bursts = 0
+        self._online_buffer: list = []
+        self._online_until_ms = 0.0
+        self._online_next_ms = ONLINE_EVERY_MS
         self.waiting_s = 0.0  # time the loop spent blocked, waiting for events
 
     # ================================================================ public
@@ -236,6 +241,8 @@ class Hub:
             self.late_steps += bool(late or self.lateness_s[k] > LATE_START_SHARE * period_s)
             self.k_done = k + 1
             self._tick()
+        if self.online is not None:
+            self._analyse_online(None, flush=True)
 
     def _motor_for(self, k: int, spikes: SpikeBatch | None) -> MotorCommand:
         if k == 0:
@@ -264,12 +271,26 @@ class Hub:
             raise HubError(f"scheme returned {message!r}, expected a {kind.__name__} for step {k}")
         return message
 
-    def _analyse_online(self, spikes: SpikeBatch) -> None:
-        """Feed the step's spikes to the online detector; record each network burst."""
-        t_ms = spikes.t0_s * 1e3 + spikes.t_ms.astype(np.float64)
-        index = self._channel_index[spikes.channel]
+    def _analyse_online(self, spikes: SpikeBatch, *, flush: bool = False) -> None:
+        """Collect the step's spikes; every ONLINE_EVERY_MS of simulated time feed them to
+        the online detector (one call per batch keeps its cost off each step) and record
+        each network burst it completes."""
+        if spikes is not None:
+            self._online_buffer.append(
+                (
+                    self._channel_index[spikes.channel],
+                    spikes.t0_s * 1e3 + spikes.t_ms.astype(np.float64),
+                )
+            )
+            self._online_until_ms = spikes.t1_s * 1e3
+        if not self._online_buffer or (not flush and self._online_until_ms < self._online_next_ms):
+            return
+        index = np.concatenate([b[0] for b in self._online_buffer])
+        t_ms = np.concatenate([b[1] for b in self._online_buffer])
+        self._online_buffer.clear()
+        self._online_next_ms = self._online_until_ms + ONLINE_EVERY_MS
         # A spike stamped at the window's very end may round a hair past it.
-        until_ms = max(spikes.t1_s * 1e3, t_ms[-1]) if t_ms.size else spikes.t1_s * 1e3
+        until_ms = max(self._online_until_ms, t_ms[-1]) if t_ms.size else self._online_until_ms
         for event in self.online.feed(index, t_ms, until_ms=until_ms):
             if isinstance(event, NetworkBurst):
                 self.network_bursts += 1

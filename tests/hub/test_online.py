@@ -47,6 +47,7 @@ def test_a_planted_network_burst_is_detected_once_and_counted():
     for batch in _batches(planted, 60):
         hub.k = batch.step
         hub._analyse_online(batch)
+    hub._analyse_online(None, flush=True)
     assert hub.bursts == 3
     assert hub.network_bursts == 1
     assert hub._status().extra["network_bursts"] == 1
