@@ -1,0 +1,79 @@
+"""Benchmark of the full closed loop: hub, 1024-neuron culture and arena, three processes.
+
+1. Lockstep speed of configs/closed_loop.toml (dt 0.1 ms, 10 ms period) as simulated/wall
+   time, and where the wall time goes: the culture's and the arena's time inside their
+   step (measured by the endpoints themselves), and the hub's busy time (wall time minus
+   the time the hub spent waiting for replies).
+2. A realtime run at a 10 ms period: late steps and the lateness of step starts.
+
+    python bench/closed_loop.py                 # 60 s lockstep + 60 s realtime
+    python bench/closed_loop.py --seconds 20
+
+The last line printed is one JSON object.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def run(mode: str, seconds: float, runs_dir: Path) -> dict:
+    cmd = [sys.executable, "-m", "hub.cli", "run", "configs/closed_loop.toml", "--quiet"]
+    cmd += ["--mode", mode, "--duration-s", str(seconds), "--runs-dir", str(runs_dir)]
+    cmd += ["--session", f"bench-closed-loop-{mode}"]
+    proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True)
+    if proc.returncode != 0:
+        raise SystemExit(f"{mode} run failed:\n{proc.stderr[-2000:]}")
+    (run_dir,) = [p for p in runs_dir.iterdir() if p.is_dir()]
+    return json.loads((run_dir / "manifest.json").read_text())
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--seconds", type=float, default=60.0, help="simulated seconds per run")
+    args = parser.parse_args()
+    out = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        m = run("lockstep", args.seconds, Path(tmp) / "lockstep")
+    t, ep = m["timing"], m["endpoints"]
+    wall = t["wall_s"]
+    shares = {
+        "share_network": ep["culture"]["busy_s"] / wall,
+        "share_arena": ep["body"]["busy_s"] / wall,
+        "share_hub": t["hub_busy_s"] / wall,
+    }
+    print(
+        f"lockstep {args.seconds:g} s simulated in {wall:.2f} s: {t['x_realtime']:.1f}x real time, "
+        f"{t['steps_per_s']:.0f} steps/s, step median {t['step_ms_median']:.3f} ms"
+    )
+    print(
+        "  wall time shares: network {share_network:.1%}, arena {share_arena:.1%}, "
+        "hub {share_hub:.1%} (the rest: messages in flight, process wake-ups)".format(**shares)
+    )
+    out["x_realtime_lockstep"] = round(t["x_realtime"], 2)
+    out.update({k: round(v, 4) for k, v in shares.items()})
+    with tempfile.TemporaryDirectory() as tmp:
+        m = run("realtime", args.seconds, Path(tmp) / "realtime")
+    t = m["timing"]
+    print(
+        f"realtime 10 ms, {t['steps']} steps: late steps {t['late_steps']}, lateness median "
+        f"{t['lateness_ms_median']:.3f} ms, p99 {t['lateness_ms_p99']:.3f} ms, "
+        f"max {t['lateness_ms_max']:.3f} ms; missing {m['counts']['missing']}"
+    )
+    out["rt10_late_steps"] = t["late_steps"]
+    out["rt10_p99_lateness_ms"] = round(t["lateness_ms_p99"], 4)
+    out["rt10_median_lateness_ms"] = round(t["lateness_ms_median"], 4)
+    out["rt10_max_lateness_ms"] = round(t["lateness_ms_max"], 3)
+    out["seconds"] = args.seconds
+    print(json.dumps(out))
+
+
+if __name__ == "__main__":
+    main()
