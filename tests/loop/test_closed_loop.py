@@ -113,3 +113,13 @@ def test_an_endpoint_that_cannot_start_ends_the_run_at_once_with_its_reason(tmp_
     assert proc.returncode == 2
     assert "body endpoint exited with status 3" in proc.stderr
     assert "body.params.world (no/such/world.toml): world file not found" in proc.stderr
+
+
+def test_analyze_writes_metrics_figures_and_a_report_for_a_closed_loop_run(tmp_path, bus_overrides):
+    run_dir, _ = _run(tmp_path, "configs/closed_loop.toml", bus_overrides)
+    proc = neuvision("analyze", str(run_dir), "--out", str(tmp_path / "an"))
+    assert proc.returncode == 0, proc.stderr
+    metrics = json.loads((tmp_path / "an" / "metrics.json").read_text())
+    assert metrics["mfr_hz"] > 0
+    assert (tmp_path / "an" / "report.html").stat().st_size > 10_000
+    assert (tmp_path / "an" / "trajectory.png").exists()
