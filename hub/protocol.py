@@ -143,7 +143,9 @@ class Array:
     optional: bool = False
 
     def __post_init__(self):
-        object.__setattr__(self, "native", np.dtype(self.dtype).newbyteorder("="))
+        wire = np.dtype(self.dtype)
+        object.__setattr__(self, "wire", wire)
+        object.__setattr__(self, "native", wire.newbyteorder("="))
 
 
 @dataclass(frozen=True)
@@ -194,7 +196,7 @@ def _decode_array(name: str, spec: Array, value: Any) -> np.ndarray:
         raise ProtocolError(
             "type", f"{name} must be bin of {spec.dtype}, got {type(value).__name__}"
         )
-    dtype = np.dtype(spec.dtype)
+    dtype = spec.wire
     if len(value) % dtype.itemsize:
         raise ProtocolError(
             "array", f"{name} has {len(value)} bytes, not a multiple of {dtype.itemsize}"
@@ -249,6 +251,10 @@ class Message:
 
     SCHEMA: ClassVar[dict[str, Scalar | Array | Mapping | StrList]]
 
+    def __init_subclass__(cls, **kwargs):
+        super().__init_subclass__(**kwargs)
+        cls._KNOWN = frozenset(cls.SCHEMA) | {"v"}
+
     def __post_init__(self):
         groups: dict[str, tuple[str, int]] = {}
         for name, spec in self.SCHEMA.items():
@@ -293,7 +299,7 @@ class Message:
             if value is None:
                 continue
             if isinstance(spec, Array):
-                value = value.astype(np.dtype(spec.dtype), copy=False).tobytes()
+                value = value.astype(spec.wire, copy=False).tobytes()
             out[name] = value
         return out
 
@@ -311,9 +317,9 @@ class Message:
         version = data.get("v")
         if version != SCHEMA_VERSION:
             raise ProtocolError("version", f"v must be {SCHEMA_VERSION}, got {version!r}")
-        unknown = set(data) - set(cls.SCHEMA) - {"v"}
-        if unknown:
-            raise ProtocolError("unknown", f"{cls.__name__} has no field(s) {sorted(unknown)}")
+        if not data.keys() <= cls._KNOWN:
+            unknown = sorted(set(data) - cls._KNOWN)
+            raise ProtocolError("unknown", f"{cls.__name__} has no field(s) {unknown}")
         values = {}
         for name, spec in cls.SCHEMA.items():
             if name not in data:
