@@ -51,7 +51,7 @@ log = logging.getLogger(__name__)
 # A realtime step whose start lags its schedule by more than this share of a
 # period is counted late (its window is visibly shortened).
 LATE_START_SHARE = 0.25
-# The online burst detector is fed this much simulated time at once.
+# In lockstep, the online burst detector is fed this much simulated time at once.
 ONLINE_EVERY_MS = 100.0
 
 
@@ -233,16 +233,16 @@ class Hub:
             t0 = time.monotonic()
             self._send("body", self._motor_for(k, prev["culture"]))
             self._send("culture", self._stim_for(k, prev["body"]))
+            if prev["culture"] is not None and self.online is not None:
+                self._analyse_online(prev["culture"])  # while the endpoints work
             late = self._collect(k, self._deadline(k, period_s))
             prev = {role: self.replies.get(role) for role in ROLES}
-            if prev["culture"] is not None and self.online is not None:
-                self._analyse_online(prev["culture"])
             self.step_wall_s[k] = time.monotonic() - t0
             self.late_steps += bool(late or self.lateness_s[k] > LATE_START_SHARE * period_s)
             self.k_done = k + 1
             self._tick()
         if self.online is not None:
-            self._analyse_online(None, flush=True)
+            self._analyse_online(prev["culture"], flush=True)
 
     def _motor_for(self, k: int, spikes: SpikeBatch | None) -> MotorCommand:
         if k == 0:
@@ -271,10 +271,10 @@ class Hub:
             raise HubError(f"scheme returned {message!r}, expected a {kind.__name__} for step {k}")
         return message
 
-    def _analyse_online(self, spikes: SpikeBatch, *, flush: bool = False) -> None:
-        """Collect the step's spikes; every ONLINE_EVERY_MS of simulated time feed them to
-        the online detector (one call per batch keeps its cost off each step) and record
-        each network burst it completes."""
+    def _analyse_online(self, spikes: SpikeBatch | None, *, flush: bool = False) -> None:
+        """Collect a step's spikes and feed them to the online detector, recording each
+        network burst it completes. Lockstep feeds every ONLINE_EVERY_MS of simulated time
+        (fewer calls, less overhead); realtime feeds every step (no long pauses)."""
         if spikes is not None:
             self._online_buffer.append(
                 (
@@ -288,7 +288,8 @@ class Hub:
         index = np.concatenate([b[0] for b in self._online_buffer])
         t_ms = np.concatenate([b[1] for b in self._online_buffer])
         self._online_buffer.clear()
-        self._online_next_ms = self._online_until_ms + ONLINE_EVERY_MS
+        every_ms = ONLINE_EVERY_MS if self.cfg.loop.mode == "lockstep" else 0.0
+        self._online_next_ms = self._online_until_ms + every_ms
         # A spike stamped at the window's very end may round a hair past it.
         until_ms = max(self._online_until_ms, t_ms[-1]) if t_ms.size else self._online_until_ms
         for event in self.online.feed(index, t_ms, until_ms=until_ms):
