@@ -125,7 +125,10 @@ class Hub:
         self.missed: dict[str, set[int]] = defaultdict(set)
         self.dropped: dict[str, Counter[str]] = defaultdict(Counter)
         self.late_steps = 0
-        self.replies: dict[str, Message] = {}
+        # Accepted replies not yet used, by role and step.
+        self.pending: dict[str, dict[int, Message]] = {role: {} for role in ROLES}
+        self.expect = {role: 0 for role in ROLES}  # the step whose reply each role owes
+        self.last_sent: dict[str, int] = {}
         self.descriptions: dict[str, Description] = {}
         self._stop_reason: str | None = None
         self._pause_started: float | None = None
@@ -219,30 +222,95 @@ class Hub:
     # ================================================================ the loop
 
     def _steps(self) -> None:
-        """The Jacobi step loop (ARCHITECTURE.md, "The loop")."""
-        period_s = self.cfg.loop.period_ms / 1e3
+        """Run the steps (ARCHITECTURE.md, "The loop") in the configured mode."""
         self.k_done = 0
         self.state = "running"
         self._t_start = time.monotonic()
         self.waiting_s = 0.0
+        if self.cfg.loop.mode == "lockstep":
+            self._steps_lockstep()
+        else:
+            self._steps_realtime()
+
+    def _steps_realtime(self) -> None:
+        """Steps on a wall-clock schedule; a reply missing at its deadline is replaced by policy."""
+        period_s = self.cfg.loop.period_ms / 1e3
         prev: dict[str, Message | None] = {"body": None, "culture": None}
         for k in range(self.cfg.n_steps):
             if not self._await_start(k, period_s):
                 return
-            self.k, self.replies = k, {}
+            self.k = k
+            self.expect = {"body": k, "culture": k}
             t0 = time.monotonic()
             self._send("body", self._motor_for(k, prev["culture"]))
             self._send("culture", self._stim_for(k, prev["body"]))
             if prev["culture"] is not None and self.online is not None:
                 self._analyse_online(prev["culture"])  # while the endpoints work
             late = self._collect(k, self._deadline(k, period_s))
-            prev = {role: self.replies.get(role) for role in ROLES}
+            prev = {role: self.pending[role].pop(k, None) for role in ROLES}
             self.step_wall_s[k] = time.monotonic() - t0
             self.late_steps += bool(late or self.lateness_s[k] > LATE_START_SHARE * period_s)
             self.k_done = k + 1
             self._tick()
         if self.online is not None:
             self._analyse_online(prev["culture"], flush=True)
+
+    def _steps_lockstep(self) -> None:
+        """As fast as the endpoints go, pipelined: each input of step k+1 leaves as soon as
+        the reply it depends on is in (the motor command when the culture's spikes of step
+        k arrive, the stimulation when the body's sensors of step k arrive), so neither
+        endpoint waits for the other's round trip. Every endpoint still gets exactly the
+        inputs of the Jacobi scheme, so results are those of a strict step-by-step loop."""
+        n = self.cfg.n_steps
+        self.expect = {"body": 0, "culture": 0}
+        self._send("body", self._motor_for(0, None))
+        self._send("culture", self._stim_for(0, None))
+        last_done = time.monotonic()
+
+        def ready():
+            return any(self.expect[r] in self.pending[r] for r in ROLES)
+
+        while min(self.expect.values()) < n:
+            if not self._await_start(self.k_done, 0.0):
+                return
+            deadline = time.monotonic() + self.cfg.loop.reply_timeout_s
+            while not ready() and time.monotonic() < deadline:
+                self._next_event(deadline)
+                if self.state == "paused" or self._stop_reason:
+                    break
+            if self.state == "paused" or self._stop_reason:
+                continue
+            if not ready():  # nothing came in time: the policy stands in
+                for role in ROLES:
+                    if self.expect[role] < n:
+                        self.missed[role].add(self.expect[role])
+                        self._record_event("missed", role=role, step=self.expect[role])
+                        self._pipeline(role, None, n)
+            for role in ("culture", "body"):
+                while self.expect[role] in self.pending[role]:
+                    self._pipeline(role, self.pending[role].pop(self.expect[role]), n)
+            done = min(self.expect.values())
+            if done > self.k_done:
+                self.step_wall_s[self.k_done : done] = (time.monotonic() - last_done) / (
+                    done - self.k_done
+                )
+                last_done = time.monotonic()
+                self.k_done = self.k = done
+                self._tick()
+        if self.online is not None:
+            self._analyse_online(None, flush=True)
+
+    def _pipeline(self, role: str, reply: Message | None, n: int) -> None:
+        """Take the reply of ``role`` for its expected step k; send the other side step k+1."""
+        k = self.expect[role]
+        self.expect[role] = k + 1
+        if k + 1 < n and not self._stop_reason:
+            if role == "culture":
+                self._send("body", self._motor_for(k + 1, reply))
+            else:
+                self._send("culture", self._stim_for(k + 1, reply))
+        if role == "culture" and reply is not None and self.online is not None:
+            self._analyse_online(reply)
 
     def _motor_for(self, k: int, spikes: SpikeBatch | None) -> MotorCommand:
         if k == 0:
@@ -338,9 +406,9 @@ class Hub:
 
         Returns True if a reply missed its deadline (the policy stands in for it).
         """
-        while len(self.replies) < len(ROLES) and time.monotonic() < deadline:
+        while time.monotonic() < deadline and not all(k in self.pending[r] for r in ROLES):
             self._next_event(deadline)
-        missing = [r for r in ROLES if r not in self.replies]
+        missing = [r for r in ROLES if k not in self.pending[r]]
         for role in missing:
             self.missed[role].add(k)
             self._record_event("missed", role=role, step=k)
@@ -404,22 +472,22 @@ class Hub:
             self._check_against_description(role, message)
         except ProtocolError as exc:
             return self._drop(role, exc.kind, str(exc))
-        step = message.step
+        step, expected = message.step, self.expect[role]
         if self.state == "waiting":
             return self._drop(role, "early", f"reply for step {step} before the run started")
-        if step == self.k and step not in self.missed[role]:
-            if role in self.replies:
+        if expected <= step <= self.last_sent.get(role, -1) and step not in self.missed[role]:
+            if step in self.pending[role]:
                 return self._drop(role, "duplicate", f"second reply for step {step}")
-            self.replies[role] = message
+            self.pending[role][step] = message
             return "rx"
         if step in self.missed[role]:
             self.late[role] += 1
             self.missed[role].discard(step)
-            self._record_event("late", role=role, step=step, at_step=self.k)
+            self._record_event("late", role=role, step=step, at_step=expected)
             return "late"
-        if step <= self.k:
-            return self._drop(role, "stale", f"reply for step {step} during step {self.k}")
-        return self._drop(role, "future", f"reply for step {step} during step {self.k}")
+        if step <= expected:
+            return self._drop(role, "stale", f"reply for step {step} awaiting step {expected}")
+        return self._drop(role, "future", f"reply for step {step} awaiting step {expected}")
 
     def _check_against_description(self, role: str, message: Message) -> None:
         desc = self.descriptions.get(role)
@@ -603,6 +671,7 @@ class Hub:
     def _send(self, role: str, message: Message) -> None:
         raw = message.encode()
         self.publishers[role].put(raw)
+        self.last_sent[role] = message.step
         if self.recorder:
             self.recorder.message("tx", self.keys.input(role, self.ids[role]), raw)
 
@@ -610,7 +679,7 @@ class Hub:
         """Whatever ended the run, leave the robot stopped."""
         publishers = getattr(self, "publishers", None)
         if publishers and ("body", self.ids["body"]) in self.alive:
-            self._send("body", MotorCommand.stop(getattr(self, "k_done", 0)))
+            self._send("body", MotorCommand.stop(self.last_sent.get("body", -1) + 1))
 
     def _record_event(self, name: str, **details) -> None:
         if self.recorder:
