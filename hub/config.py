@@ -289,6 +289,11 @@ def _shallow(obj) -> dict:
     }
 
 
+def check_value(dotted: str, kind: type, value, **limits) -> Any:
+    """Check one value against a type and ``gt``/``ge``/``le`` limits; error names ``dotted``."""
+    return _coerce(dotted, kind, value, limits)
+
+
 def _coerce(dotted: str, hint, value, meta) -> Any:
     origin = typing.get_origin(hint)
     if hint is bool:

@@ -21,7 +21,7 @@ import importlib
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-from hub.config import ConfigError
+from hub.config import ConfigError, check_value
 from hub.protocol import Description, MotorCommand, SensorReading, SpikeBatch, Stimulation
 
 Coder = Callable[[SensorReading, int], Stimulation]
@@ -43,17 +43,7 @@ class SchemeContext:
         """A validated parameter: ``params[name]`` or ``default``."""
         value = self.params.get(name, default)
         dotted = f"{self.section}.params.{name}"
-        if kind is float and isinstance(value, int) and not isinstance(value, bool):
-            value = float(value)
-        if not isinstance(value, kind) or (kind is not bool and isinstance(value, bool)):
-            raise ConfigError(f"{dotted} must be a {kind.__name__}, got {value!r}")
-        if gt is not None and not value > gt:
-            raise ConfigError(f"{dotted} must be > {gt}, got {value}")
-        if ge is not None and not value >= ge:
-            raise ConfigError(f"{dotted} must be >= {ge}, got {value}")
-        if le is not None and not value <= le:
-            raise ConfigError(f"{dotted} must be <= {le}, got {value}")
-        return value
+        return check_value(dotted, kind, value, gt=gt, ge=ge, le=le)
 
     def check_params(self, known: set[str]) -> None:
         """Reject parameters the scheme does not know, by dotted name."""
