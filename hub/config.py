@@ -320,6 +320,8 @@ def _coerce(dotted: str, hint, value, meta) -> Any:
     elif hint is dict:
         if not isinstance(value, dict):
             raise ConfigError(f"{dotted} must be a table, got {value!r}")
+    elif isinstance(hint, type) and not isinstance(value, hint):
+        raise ConfigError(f"{dotted} must be a {hint.__name__}, got {value!r}")
     gt, ge, le = meta.get("gt"), meta.get("ge"), meta.get("le")
     if gt is not None and not value > gt:
         raise ConfigError(f"{dotted} must be > {gt}, got {value}")
