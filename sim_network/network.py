@@ -63,6 +63,7 @@ class Network:
         self._noise_steps = round(cfg.noise.interval_ms / self._dt)
         self._delay = delay_steps(self.synapses.delay_ms, self._dt)
         self._n_slots = int(self._delay.max()) + 1 if self._delay.size else 2
+        self._target = kernels.ring_targets(self._delay, self.synapses.post, n)
         self._pre = self.synapses.pre()
         self._is_exc = (self.layout.cell_type == EXCITATORY).astype(np.bool_)
         in_order = np.argsort(self.synapses.post, kind="stable")
@@ -185,7 +186,7 @@ class Network:
             done, n_out = kernels.advance(
                 self._model, k1 - k, k, self._dt, self._n_sub,
                 self.v, self.aux, self.params, self.ring,
-                self.synapses.indptr, self.synapses.post, self.weight, self._delay,
+                self.synapses.indptr, self.synapses.post, self.weight, self._target,
                 self.cfg.depression.u, self._dep_tau_steps, self.dep_x, self.dep_last,
                 self._noise_mean, self._noise_sd, self._noise_steps, self.noise_state,
                 self.noise_cur,
