@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import abc
 import dataclasses
+import gc
 import logging
 import queue
 import signal
@@ -172,6 +173,8 @@ class Endpoint(abc.ABC):
             publisher = session.declare_publisher(keys.output(self.role, self.id), **LOOP_PUBLISH)
             # Declared last: when the hub sees us alive, we already listen.
             token = session.liveliness().declare_token(keys.alive(self.role, self.id))  # noqa: F841
+            gc.collect()
+            gc.freeze()  # the model is long-lived: keep full collections short
             log.info("%s/%s (%s) ready on session %s", self.role, self.id, self.kind, bus.session)
             last_input = time.monotonic()
             timed_out = False
