@@ -36,7 +36,7 @@ class ExperimentSection:
     seed: int = field(default=0, metadata=_check(ge=0))
     duration_s: float = field(default=10.0, metadata=_check(gt=0))
     runs_dir: str = "runs"
-    notes: str = ""
+    notes: str = ""  # free text, kept in the manifest with the config
 
 
 @dataclass(frozen=True)
@@ -51,8 +51,6 @@ class LoopSection:
     # (0 means one period: before the next step starts).
     deadline_ms: float = field(default=0.0, metadata=_check(ge=0))
     status_hz: float = field(default=4.0, metadata=_check(gt=0, le=100))
-    # Steps further ahead than this of the current one are dropped as "future".
-    future_horizon_steps: int = field(default=2, metadata=_check(ge=1))
 
     @property
     def deadline_s(self) -> float:
