@@ -27,9 +27,9 @@ import zenoh
 
 from hub.analysis.bursts import BurstParams
 from hub.analysis.network_bursts import NetworkBurstParams
-from hub.analysis.online import NetworkBurst, OnlineBurstDetector
 from hub.bus import LOOP_PUBLISH, TELEMETRY_PUBLISH, open_session, payload_bytes
 from hub.config import ConfigError, ExperimentConfig
+from hub.live import LiveBursts
 from hub.protocol import (
     OUTPUT_TYPE,
     ROLES,
@@ -140,11 +140,7 @@ class Hub:
         self.lateness_s = np.full(n, np.nan)
         self.step_wall_s = np.full(n, np.nan)
         self.recorder: Recorder | None = None
-        self.online: OnlineBurstDetector | None = None
-        self.bursts = self.network_bursts = 0
-        self._online_buffer: list = []
-        self._online_until_ms = 0.0
-        self._online_next_ms = ONLINE_EVERY_MS
+        self.live: LiveBursts | None = None
         self.waiting_s = 0.0  # time the loop spent blocked, waiting for events
 
     # ================================================================ public
@@ -249,7 +245,7 @@ class Hub:
             t0 = time.monotonic()
             self._send("body", self._motor_for(k, prev["culture"]))
             self._send("culture", self._stim_for(k, prev["body"]))
-            if prev["culture"] is not None and self.online is not None:
+            if prev["culture"] is not None and self.live is not None:
                 self._analyse_online(prev["culture"])  # while the endpoints work
             late = self._collect(k, self._deadline(k, period_s))
             prev = {role: self.pending[role].pop(k, None) for role in ROLES}
@@ -257,7 +253,7 @@ class Hub:
             self.late_steps += bool(late or self.lateness_s[k] > LATE_START_SHARE * period_s)
             self.k_done = k + 1
             self._tick()
-        if self.online is not None:
+        if self.live is not None:
             self._analyse_online(prev["culture"], flush=True)
 
     def _steps_lockstep(self) -> None:
@@ -302,7 +298,7 @@ class Hub:
                 last_done = time.monotonic()
                 self.k_done = self.k = done
                 self._tick()
-        if self.online is not None:
+        if self.live is not None:
             self._analyse_online(None, flush=True)
 
     def _pipeline(self, role: str, reply: Message | None, n: int) -> None:
@@ -314,7 +310,7 @@ class Hub:
                 self._send("body", self._motor_for(k + 1, reply))
             else:
                 self._send("culture", self._stim_for(k + 1, reply))
-        if role == "culture" and reply is not None and self.online is not None:
+        if role == "culture" and reply is not None and self.live is not None:
             self._analyse_online(reply)
 
     def _motor_for(self, k: int, spikes: SpikeBatch | None) -> MotorCommand:
@@ -345,38 +341,18 @@ class Hub:
         return message
 
     def _analyse_online(self, spikes: SpikeBatch | None, *, flush: bool = False) -> None:
-        """Collect a step's spikes and feed them to the online detector, recording each
-        network burst it completes. Lockstep feeds every ONLINE_EVERY_MS of simulated time
-        (fewer calls, less overhead); realtime feeds every step (no long pauses)."""
-        if spikes is not None:
-            self._online_buffer.append(
-                (
-                    self._channel_index[spikes.channel],
-                    spikes.t0_s * 1e3 + spikes.t_ms.astype(np.float64),
-                )
+        """Give a step's spikes to the live burst detector; record each network burst."""
+        done = self.live.add(spikes) if spikes is not None else []
+        if flush:
+            done += self.live.flush()
+        for nb in done:
+            self._record_event(
+                "network_burst",
+                start_ms=nb.start_ms,
+                end_ms=nb.end_ms,
+                n_channels=len(nb.channels),
+                at_step=self.k,
             )
-            self._online_until_ms = spikes.t1_s * 1e3
-        if not self._online_buffer or (not flush and self._online_until_ms < self._online_next_ms):
-            return
-        index = np.concatenate([b[0] for b in self._online_buffer])
-        t_ms = np.concatenate([b[1] for b in self._online_buffer])
-        self._online_buffer.clear()
-        every_ms = ONLINE_EVERY_MS if self.cfg.loop.mode == "lockstep" else 0.0
-        self._online_next_ms = self._online_until_ms + every_ms
-        # A spike stamped at the window's very end may round a hair past it.
-        until_ms = max(self._online_until_ms, t_ms[-1]) if t_ms.size else self._online_until_ms
-        for event in self.online.feed(index, t_ms, until_ms=until_ms):
-            if isinstance(event, NetworkBurst):
-                self.network_bursts += 1
-                self._record_event(
-                    "network_burst",
-                    start_ms=event.start_ms,
-                    end_ms=event.end_ms,
-                    n_channels=len(event.channels),
-                    at_step=self.k,
-                )
-            else:
-                self.bursts += 1
 
     # ================================================================ timing
 
@@ -627,8 +603,6 @@ class Hub:
             if role == "culture":
                 self._known_channel = np.zeros(int(desc.channel.max(initial=0)) + 1, bool)
                 self._known_channel[desc.channel] = True
-                self._channel_index = np.zeros(self._known_channel.size, np.int64)
-                self._channel_index[desc.channel] = np.arange(desc.channel.size)
             self._record_event("described", role=role, id=i, kind=desc.kind)
 
     def _final_counters(self, session: zenoh.Session) -> dict[str, dict]:
@@ -668,8 +642,9 @@ class Hub:
                     params[name] = kind(**getattr(cfg.online, name))
                 except (TypeError, ValueError) as exc:
                     raise ConfigError(f"online.{name}: {exc}") from None
-            n_channels = self.descriptions["culture"].channel.size
-            self.online = OnlineBurstDetector(n_channels, params["burst"], params["network"])
+            every_ms = ONLINE_EVERY_MS if cfg.loop.mode == "lockstep" else 0.0
+            culture = self.descriptions["culture"]
+            self.live = LiveBursts(culture, params["burst"], params["network"], every_ms)
 
     # ================================================================ output
 
@@ -706,8 +681,8 @@ class Hub:
             steps_per_s=done / wall if wall > 0 else 0.0,
             extra={
                 "late_steps": self.late_steps,
-                "bursts": self.bursts,
-                "network_bursts": self.network_bursts,
+                "bursts": self.live.bursts if self.live else 0,
+                "network_bursts": self.live.network_bursts if self.live else 0,
             },
         )
 
@@ -753,8 +728,8 @@ class Hub:
 
     def counts(self) -> dict:
         return {
-            "bursts_online": self.bursts,
-            "network_bursts_online": self.network_bursts,
+            "bursts_online": self.live.bursts if self.live else 0,
+            "network_bursts_online": self.live.network_bursts if self.live else 0,
             "late": dict(self.late),
             "missing": {r: len(s) for r, s in self.missed.items() if s},
             "dropped": {r: dict(c) for r, c in self.dropped.items()},

@@ -1,0 +1,75 @@
+"""The hub detects bursts and network bursts on the live spike stream, step by step."""
+
+import numpy as np
+import pytest
+
+from hub.analysis.bursts import BurstParams
+from hub.analysis.network_bursts import NetworkBurstParams
+from hub.config import ConfigError, load_config
+from hub.live import LiveBursts
+from hub.loop import Hub
+from hub.protocol import Description, SpikeBatch
+from tests.endpoints import EchoBody, EchoCulture
+
+PERIOD_MS = 10.0
+# Channel ids need not be 0..n-1: a real MEA names its electrodes.
+CULTURE = Description(
+    role="culture", id="0", kind="x", channel=[12, 13, 21, 87], x_um=[0] * 4, y_um=[0] * 4
+)
+
+
+def _batches(spikes_by_channel, n_steps):
+    """Split planted spike times (absolute ms) into one SpikeBatch per step."""
+    channel = np.concatenate([np.full(len(t), c) for c, t in spikes_by_channel.items()])
+    t_ms = np.concatenate([np.asarray(t, float) for t in spikes_by_channel.values()])
+    order = np.argsort(t_ms, kind="stable")
+    channel, t_ms = channel[order], t_ms[order]
+    for k in range(n_steps):
+        t0 = k * PERIOD_MS
+        inside = (t_ms >= t0) & (t_ms < t0 + PERIOD_MS)
+        yield SpikeBatch(
+            step=k,
+            t0_s=t0 / 1e3,
+            t1_s=(t0 + PERIOD_MS) / 1e3,
+            channel=channel[inside],
+            t_ms=t_ms[inside] - t0,
+        )
+
+
+# Channels 12, 13, 21 of 4 each fire 4 spikes 5 ms apart near 100 ms: one network burst.
+PLANTED = {c: [100 + 2 * i + 5 * j for j in range(4)] for i, c in enumerate((12, 13, 21))}
+PLANTED[87] = [30.0, 400.0]  # lone spikes elsewhere
+
+
+@pytest.mark.parametrize("every_ms", [0.0, 100.0])
+def test_a_planted_network_burst_is_found_once_whatever_the_feeding_interval(every_ms):
+    live = LiveBursts(CULTURE, BurstParams(), NetworkBurstParams(), every_ms)
+    found = [nb for batch in _batches(PLANTED, 60) for nb in live.add(batch)] + live.flush()
+    assert live.bursts == 3 and live.network_bursts == 1
+    (nb,) = found
+    assert nb.start_ms == pytest.approx(100.0) and nb.end_ms == pytest.approx(119.0)
+    assert sorted(nb.channels) == [0, 1, 2]  # detector indices of channels 12, 13, 21
+
+
+def _hub(*overrides):
+    hub = Hub(load_config(None, list(overrides)))
+    hub.descriptions = {"body": EchoBody().describe(), "culture": EchoCulture().describe()}
+    hub._build_schemes()
+    return hub
+
+
+def test_the_hub_reports_live_bursts_in_its_status():
+    hub = _hub()
+    # The test culture's channels are 0..3.
+    renamed = {new: PLANTED[old] for new, old in enumerate(PLANTED)}
+    for batch in _batches(renamed, 60):
+        hub._analyse_online(batch)
+    hub._analyse_online(None, flush=True)
+    assert hub._status().extra["network_bursts"] == 1
+    assert hub.counts()["bursts_online"] == 3
+
+
+def test_live_analysis_can_be_switched_off_and_its_parameters_are_checked():
+    assert _hub("online.enabled=false").live is None
+    with pytest.raises(ConfigError, match="online.network"):
+        _hub("online.network.min_fraction=2.0")
