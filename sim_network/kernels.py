@@ -28,14 +28,17 @@ _S30 = np.uint64(30)
 _S27 = np.uint64(27)
 _S31 = np.uint64(31)
 _S12 = np.uint64(12)
+_S13 = np.uint64(13)
+_S26 = np.uint64(26)
 _S16 = np.uint64(16)
 _S24 = np.uint64(24)
-_S25 = np.uint64(25)
 _S37 = np.uint64(37)
-_S38 = np.uint64(38)
 _S40 = np.uint64(40)
-_S51 = np.uint64(51)
-_M13 = np.uint64(0x1FFF)
+# the four 13-bit fields of a draw r sit at bits 12, 25, 38 and 51; this mask keeps the
+# first and third, so (r & P) + ((r >> 13) & P) holds field 0 + field 1 at bit 12 and
+# field 2 + field 3 at bit 38 (14 bits each, no overlap); adding the two halves gives the sum
+_PAIR_MASK = np.uint64((0x1FFF << 12) | (0x1FFF << 38))
+_M15 = np.uint64(0x7FFF)
 _TWO52_BITS = np.uint64(0x4330000000000000)  # float64 2^52; OR-ing an integer < 2^52 adds it
 _TWO52 = 4503599627370496.0
 # four 13-bit fields f_j, uniforms u_j = (f_j + 0.5) / 8192; Irwin-Hall z = (sum u_j - 2)·√3
@@ -105,7 +108,8 @@ def fill_noise(noise_cur, state, mean, sd):
         b ^= a
         s0[i] = ((a << _S24) | (a >> _S40)) ^ b ^ (b << _S16)
         s1[i] = (b << _S37) | (b >> _S27)
-        total = ((r >> _S12) & _M13) + ((r >> _S25) & _M13) + ((r >> _S38) & _M13) + (r >> _S51)
+        pairs = (r & _PAIR_MASK) + ((r >> _S13) & _PAIR_MASK)
+        total = ((pairs + (pairs >> _S26)) >> _S12) & _M15  # sum of the four fields, < 2^15
         # exact int -> float of the (< 2^15) sum by bit cast against 2^52 (vectorises on AVX2)
         x = _bits_as_float64(total | _TWO52_BITS) - _TWO52
         noise_cur[i] = mean[i] + sd[i] * (x * _IH_SCALE + _IH_SHIFT)
@@ -215,6 +219,38 @@ def ring_targets(delay_steps, post, n_neurons):
     return (delay_steps.astype(np.int64) * n_neurons + post).astype(dtype)
 
 
+@njit(cache=True, nogil=True, fastmath=_FAST)
+def _izhikevich_spikes(v, u, c_reset, d_jump, k, out_neuron, out_step, n_out):
+    """Record (in index order) and reset the neurons at the 30 mV peak; returns n_out.
+
+    Eight neurons at a time are first tested with a branch-free max, so that the usual
+    case (no spike among them) costs one branch per eight neurons instead of one per neuron.
+    (A helper function for the record-and-reset body, even inlined, made this 10x slower.)
+    """
+    n8 = v.size - v.size % 8
+    for lo in range(0, n8, 8):
+        top = max(
+            max(max(v[lo], v[lo + 1]), max(v[lo + 2], v[lo + 3])),
+            max(max(v[lo + 4], v[lo + 5]), max(v[lo + 6], v[lo + 7])),
+        )
+        if top >= _F_PEAK:
+            for i in range(lo, lo + 8):
+                if v[i] >= _F_PEAK:
+                    out_neuron[n_out] = i
+                    out_step[n_out] = k
+                    n_out += 1
+                    v[i] = c_reset[i]
+                    u[i] += d_jump[i]
+    for i in range(n8, v.size):  # the last n mod 8 neurons (the same test, one by one)
+        if v[i] >= _F_PEAK:
+            out_neuron[n_out] = i
+            out_step[n_out] = k
+            n_out += 1
+            v[i] = c_reset[i]
+            u[i] += d_jump[i]
+    return n_out
+
+
 @njit(cache=True, nogil=True)
 def advance(
     model,
@@ -295,16 +331,9 @@ def advance(
                 v, aux[0], params[0], params[1], row, noise_cur, stim_cur, aux[1], dt, n_sub
             )
             if n_peak > 0:
-                c_reset = params[2]
-                d_jump = params[3]
-                u = aux[0]
-                for i in range(n):
-                    if v[i] >= 30.0:
-                        out_neuron[n_out] = i
-                        out_step[n_out] = k
-                        n_out += 1
-                        v[i] = c_reset[i]
-                        u[i] += d_jump[i]
+                n_out = _izhikevich_spikes(
+                    v, aux[0], params[2], params[3], k, out_neuron, out_step, n_out
+                )
         elif model == 1:
             for i in range(n):
                 vi = v[i] + row[i]

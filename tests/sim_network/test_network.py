@@ -274,3 +274,18 @@ def test_lif_and_hh_networks_run_deterministically_in_chunks(model, noise):
 def test_run_rejects_pulses_of_the_wrong_type():
     with pytest.raises(TypeError, match="pulses"):
         Network(SMALL, seed=1).run(10.0, pulses={"channel": [1]})
+
+
+@pytest.mark.parametrize("dt_ms", [0.1, 1.0])
+def test_every_neuron_at_the_peak_is_recorded_whatever_the_network_size(dt_ms):
+    # 5 x 7 = 35 neurons: the spike scan takes eight at a time, so the last three are a tail
+    cfg = dataclasses.replace(
+        SMALL,
+        dt_ms=dt_ms,
+        layout=LayoutConfig(rows=5, cols=7),
+        noise=NoiseConfig(mean=0.0, sd=0.0),
+    )
+    net = Network(cfg, seed=3)
+    spikes = net.run(20.0, pulses=Pulses.single(list(range(35)), 100.0, 20.0))
+    assert set(spikes.channel.tolist()) == set(range(35))
+    assert np.all(net.potentials() < 30.0)  # every neuron at the peak was reset
