@@ -292,7 +292,7 @@ def test_pause_resume_stop_and_config_over_the_control_key(tmp_path, bus_overrid
 
 def test_a_missing_endpoint_is_named_after_the_wait(tmp_path, bus_overrides):
     with harness(
-        tmp_path, bus_overrides, 'culture.launch="external"', "loop.wait_timeout_s=1.5"
+        tmp_path, bus_overrides, 'culture.launch="external"', "loop.wait_timeout_s=5"
     ) as h:
         result = h.run()
     assert result.outcome == "fault"
