@@ -1,12 +1,17 @@
 """Live burst detection: the hub's use of the online detector on the spike stream.
 
 The paper detects bursts and network bursts "on the fly". :class:`LiveBursts`
-takes each step's :class:`~hub.protocol.SpikeBatch`, maps the culture's channel
-ids to detector indices, and feeds the detector in batches of ``every_ms`` of
-simulated time (fewer calls in lockstep; 0 feeds every step, for realtime).
+buffers each step's :class:`~hub.protocol.SpikeBatch` (mapping the culture's
+channel ids to detector indices) and feeds the detector when asked, in chunks,
+so that the hub can bound the time it spends per step: in lockstep it feeds
+every ``every_ms`` of simulated time (fewer calls); in realtime it feeds every
+step but stops at a wall-clock budget and carries the rest to the next step,
+so a network burst's thousands of spikes never delay a step.
 """
 
 from __future__ import annotations
+
+import time
 
 import numpy as np
 
@@ -14,6 +19,8 @@ from hub.analysis.bursts import BurstParams
 from hub.analysis.network_bursts import NetworkBurstParams
 from hub.analysis.online import NetworkBurst, OnlineBurstDetector
 from hub.protocol import Description, SpikeBatch
+
+CHUNK_SPIKES = 256  # spikes fed per detector call when working to a deadline
 
 
 class LiveBursts:
@@ -33,31 +40,50 @@ class LiveBursts:
         self.bursts = 0
         self.network_bursts = 0
         self._buffer: list[tuple[np.ndarray, np.ndarray]] = []
-        self._until_ms = 0.0
+        self._until_ms = 0.0  # every spike before this has been buffered
         self._next_ms = every_ms
 
-    def add(self, spikes: SpikeBatch) -> list[NetworkBurst]:
-        """Take one step's spikes; returns the network bursts completed by them (if fed)."""
+    def add(self, spikes: SpikeBatch) -> None:
+        """Buffer one step's spikes."""
         t_ms = spikes.t0_s * 1e3 + spikes.t_ms.astype(np.float64)
         self._buffer.append((self.index[spikes.channel], t_ms))
         self._until_ms = spikes.t1_s * 1e3
-        return self.flush() if self._until_ms >= self._next_ms else []
 
-    def flush(self) -> list[NetworkBurst]:
-        """Feed what is buffered; returns the network bursts completed."""
+    @property
+    def due(self) -> bool:
+        """Whether enough simulated time is buffered to be worth a feed."""
+        return bool(self._buffer) and self._until_ms >= self._next_ms
+
+    def work(self, deadline: float | None = None) -> list[NetworkBurst]:
+        """Feed the buffer to the detector; stop early (keeping the rest) once
+        ``time.monotonic()`` passes ``deadline``. Returns the network bursts completed."""
         if not self._buffer:
             return []
         index = np.concatenate([b[0] for b in self._buffer])
         t_ms = np.concatenate([b[1] for b in self._buffer])
         self._buffer.clear()
-        self._next_ms = self._until_ms + self.every_ms
-        # A spike stamped at the window's very end may round a hair past it.
-        until_ms = max(self._until_ms, t_ms[-1]) if t_ms.size else self._until_ms
-        done = []
-        for event in self.detector.feed(index, t_ms, until_ms=until_ms):
+        done: list[NetworkBurst] = []
+        start = 0
+        while True:
+            stop = index.size if deadline is None else min(start + CHUNK_SPIKES, index.size)
+            if stop == index.size:
+                # A spike stamped at the window's very end may round a hair past it.
+                until_ms = max(self._until_ms, t_ms[-1]) if t_ms.size else self._until_ms
+            else:
+                until_ms = t_ms[stop - 1]
+            self._count(self.detector.feed(index[start:stop], t_ms[start:stop], until_ms), done)
+            start = stop
+            if start == index.size:
+                self._next_ms = self._until_ms + self.every_ms
+                return done
+            if time.monotonic() >= deadline:
+                self._buffer.append((index[start:], t_ms[start:]))
+                return done
+
+    def _count(self, events: list, done: list[NetworkBurst]) -> None:
+        for event in events:
             if isinstance(event, NetworkBurst):
                 self.network_bursts += 1
                 done.append(event)
             else:
                 self.bursts += 1
-        return done

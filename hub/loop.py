@@ -52,8 +52,10 @@ log = logging.getLogger(__name__)
 # A realtime step whose start lags its schedule by more than this share of a
 # period is counted late (its window is visibly shortened).
 LATE_START_SHARE = 0.25
-# In lockstep, the online burst detector is fed this much simulated time at once.
+# In lockstep, the online burst detector is fed this much simulated time at once;
+# in realtime it is fed every step for at most this share of a period.
 ONLINE_EVERY_MS = 100.0
+ONLINE_BUDGET_SHARE = 0.2
 
 
 class HubError(RuntimeError):
@@ -341,10 +343,21 @@ class Hub:
         return message
 
     def _analyse_online(self, spikes: SpikeBatch | None, *, flush: bool = False) -> None:
-        """Give a step's spikes to the live burst detector; record each network burst."""
-        done = self.live.add(spikes) if spikes is not None else []
+        """Give a step's spikes to the live burst detector; record each network burst.
+
+        Realtime spends at most ONLINE_BUDGET_SHARE of a period on it per step."""
+        live = self.live
+        if spikes is not None:
+            live.add(spikes)
         if flush:
-            done += self.live.flush()
+            done = live.work()
+        elif self.cfg.loop.mode == "realtime":
+            budget_s = ONLINE_BUDGET_SHARE * self.cfg.loop.period_ms / 1e3
+            done = live.work(deadline=time.monotonic() + budget_s)
+        elif live.due:
+            done = live.work()
+        else:
+            return
         for nb in done:
             self._record_event(
                 "network_burst",
