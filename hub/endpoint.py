@@ -97,6 +97,10 @@ class Endpoint(abc.ABC):
         :class:`~hub.protocol.SpikeBatch` must carry the same ``step``.
         """
 
+    def warm_up(self) -> None:
+        """Run what the first step would compile or load, leaving the state as it was
+        (called before the endpoint declares itself alive). Default: nothing."""
+
     def on_input_timeout(self) -> None:
         """No input for ``input_timeout_s``: make the device safe. Default: nothing."""
 
@@ -161,6 +165,7 @@ class Endpoint(abc.ABC):
                 signal.signal(sig, lambda *_: self.request_stop())
         keys = self.keys = Keys(bus.session)
         inbox: queue.SimpleQueue = queue.SimpleQueue()
+        self.warm_up()  # so that the first realtime steps are not late
         session = self._session = open_session(bus, listener=False)
         try:
             # Zenoh undeclares what is garbage-collected: keep every declaration.

@@ -2,11 +2,10 @@
 
 The paper detects bursts and network bursts "on the fly". :class:`LiveBursts`
 buffers each step's :class:`~hub.protocol.SpikeBatch` (mapping the culture's
-channel ids to detector indices) and feeds the detector when asked, in chunks,
-so that the hub can bound the time it spends per step: in lockstep it feeds
-every ``every_ms`` of simulated time (fewer calls); in realtime it feeds every
-step but stops at a wall-clock budget and carries the rest to the next step,
-so a network burst's thousands of spikes never delay a step.
+channel ids to detector indices) and feeds the detector once ``every_ms`` of
+simulated time is buffered (its cost is mostly per call). Given a deadline, a
+feed goes in chunks and stops at it, keeping the rest for the next call, so a
+network burst's thousands of spikes never delay a realtime step.
 """
 
 from __future__ import annotations
@@ -20,7 +19,7 @@ from hub.analysis.network_bursts import NetworkBurstParams
 from hub.analysis.online import NetworkBurst, OnlineBurstDetector
 from hub.protocol import Description, SpikeBatch
 
-CHUNK_SPIKES = 256  # spikes fed per detector call when working to a deadline
+CHUNK_SPIKES = 128  # spikes fed per detector call when working to a deadline
 
 
 class LiveBursts:

@@ -52,10 +52,10 @@ log = logging.getLogger(__name__)
 # A realtime step whose start lags its schedule by more than this share of a
 # period is counted late (its window is visibly shortened).
 LATE_START_SHARE = 0.25
-# In lockstep, the online burst detector is fed this much simulated time at once;
-# in realtime it is fed every step for at most this share of a period.
+# The live burst detector is fed this much simulated time at once; in realtime it
+# works in the slack of a step, stopping this share of a period before the next one.
 ONLINE_EVERY_MS = 100.0
-ONLINE_BUDGET_SHARE = 0.2
+ONLINE_MARGIN_SHARE = 0.3
 
 
 class HubError(RuntimeError):
@@ -247,16 +247,18 @@ class Hub:
             t0 = time.monotonic()
             self._send("body", self._motor_for(k, prev["culture"]))
             self._send("culture", self._stim_for(k, prev["body"]))
-            if prev["culture"] is not None and self.live is not None:
-                self._analyse_online(prev["culture"])  # while the endpoints work
             late = self._collect(k, self._deadline(k, period_s))
             prev = {role: self.pending[role].pop(k, None) for role in ROLES}
             self.step_wall_s[k] = time.monotonic() - t0
             self.late_steps += bool(late or self.lateness_s[k] > LATE_START_SHARE * period_s)
             self.k_done = k + 1
+            if prev["culture"] is not None and self.live is not None:
+                # In the slack before the next step, never into it.
+                slack_end = self._scheduled(k + 1, period_s) - ONLINE_MARGIN_SHARE * period_s
+                self._analyse_online(prev["culture"], deadline=slack_end)
             self._tick()
         if self.live is not None:
-            self._analyse_online(prev["culture"], flush=True)
+            self._analyse_online(None, flush=True)
 
     def _steps_lockstep(self) -> None:
         """As fast as the endpoints go, pipelined: each input of step k+1 leaves as soon as
@@ -342,20 +344,21 @@ class Hub:
             raise HubError(f"scheme returned {message!r}, expected a {kind.__name__} for step {k}")
         return message
 
-    def _analyse_online(self, spikes: SpikeBatch | None, *, flush: bool = False) -> None:
+    def _analyse_online(
+        self, spikes: SpikeBatch | None, *, flush: bool = False, deadline: float | None = None
+    ) -> None:
         """Give a step's spikes to the live burst detector; record each network burst.
 
-        Realtime spends at most ONLINE_BUDGET_SHARE of a period on it per step."""
+        The detector is fed every ONLINE_EVERY_MS of simulated time (its cost is mostly
+        per call); with a ``deadline`` (realtime: the slack before the next step) a feed
+        stops there and goes on at the next call."""
         live = self.live
         if spikes is not None:
             live.add(spikes)
         if flush:
             done = live.work()
-        elif self.cfg.loop.mode == "realtime":
-            budget_s = ONLINE_BUDGET_SHARE * self.cfg.loop.period_ms / 1e3
-            done = live.work(deadline=time.monotonic() + budget_s)
-        elif live.due:
-            done = live.work()
+        elif live.due and (deadline is None or time.monotonic() < deadline):
+            done = live.work(deadline)
         else:
             return
         for nb in done:
@@ -655,9 +658,8 @@ class Hub:
                     params[name] = kind(**getattr(cfg.online, name))
                 except (TypeError, ValueError) as exc:
                     raise ConfigError(f"online.{name}: {exc}") from None
-            every_ms = ONLINE_EVERY_MS if cfg.loop.mode == "lockstep" else 0.0
             culture = self.descriptions["culture"]
-            self.live = LiveBursts(culture, params["burst"], params["network"], every_ms)
+            self.live = LiveBursts(culture, params["burst"], params["network"], ONLINE_EVERY_MS)
 
     # ================================================================ output
 

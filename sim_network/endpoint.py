@@ -63,6 +63,12 @@ class NetworkEndpoint(Endpoint):
             cell_type=ch.cell_type,
         )
 
+    def warm_up(self) -> None:
+        """One stimulated period on a saved state, then the state restored exactly."""
+        state = self.net.get_state()
+        self.net.run(self.period_ms, Pulses.single([int(self.net.channels.channel[0])], 1.0, 1.0))
+        self.net.set_state(state)
+
     def step(self, s: Stimulation) -> SpikeBatch:
         t0_ms = s.step * self.period_ms
         if self.net.t_ms < t0_ms:  # steps the hub skipped: the culture lived on, unstimulated

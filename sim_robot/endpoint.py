@@ -56,6 +56,10 @@ class ArenaEndpoint(Endpoint):
             max_wheel_mps=float(body.max_wheel_mps),
         )
 
+    def warm_up(self) -> None:
+        """Load the ray-casting kernels (reading the sensors changes nothing)."""
+        self.arena.read_sensors()
+
     def step(self, m: MotorCommand) -> SensorReading:
         # Steps the hub skipped (realtime, lost input): the robot kept rolling.
         gap = m.step - round(self.arena.t_s / self.period_s)

@@ -65,3 +65,15 @@ def test_the_network_endpoint_answers_a_pulse_with_spikes_in_step_windows(tmp_pa
         assert np.all((b.t_ms >= 0) & (b.t_ms <= 10.0))
     # 100 µA for 10 ms makes the stimulated neuron fire during that step.
     assert 0 in batches[20].channel
+
+
+def test_warming_up_the_network_endpoint_leaves_its_state_as_it_was():
+    from hub.config import load_config
+    from sim_network.endpoint import NetworkEndpoint
+
+    cfg = load_config(None, ["culture.params.seed=4"])
+    warmed = NetworkEndpoint.from_config(cfg.culture, cfg)
+    cold = NetworkEndpoint.from_config(cfg.culture, cfg)
+    warmed.warm_up()
+    a, b = warmed.net.run(200.0), cold.net.run(200.0)
+    assert np.array_equal(a.channel, b.channel) and np.array_equal(a.t_ms, b.t_ms)
