@@ -20,6 +20,7 @@ from hub.analysis.online import NetworkBurst, OnlineBurstDetector
 from hub.protocol import Description, SpikeBatch
 
 CHUNK_SPIKES = 128  # spikes fed per detector call when working to a deadline
+MAX_BACKLOG_MS = 2000.0  # with a deadline, spikes this far behind are dropped unanalysed
 
 
 class LiveBursts:
@@ -38,9 +39,11 @@ class LiveBursts:
         self.every_ms = every_ms
         self.bursts = 0
         self.network_bursts = 0
+        self.skipped_spikes = 0
         self._buffer: list[tuple[np.ndarray, np.ndarray]] = []
         self._until_ms = 0.0  # every spike before this has been buffered
         self._next_ms = every_ms
+        self._chunk_s = 0.001  # estimated wall time of one chunk, refined as chunks run
 
     def add(self, spikes: SpikeBatch) -> None:
         """Buffer one step's spikes."""
@@ -54,30 +57,40 @@ class LiveBursts:
         return bool(self._buffer) and self._until_ms >= self._next_ms
 
     def work(self, deadline: float | None = None) -> list[NetworkBurst]:
-        """Feed the buffer to the detector; stop early (keeping the rest) once
-        ``time.monotonic()`` passes ``deadline``. Returns the network bursts completed."""
+        """Feed the buffer to the detector. With a ``deadline`` (``time.monotonic()``), feed
+        in chunks and start a chunk only if it should end before the deadline (by the
+        chunks timed so far), keeping the rest; spikes more than MAX_BACKLOG_MS of
+        simulated time behind are then dropped unanalysed (counted in ``skipped_spikes``;
+        the record keeps them for offline analysis). Returns the network bursts completed."""
         if not self._buffer:
             return []
         index = np.concatenate([b[0] for b in self._buffer])
         t_ms = np.concatenate([b[1] for b in self._buffer])
         self._buffer.clear()
+        if deadline is not None:
+            stale = int(np.searchsorted(t_ms, self._until_ms - MAX_BACKLOG_MS))
+            if stale:
+                self.skipped_spikes += stale
+                index, t_ms = index[stale:], t_ms[stale:]
         done: list[NetworkBurst] = []
         start = 0
-        while True:
+        while start < index.size:
+            if deadline is not None and time.monotonic() + self._chunk_s > deadline:
+                self._buffer.append((index[start:], t_ms[start:]))
+                return done
             stop = index.size if deadline is None else min(start + CHUNK_SPIKES, index.size)
             if stop == index.size:
                 # A spike stamped at the window's very end may round a hair past it.
                 until_ms = max(self._until_ms, t_ms[-1]) if t_ms.size else self._until_ms
             else:
                 until_ms = t_ms[stop - 1]
+            t0 = time.monotonic()
             self._count(self.detector.feed(index[start:stop], t_ms[start:stop], until_ms), done)
+            if deadline is not None:  # running estimate of one chunk's cost
+                self._chunk_s = 0.8 * self._chunk_s + 0.2 * (time.monotonic() - t0)
             start = stop
-            if start == index.size:
-                self._next_ms = self._until_ms + self.every_ms
-                return done
-            if time.monotonic() >= deadline:
-                self._buffer.append((index[start:], t_ms[start:]))
-                return done
+        self._next_ms = self._until_ms + self.every_ms
+        return done
 
     def _count(self, events: list, done: list[NetworkBurst]) -> None:
         for event in events:

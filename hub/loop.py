@@ -357,7 +357,7 @@ class Hub:
             live.add(spikes)
         if flush:
             done = live.work()
-        elif live.due and (deadline is None or time.monotonic() < deadline):
+        elif live.due:
             done = live.work(deadline)
         else:
             return
@@ -744,6 +744,7 @@ class Hub:
     def counts(self) -> dict:
         return {
             "bursts_online": self.live.bursts if self.live else 0,
+            "spikes_not_analysed_online": self.live.skipped_spikes if self.live else 0,
             "network_bursts_online": self.live.network_bursts if self.live else 0,
             "late": dict(self.late),
             "missing": {r: len(s) for r, s in self.missed.items() if s},

@@ -42,7 +42,7 @@ PLANTED[87] = [30.0, 400.0]  # lone spikes elsewhere
 
 
 @pytest.mark.parametrize("every_ms", [0.0, 100.0])
-@pytest.mark.parametrize("deadline", [None, -1.0])  # no limit; past at once: one chunk a call
+@pytest.mark.parametrize("deadline", [None, 1e12])  # no limit; a deadline never reached
 def test_a_planted_network_burst_is_found_once_however_it_is_fed(every_ms, deadline, monkeypatch):
     monkeypatch.setattr("hub.live.CHUNK_SPIKES", 2)
     live = LiveBursts(CULTURE, BurstParams(), NetworkBurstParams(), every_ms)
@@ -51,12 +51,22 @@ def test_a_planted_network_burst_is_found_once_however_it_is_fed(every_ms, deadl
         live.add(batch)
         if live.due:
             found += live.work(deadline)
-    while live._buffer:  # what a tight budget left behind is fed on later steps
-        found += live.work(deadline)
+    found += live.work()  # the end of the run feeds the rest
     assert live.bursts == 3 and live.network_bursts == 1
     (nb,) = found
     assert nb.start_ms == pytest.approx(100.0) and nb.end_ms == pytest.approx(119.0)
     assert sorted(nb.channels) == [0, 1, 2]  # detector indices of channels 12, 13, 21
+
+
+def test_a_hub_that_has_no_time_for_live_analysis_drops_old_spikes_and_says_so(monkeypatch):
+    monkeypatch.setattr("hub.live.MAX_BACKLOG_MS", 50.0)
+    live = LiveBursts(CULTURE, BurstParams(), NetworkBurstParams(), 0.0)
+    for batch in _batches(PLANTED, 41):  # up to 410 ms
+        live.add(batch)
+        live.work(deadline=0.0)  # always too late to start a chunk
+    n_planted = sum(len(t) for t in PLANTED.values())
+    assert live.skipped_spikes == n_planted - 1  # all but the spike at 400 ms, < 50 ms old
+    assert live.network_bursts == 0
 
 
 def _hub(*overrides):
