@@ -8,8 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .geometry import disc_state
-from .world import World
+from .world import World, disc_flags
 
 #: side of the grid cells used for arena coverage (m)
 COVERAGE_CELL_M = 0.05
@@ -58,25 +57,7 @@ def trajectory_metrics(
         raise ValueError(f"cell_m must be > 0, got {cell_m!r}")
     x = np.ascontiguousarray(p[:, 0])
     y = np.ascontiguousarray(p[:, 1])
-    g = world.geometry
-    n = x.size
-    overlap = np.zeros((n, g.n_obstacles), dtype=np.bool_)
-    outside = np.zeros(n, dtype=np.bool_)
-    touch = np.zeros(n, dtype=np.bool_)
-    disc_state(
-        x,
-        y,
-        world.body.radius_m,
-        g.obs_kind,
-        g.obs_circle,
-        g.poly_vertex,
-        g.obs_start,
-        g.wall_kind,
-        g.wall_param,
-        overlap,
-        outside,
-        touch,
-    )
+    overlap, outside, touch = disc_flags(world, x, y)
     dt = np.diff(t)
     duration = float(t[-1] - t[0])
     distance = float(np.hypot(np.diff(x), np.diff(y)).sum())

@@ -116,6 +116,27 @@ class World:
 # ---------------------------------------------------------------- flattening and validation
 
 
+def disc_flags(
+    world: World, x_m: np.ndarray, y_m: np.ndarray, radius_m: float | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Where a robot disc at each ``(x_m, y_m)`` is: overlapping each obstacle
+    (bool[n, n_obstacles]), outside the arena (bool[n]), touching a wall (bool[n]).
+
+    ``radius_m`` defaults to the world's robot."""
+    g = world.geometry
+    x = np.ascontiguousarray(x_m, dtype=np.float64).reshape(-1)
+    y = np.ascontiguousarray(y_m, dtype=np.float64).reshape(-1)
+    overlap = np.zeros((x.size, g.n_obstacles), dtype=np.bool_)
+    outside = np.zeros(x.size, dtype=np.bool_)
+    touch = np.zeros(x.size, dtype=np.bool_)
+    radius = world.body.radius_m if radius_m is None else radius_m
+    disc_state(
+        x, y, radius, g.obs_kind, g.obs_circle, g.poly_vertex, g.obs_start,
+        g.wall_kind, g.wall_param, overlap, outside, touch,
+    )  # fmt: skip
+    return overlap, outside, touch
+
+
 def _flatten(world: World) -> Geometry:
     n = len(world.obstacles)
     kind = np.zeros(n, dtype=np.int8)
@@ -151,7 +172,6 @@ def _validate(world: World) -> None:
         raise WorldError(f"sensors.noise_sd_m must be >= 0, got {world.noise_sd_m!r}")
     if not all(math.isfinite(v) for v in world.start_pose):
         raise WorldError(f"robot.start must be finite, got {world.start_pose}")
-    g = world.geometry
     for j, ob in enumerate(world.obstacles):
         where = f"obstacles[{j}] ({ob.shape})"
         if ob.is_circle:
@@ -189,23 +209,7 @@ def _validate(world: World) -> None:
     # robot start: inside the arena and clear of every obstacle
     x, y, _ = world.start_pose
     r = world.body.radius_m
-    overlap = np.zeros((1, g.n_obstacles), dtype=np.bool_)
-    outside = np.zeros(1, dtype=np.bool_)
-    touch = np.zeros(1, dtype=np.bool_)
-    disc_state(
-        np.array([x]),
-        np.array([y]),
-        r,
-        g.obs_kind,
-        g.obs_circle,
-        g.poly_vertex,
-        g.obs_start,
-        g.wall_kind,
-        g.wall_param,
-        overlap,
-        outside,
-        touch,
-    )
+    overlap, outside, touch = disc_flags(world, np.array([x]), np.array([y]))
     hit = np.flatnonzero(overlap[0])
     if hit.size:
         j = int(hit[0])

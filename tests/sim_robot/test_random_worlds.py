@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from sim_robot import Arena, WorldError, world_from_dict
-from sim_robot.geometry import disc_state
 from sim_robot.physics import pymunk_ranges
+from sim_robot.world import disc_flags
 
 
 def star_polygon(rng, n_vertices, r_min, r_max):
@@ -81,7 +81,6 @@ def test_solid_obstacles_and_walls_are_never_penetrated(seed):
     collisions = 0
     for world in worlds(seed, 3, solid=True):
         arena = Arena(world)
-        g = world.geometry
         poses = []
         for _ in range(100):  # 100 random 0.5 s manoeuvres, mostly forward
             left, right = rng.uniform(-0.05, 0.3, 2)
@@ -89,24 +88,8 @@ def test_solid_obstacles_and_walls_are_never_penetrated(seed):
                 arena.step(left, right, 0.01)
                 poses.append(arena.pose)
         p = np.array(poses)
-        n = len(p)
-        overlap = np.zeros((n, g.n_obstacles), dtype=bool)
-        outside, touch = np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)
         # shrink the disc by 1 um: anything still overlapping is a real penetration
-        disc_state(
-            p[:, 0].copy(),
-            p[:, 1].copy(),
-            world.body.radius_m - 1e-6,
-            g.obs_kind,
-            g.obs_circle,
-            g.poly_vertex,
-            g.obs_start,
-            g.wall_kind,
-            g.wall_param,
-            overlap,
-            outside,
-            touch,
-        )
+        overlap, outside, _ = disc_flags(world, p[:, 0], p[:, 1], world.body.radius_m - 1e-6)
         assert not overlap.any()
         assert not outside.any() and arena.stats.arena_exits == 0
         assert arena.stats.distance_m > 0.5  # it did move (sliding, not stuck)
