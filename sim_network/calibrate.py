@@ -41,8 +41,12 @@ def with_overrides(cfg: NetworkConfig, overrides: list[str]) -> NetworkConfig:
     return config_from_dict(data)
 
 
-def record(net: Network, seconds: float, chunk_ms: float = 1000.0, stim=None) -> Spikes:
-    """Run `seconds` of simulated time in chunks; return the neuron-level spikes."""
+def record(
+    net: Network, seconds: float, chunk_ms: float = 1000.0, stim=None, on_chunk=None
+) -> Spikes:
+    """Run `seconds` of simulated time in chunks; return the neuron-level spikes.
+
+    `on_chunk(step_ms)` is called after each chunk (progress reports)."""
     parts = []
     t_end = net.t_ms + seconds * 1000.0
     while net.t_ms < t_end - 1e-9:
@@ -50,6 +54,8 @@ def record(net: Network, seconds: float, chunk_ms: float = 1000.0, stim=None) ->
         pulses = stim.pulses_between(net.t_ms, net.t_ms + step) if stim is not None else None
         net.run(step, pulses=pulses)
         parts.append(net.neuron_spikes)
+        if on_chunk is not None:
+            on_chunk(step)
     return Spikes.concat(parts)
 
 

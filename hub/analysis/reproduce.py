@@ -140,19 +140,14 @@ class _Clock:
 
 
 def _simulate(net, seconds: float, clock: _Clock, phase: str, stim=None):
-    """Run ``seconds`` in 1 s chunks; return the neuron-level spikes (absolute ms)."""
-    from sim_network import Spikes
+    """Run ``seconds`` in 1 s chunks, reporting progress; return the neuron-level spikes."""
+    from sim_network.calibrate import record
 
-    parts = []
-    t_end = net.t_ms + seconds * 1000.0
-    while net.t_ms < t_end - 1e-9:
-        step = min(CHUNK_MS, t_end - net.t_ms)
-        pulses = stim.pulses_between(net.t_ms, net.t_ms + step) if stim is not None else None
-        net.run(step, pulses=pulses)
-        parts.append(net.neuron_spikes)
-        clock.add(step / 1000.0, phase)
+    spikes = record(
+        net, seconds, CHUNK_MS, stim, on_chunk=lambda step_ms: clock.add(step_ms / 1000.0, phase)
+    )
     clock.add(0.0, phase, force=True)
-    return Spikes.concat(parts)
+    return spikes
 
 
 def _num(x):
