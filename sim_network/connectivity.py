@@ -32,6 +32,16 @@ class Synapses:
         """Number of synapses."""
         return int(self.post.size)
 
+    def permuted(self, order: np.ndarray) -> Synapses:
+        """The same synapses in another order within each row (`order` keeps rows intact)."""
+        return Synapses(
+            indptr=self.indptr,
+            post=self.post[order],
+            weight_mv=self.weight_mv[order],
+            delay_ms=self.delay_ms[order],
+            distance_um=self.distance_um[order],
+        )
+
     def pre(self) -> np.ndarray:
         """Presynaptic neuron of every synapse, int32[m]."""
         counts = np.diff(self.indptr)

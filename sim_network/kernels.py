@@ -18,7 +18,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from llvmlite import ir
 from numba import njit, types
+from numba.core import cgutils
 from numba.extending import intrinsic
 
 _GOLDEN = np.uint64(0x9E3779B97F4A7C15)
@@ -65,6 +67,28 @@ def _bits_as_float64(typingctx, bits):
 
     def codegen(context, builder, signature, args):
         return builder.bitcast(args[0], context.get_value_type(types.float64))
+
+    return sig, codegen
+
+
+@intrinsic
+def _prefetch(typingctx, arr, idx):
+    """Hint the CPU to fetch the cache line of arr[idx] (llvm.prefetch: read, keep in cache)."""
+    sig = types.void(arr, idx)
+
+    def codegen(context, builder, signature, args):
+        aryty = signature.args[0]
+        ary = context.make_array(aryty)(context, builder, args[0])
+        ptr = cgutils.get_item_pointer(
+            context, builder, aryty, ary, [args[1]], wraparound=False, boundscheck=False
+        )
+        i8p = ir.IntType(8).as_pointer()
+        i32 = ir.IntType(32)
+        fnty = ir.FunctionType(ir.VoidType(), [i8p, i32, i32, i32])
+        fn = cgutils.get_or_insert_function(builder.module, fnty, "llvm.prefetch.p0i8")
+        args_ = [builder.bitcast(ptr, i8p), ir.Constant(i32, 0), ir.Constant(i32, 3)]
+        builder.call(fn, args_ + [ir.Constant(i32, 1)])
+        return context.get_dummy_value()
 
     return sig, codegen
 
@@ -213,10 +237,74 @@ def ring_targets(delay_steps, post, n_neurons):
 
     int32 when the ring has fewer than 2^31 cells (halves the memory read per delivery),
     else int64. The slot of step k + delay is then (k mod n_slots)·n + offset, wrapped once.
+    The kernel expects the offsets of each presynaptic neuron in ascending order (see
+    `Network`, which sorts every CSR row by it): a row then splits into one run that does not
+    wrap and one that does.
     """
     n_slots = int(delay_steps.max()) + 1 if delay_steps.size else 2
     dtype = np.int32 if n_slots * n_neurons < 2**31 else np.int64
     return (delay_steps.astype(np.int64) * n_neurons + post).astype(dtype)
+
+
+@njit(cache=True, nogil=True)
+def _row_order(indptr, key, order):
+    """Fill `order` with the permutation sorting each CSR row by key; True if not identity."""
+    moved = False
+    for i in range(indptr.size - 1):
+        lo = indptr[i]
+        hi = indptr[i + 1]
+        sub = np.argsort(key[lo:hi], kind="mergesort")
+        for t in range(hi - lo):
+            order[lo + t] = lo + sub[t]
+            moved |= sub[t] != t
+    return moved
+
+
+def row_order(indptr, key):
+    """Permutation that sorts every CSR row by `key` (stable), or None if already sorted."""
+    order = np.empty(key.size, dtype=np.int64)
+    return order if _row_order(indptr, key, order) else None
+
+
+@njit(cache=True, nogil=True)
+def _deliver(ring_flat, base, target, weight, lo, hi, scale):
+    """Add weight·scale of synapses lo:hi to the ring cells base + target (wrapped once).
+
+    The targets of a row are ascending, so the synapses whose cell wraps past the ring's end
+    are a tail found by bisection; the two runs then need no compare per synapse. Unsigned
+    indices let the loops skip numba's negative-index fix-up.
+    """
+    ring_size = ring_flat.size
+    lim = ring_size - base  # target >= lim wraps
+    a = np.uint64(lo)
+    b = np.uint64(hi)
+    while a < b:
+        m = (a + b) >> np.uint64(1)
+        if target[m] < lim:
+            a = m + np.uint64(1)
+        else:
+            b = m
+    ub = np.uint64(base)
+    for syn in range(np.uint64(lo), a):
+        ring_flat[ub + np.uint64(target[syn])] += weight[syn] * scale
+    ub = np.uint64(ring_size - base)  # cell = target - (ring_size - base) >= 0 in the tail
+    for syn in range(a, np.uint64(hi)):
+        ring_flat[np.uint64(target[syn]) - ub] += weight[syn] * scale
+
+
+@njit(cache=True, nogil=True)
+def _prefetch_row(indptr, target, weight, i):
+    """Prefetch the synapse row of neuron i (targets and weights), one hint per cache line."""
+    lo = np.uint64(indptr[i])
+    hi = np.uint64(indptr[i + 1])
+    if hi == lo:
+        return
+    for syn in range(lo, hi, np.uint64(16)):
+        _prefetch(target, syn)
+    for syn in range(lo, hi, np.uint64(8)):
+        _prefetch(weight, syn)
+    _prefetch(target, hi - np.uint64(1))  # the last line, which the strides may skip
+    _prefetch(weight, hi - np.uint64(1))
 
 
 @njit(cache=True, nogil=True, fastmath=_FAST)
@@ -299,7 +387,8 @@ def advance(
     """Advance the network by up to `n_steps` steps from absolute step `step0`.
 
     `target` is each synapse's offset in the flattened ring, delay·n + post (see
-    `ring_targets`), so a delivery costs one add and one compare instead of a modulo.
+    `ring_targets`), ascending within each presynaptic row, so a delivery costs one add
+    (no modulo, no compare).
     Returns (steps_done, n_out): fewer steps than asked only when the spike output arrays
     could overflow; call again with the remaining steps after draining them.
     """
@@ -380,11 +469,9 @@ def advance(
                 scale = x
                 dep_x[i] = x * (1.0 - dep_u)
                 dep_last[i] = k
-            for syn in range(indptr[i], indptr[i + 1]):
-                j = base + target[syn]
-                if j >= ring_size:
-                    j -= ring_size
-                ring_flat[j] += weight[syn] * scale
+            if q + 1 < n_out:  # the next spike's row is a DRAM miss; start fetching it now
+                _prefetch_row(indptr, target, weight, out_neuron[q + 1])
+            _deliver(ring_flat, base, target, weight, indptr[i], indptr[i + 1], scale)
             if stdp_on:
                 for t in range(in_indptr[i], in_indptr[i + 1]):
                     syn = in_syn[t]

@@ -53,17 +53,28 @@ class Network:
         self._reset_state()
 
     # ------------------------------------------------------------------ set-up
-    def _derive(self) -> None:
-        """Arrays derived from config and synapses (not state); rebuilt after `load`."""
+    def _derive(self) -> np.ndarray | None:
+        """Arrays derived from config and synapses (not state); rebuilt after `load`.
+
+        Sorts each neuron's synapses by ring offset (the kernel's order) and returns the
+        permutation applied to `synapses`, or None when they were already in that order.
+        """
         cfg = self.cfg
         n = self.layout.n
         self._model = MODEL_IDS[cfg.neurons.model]
         self._dt = float(cfg.dt_ms)
         self._n_sub = izhikevich_substeps(self._dt)
         self._noise_steps = round(cfg.noise.interval_ms / self._dt)
-        self._delay = delay_steps(self.synapses.delay_ms, self._dt)
-        self._n_slots = int(self._delay.max()) + 1 if self._delay.size else 2
-        self._target = kernels.ring_targets(self._delay, self.synapses.post, n)
+        delay = delay_steps(self.synapses.delay_ms, self._dt)
+        self._n_slots = int(delay.max()) + 1 if delay.size else 2
+        target = kernels.ring_targets(delay, self.synapses.post, n)
+        # each neuron's synapses in ascending ring offset (the kernel relies on it); a post
+        # appears once per row, so this order changes no sum and no spike
+        order = kernels.row_order(self.synapses.indptr, target)
+        if order is not None:
+            self.synapses = self.synapses.permuted(order)
+            target = target[order]
+        self._target = target
         self._pre = self.synapses.pre()
         self._is_exc = (self.layout.cell_type == EXCITATORY).astype(np.bool_)
         in_order = np.argsort(self.synapses.post, kind="stable")
@@ -92,6 +103,7 @@ class Network:
         self._out_step = np.zeros(self._out_neuron.size, dtype=np.int64)
         self._pulse_current_per_ua = cfg.stimulation.model_current_per_ua
         self._neuron_spikes = Spikes.concat([])
+        return order
 
     def _reset_state(self) -> None:
         n = self.layout.n
@@ -336,9 +348,12 @@ class Network:
             )  # fmt: skip
             net.params = data["params"].astype(kernels.STATE_DTYPE)
             net.mea = build_mea(cfg.mea, net.layout) if cfg.channels == "mea" else None
-            net._derive()
+            order = net._derive()
             net._reset_state()
-            net.set_state({k: data[k] for k in data.files})
+            state = {k: data[k] for k in data.files}
+            if order is not None:  # saved before rows were kept in kernel order
+                state["weight"] = np.asarray(state["weight"])[order]
+            net.set_state(state)
         return net
 
 

@@ -18,7 +18,9 @@ from sim_network import (
     StdpConfig,
     load_config,
 )
+from sim_network.connectivity import build_synapses
 from sim_network.kernels import fill_noise, seed_noise_state
+from sim_network.layout import build_layout
 
 SMALL = NetworkConfig(
     layout=LayoutConfig(rows=12, cols=12),
@@ -113,6 +115,44 @@ def test_save_and_load_continue_identically(tmp_path):
     assert again.t_ms == pytest.approx(300.0)
     assert same(expected, again.run(400.0))
     assert np.array_equal(ref.potentials(), again.potentials())
+
+
+def test_synapse_rows_are_in_ring_order_and_hold_the_drawn_synapses():
+    net = Network(SMALL, seed=3)
+    syn = net.synapses
+    pre = syn.pre()
+    # the kernel needs each row ascending in ring offset: delay step, then post
+    key = net._target.astype(np.int64)
+    assert np.all((np.diff(key) > 0) | (np.diff(pre) != 0))
+    # the same synapses as the builder drew, only reordered within rows
+    rng = np.random.default_rng([3, 0x5E7])
+    drawn = build_synapses(build_layout(SMALL.layout, rng), SMALL.connectivity, rng)
+    assert np.array_equal(drawn.indptr, syn.indptr)
+    a = np.lexsort((drawn.post, drawn.pre()))
+    b = np.lexsort((syn.post, pre))
+    for name in ("post", "weight_mv", "delay_ms", "distance_um"):
+        assert np.array_equal(getattr(drawn, name)[a], getattr(syn, name)[b]), name
+
+
+def test_checkpoint_with_rows_in_another_order_loads_and_continues(tmp_path):
+    """A checkpoint whose rows are in another order (as saved before rows were sorted)."""
+    cfg = dataclasses.replace(SMALL, stdp=StdpConfig(enabled=True))
+    ref = Network(cfg, seed=4)
+    ref.run(300.0)
+    ref.save(tmp_path / "net.ckpt")
+    expected = ref.run(300.0)
+    with np.load(tmp_path / "net.ckpt") as data:
+        saved = {k: data[k] for k in data.files}
+    indptr = saved["syn_indptr"]
+    rev = np.concatenate([np.arange(indptr[i + 1] - 1, indptr[i] - 1, -1) for i in range(144)])
+    for key in ("syn_post", "syn_weight_mv", "syn_delay_ms", "syn_distance_um", "weight"):
+        saved[key] = saved[key][rev]
+    with open(tmp_path / "old.ckpt", "wb") as fh:
+        np.savez(fh, **saved)
+    again = Network.load(tmp_path / "old.ckpt")
+    assert same(expected, again.run(300.0))
+    assert np.array_equal(ref.weight, again.weight)
+    assert np.array_equal(ref.synapses.post, again.synapses.post)
 
 
 def test_stdp_changes_excitatory_weights_only():
