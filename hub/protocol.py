@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import operator
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
@@ -238,6 +240,68 @@ def _check_array_values(name: str, spec: Array, arr: np.ndarray) -> None:
         raise ProtocolError("range", f"{name} must be <= {spec.max}, got {hi}")
 
 
+def _quick_check(spec) -> Callable[[Any], bool]:
+    """A predicate that is True only for a value the full check would take unchanged
+    (exact type, in range); anything else, valid or not, gets the full check."""
+    if isinstance(spec, Scalar):
+        kind, lo, hi, optional = spec.kind, spec.min, spec.max, spec.optional
+        if kind is float:
+            lo = -math.inf if lo is None else lo
+            hi = math.inf if hi is None else hi
+
+            def accepts(value):  # a NaN fails both comparisons
+                return type(value) is float and lo <= value <= hi and value - value == 0.0
+
+        else:
+            lo = -math.inf if lo is None else lo
+            hi = math.inf if hi is None else hi
+            ranged = kind is int
+
+            def accepts(value):
+                return type(value) is kind and (not ranged or lo <= value <= hi)
+
+    elif isinstance(spec, Array):
+        dtype, length, optional = spec.native, spec.length, spec.optional
+        ranged = dtype.kind == "f" or spec.min is not None or spec.max is not None
+        lo = -math.inf if spec.min is None else spec.min
+        hi = math.inf if spec.max is None else spec.max
+
+        def accepts(value):
+            if type(value) is not np.ndarray or value.ndim != 1 or value.dtype != dtype:
+                return False
+            if length is not None and value.size != length:
+                return False
+            if ranged and value.size:
+                if value.size > SMALL_ARRAY:  # min and max propagate NaN
+                    low, high = float(value.min()), float(value.max())
+                    finite = math.isfinite(low) and math.isfinite(high)
+                else:
+                    values = value.tolist()
+                    low, high = min(values), max(values)
+                    finite = dtype.kind != "f" or all(map(math.isfinite, values))
+                if not (finite and lo <= low and high <= hi):
+                    return False
+            if value.base is None:
+                value.flags.writeable = False
+            return True
+
+    elif isinstance(spec, Mapping):
+        optional = spec.optional
+
+        def accepts(value):
+            return type(value) is dict
+
+    else:
+        optional = spec.optional
+
+        def accepts(value):
+            return type(value) is list and all(type(v) is str for v in value)
+
+    if optional:
+        return lambda value: value is None or accepts(value)
+    return accepts
+
+
 # --------------------------------------------------------------------------- base
 
 
@@ -254,8 +318,31 @@ class Message:
     def __init_subclass__(cls, **kwargs):
         super().__init_subclass__(**kwargs)
         cls._KNOWN = frozenset(cls.SCHEMA) | {"v"}
+        cls._QUICK = tuple(
+            (name, _quick_check(spec), getattr(spec, "group", None))
+            for name, spec in cls.SCHEMA.items()
+        )
 
     def __post_init__(self):
+        if not self._accepted_at_once():
+            self._validate_fields()
+        self._check()
+
+    def _accepted_at_once(self) -> bool:
+        """The quick path of validation: True if every field already has its schema type
+        and passes its checks, so nothing needs converting. False sends the message to
+        :meth:`_validate_fields`, which converts what it can and names what is wrong."""
+        values = self.__dict__
+        sizes: dict[str, int] = {}
+        for name, accepts, group in self._QUICK:
+            value = values[name]
+            if not accepts(value):
+                return False
+            if group and value is not None and sizes.setdefault(group, value.size) != value.size:
+                return False
+        return True
+
+    def _validate_fields(self) -> None:
         groups: dict[str, tuple[str, int]] = {}
         for name, spec in self.SCHEMA.items():
             value = getattr(self, name)
@@ -286,7 +373,6 @@ class Message:
                     raise ProtocolError("type", f"{name} must be a list of str")
             elif not isinstance(value, dict):
                 raise ProtocolError("type", f"{name} must be a map")
-        self._check()
 
     def _check(self) -> None:
         """Cross-field rules; subclasses override."""
@@ -453,13 +539,19 @@ class SpikeBatch(Message):
     def _check(self):
         if self.t1_s < self.t0_s:
             raise ProtocolError("inconsistent", f"t1_s {self.t1_s} precedes t0_s {self.t0_s}")
-        if self.t_ms.size:
-            if np.any(np.diff(self.t_ms) < 0):
+        t_ms = self.t_ms
+        if t_ms.size:
+            if t_ms.size <= SMALL_ARRAY:
+                values = t_ms.tolist()
+                unsorted = any(map(operator.gt, values, values[1:]))
+            else:
+                unsorted = bool((t_ms[1:] < t_ms[:-1]).any())
+            if unsorted:
                 raise ProtocolError("inconsistent", "t_ms must be sorted")
             window_ms = (self.t1_s - self.t0_s) * 1e3
-            if self.t_ms[-1] > window_ms * (1 + 1e-6) + 1e-3:
+            if t_ms[-1] > window_ms * (1 + 1e-6) + 1e-3:
                 raise ProtocolError(
-                    "range", f"t_ms {self.t_ms[-1]} lies beyond the {window_ms} ms window"
+                    "range", f"t_ms {t_ms[-1]} lies beyond the {window_ms} ms window"
                 )
 
 

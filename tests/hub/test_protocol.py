@@ -9,6 +9,8 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from hub.protocol import (
+    SMALL_ARRAY,
+    Array,
     ControlReply,
     ControlRequest,
     Description,
@@ -208,3 +210,42 @@ def test_arbitrary_maps_are_motor_commands_or_protocol_errors(data):
     except ProtocolError:
         return
     assert math.isfinite(m.left_mps) and math.isfinite(m.right_mps) and m.step >= 0
+
+
+def _value_for(spec):
+    """Values for one schema field, mostly of the right kind but not always valid (NaN,
+    infinity, out of range, other types and dtypes, unequal lengths in a group)."""
+    if isinstance(spec, Array):
+        sizes = st.sampled_from([0, 1, 2, 3, SMALL_ARRAY + 6])
+        size = st.shared(sizes, key=spec.group) if spec.group else sizes
+        size = st.one_of(size, size, sizes)
+        dtype = st.sampled_from([spec.native] * 3 + [np.dtype(np.float64), np.dtype(np.int64)])
+
+        def array(dt):
+            elements = st.floats(width=32) if dt.kind == "f" else st.integers(0, 2**31)
+            return size.flatmap(lambda n: st.lists(elements, min_size=n, max_size=n)).map(
+                lambda values: np.array(values, dtype=dt)
+            )
+
+        return dtype.flatmap(array)
+    right = {float: st.floats(), int: st.integers(-3, 2**40), bool: st.booleans()}[spec.kind]
+    return st.one_of(right, right, right, st.integers(-3, 3), st.none(), st.just("a"))
+
+
+@given(st.data())
+def test_the_quick_validation_path_accepts_only_what_the_full_one_leaves_unchanged(data):
+    for kind in (MotorCommand, SensorReading, Stimulation, SpikeBatch):
+        values = {
+            name: data.draw(_value_for(spec), label=name) for name, spec in kind.SCHEMA.items()
+        }
+        message = object.__new__(kind)
+        message.__dict__.update(values)
+        if message._accepted_at_once():
+            message._validate_fields()  # must not raise
+            for name, value in values.items():
+                assert getattr(message, name) is value
+
+
+@pytest.mark.parametrize("example", EXAMPLES[:6], ids=lambda m: type(m).__name__)
+def test_valid_loop_messages_take_the_quick_validation_path(example):
+    assert example._accepted_at_once()
