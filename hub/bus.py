@@ -45,6 +45,8 @@ def zenoh_config(bus: BusSection, *, listener: bool) -> zenoh.Config:
     put("scouting/multicast/enabled", bus.scouting)
     put("scouting/gossip/enabled", bus.scouting)
     put("transport/link/tx/lease", bus.lease_ms)
+    put("transport/unicast/lowlatency", bus.low_latency)
+    put("transport/unicast/qos/enabled", not bus.low_latency)
     if listener:
         put("listen/endpoints", list(bus.listen))
         put("connect/endpoints", [])

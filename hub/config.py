@@ -87,6 +87,11 @@ class BusSection:
     # reach the hub within this long.
     connect_timeout_s: float = field(default=30.0, metadata=_check(gt=0))
     lease_ms: int = field(default=1000, metadata=_check(ge=100))
+    # Zenoh's low-latency unicast transport: a message is written to the socket by the
+    # thread that puts it, with no batching task to wake (fewer thread wake-ups per message;
+    # no QoS priorities, which the loop does not need). A participant without it still
+    # connects, over the usual transport.
+    low_latency: bool = True
 
     @property
     def keys(self) -> Keys:
