@@ -1,6 +1,7 @@
 """Benchmark of the hub's loop: hub + two trivial endpoints in separate processes, loopback.
 
-Measures lockstep steps per second, and for realtime mode at 1 ms and 10 ms
+Measures the bare Zenoh round trip between two processes (the floor under every step),
+lockstep steps per second, and for realtime mode at 1 ms and 10 ms
 periods the lateness of step starts (median, p99) and the share of late steps.
 Recording is on, as in a real run. The endpoints are the trivial test fixtures
 of ``tests/endpoints.py`` (they do no work), so the figures are the loop's own.
@@ -16,16 +17,22 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import queue
+import subprocess
 import sys
 import tempfile
+import threading
+import time
 from pathlib import Path
+
+import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 os.environ["PYTHONPATH"] = os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")]))
 
-from hub.bus import free_tcp_port  # noqa: E402
-from hub.config import load_config  # noqa: E402
+from hub.bus import LOOP_PUBLISH, free_tcp_port, open_session, payload_bytes  # noqa: E402
+from hub.config import BusSection, load_config  # noqa: E402
 from hub.launch import start_local_endpoints, stop_local_endpoints  # noqa: E402
 from hub.loop import Hub  # noqa: E402
 
@@ -57,11 +64,65 @@ def run_once(mode: str, period_ms: float, steps: int) -> dict:
     return result.timing
 
 
+def _bus(port: int) -> BusSection:
+    return BusSection(session=f"bench-rtt-{port}", listen=(f"tcp/127.0.0.1:{port}",))
+
+
+def echo(port: int) -> None:
+    """The far end of :func:`zenoh_round_trip_us`: send back every message at once."""
+    bus = _bus(port)
+    session = open_session(bus, listener=False)
+    publisher = session.declare_publisher(f"{bus.keys.root}/pong", **LOOP_PUBLISH)
+    subscriber = session.declare_subscriber(  # noqa: F841
+        f"{bus.keys.root}/ping", lambda sample: publisher.put(payload_bytes(sample))
+    )
+    token = session.liveliness().declare_token(f"{bus.keys.root}/alive/echo")  # noqa: F841
+    time.sleep(120)
+
+
+def zenoh_round_trip_us(n: int = 2000) -> float:
+    """Median round trip of a 100-byte message from the hub's router to a client and back,
+    with the loop's bus settings, no Python work on either side: the floor under a step."""
+    port = free_tcp_port()
+    bus = _bus(port)
+    session = open_session(bus, listener=True)
+    inbox: queue.SimpleQueue = queue.SimpleQueue()
+    alive = threading.Event()
+    declared = [  # noqa: F841
+        session.declare_subscriber(f"{bus.keys.root}/pong", lambda s: inbox.put(None)),
+        session.liveliness().declare_subscriber(
+            f"{bus.keys.root}/alive/echo", lambda s: alive.set(), history=True
+        ),
+    ]
+    publisher = session.declare_publisher(f"{bus.keys.root}/ping", **LOOP_PUBLISH)
+    proc = subprocess.Popen([sys.executable, __file__, "--echo", str(port)])
+    try:
+        if not alive.wait(30):
+            raise SystemExit("the echo process did not come up")
+        times = np.empty(n)
+        for i in range(n):
+            t0 = time.perf_counter()
+            publisher.put(bytes(100))
+            inbox.get(timeout=5)
+            times[i] = time.perf_counter() - t0
+    finally:
+        proc.kill()
+        proc.wait()
+        session.close()
+    return float(np.median(times[n // 10 :]) * 1e6)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--steps", type=int, default=10_000)
+    parser.add_argument("--echo", type=int, help=argparse.SUPPRESS)
     args = parser.parse_args()
+    if args.echo:
+        return echo(args.echo)
     n = args.steps
+
+    rtt_us = zenoh_round_trip_us()
+    print(f"bare Zenoh round trip (router -> client -> router, no work): median {rtt_us:.0f} us")
 
     lock = run_once("lockstep", 10.0, n)
     print(
@@ -69,6 +130,7 @@ def main() -> None:
         f"step median {lock['step_ms_median']:.3f} ms  p99 {lock['step_ms_p99']:.3f} ms"
     )
     out = {"lockstep_steps_per_s": round(lock["steps_per_s"], 1)}
+    out["zenoh_round_trip_us"] = round(rtt_us, 1)
     for period in (10.0, 1.0):
         t = run_once("realtime", period, n)
         tag = f"rt{period:g}"

@@ -120,6 +120,8 @@ class Hub:
         self.run_dir = Path(run_dir) if run_dir else None
         self.progress = progress
         self.ids = {role: cfg.endpoint(role).id for role in ROLES}
+        self.input_key = {role: self.keys.input(role, i) for role, i in self.ids.items()}
+        self.output_key = {role: self.keys.output(role, i) for role, i in self.ids.items()}
         self.inbox: queue.SimpleQueue = queue.SimpleQueue()
         self.state = "waiting"
         self.k = 0
@@ -460,8 +462,7 @@ class Hub:
         """Accept, count as late, or drop one reply; record it with that verdict."""
         verdict = self._classify_reply(role, raw)
         if self.recorder:
-            key = self.keys.output(role, self.ids[role])
-            self.recorder.message(verdict, key, raw, t_wall_ns)
+            self.recorder.message(verdict, self.output_key[role], raw, t_wall_ns)
 
     def _classify_reply(self, role: str, raw: bytes) -> str:
         try:
@@ -491,12 +492,12 @@ class Hub:
         if desc is None:
             return
         if role == "body":
-            if message.ranges_m.size != desc.n_sensors:
+            ranges = message.ranges_m
+            if ranges.size != desc.n_sensors:
                 raise ProtocolError(
-                    "array",
-                    f"ranges_m has {message.ranges_m.size} values, body has {desc.n_sensors}",
+                    "array", f"ranges_m has {ranges.size} values, body has {desc.n_sensors}"
                 )
-            if message.ranges_m.size and message.ranges_m.max() > desc.max_range_m * (1 + 1e-6):
+            if ranges.size and max(ranges.tolist()) > desc.max_range_m * (1 + 1e-6):
                 raise ProtocolError("range", f"ranges_m exceeds max_range_m {desc.max_range_m}")
         elif message.channel.size:
             known = self._known_channel
@@ -562,17 +563,17 @@ class Hub:
     def _declare(self, session: zenoh.Session) -> None:
         put = self.inbox.put
         self.publishers = {
-            role: session.declare_publisher(self.keys.input(role, i), **LOOP_PUBLISH)
-            for role, i in self.ids.items()
+            role: session.declare_publisher(key, **LOOP_PUBLISH)
+            for role, key in self.input_key.items()
         }
         self.status_pub = session.declare_publisher(self.keys.hub_status, **TELEMETRY_PUBLISH)
         # Zenoh undeclares what is garbage-collected: keep every declaration.
         self._declared = [
             session.declare_subscriber(
-                self.keys.output(role, i),
+                key,
                 lambda s, role=role: put(("rx", role, payload_bytes(s), time.time_ns())),
             )
-            for role, i in self.ids.items()
+            for role, key in self.output_key.items()
         ]
         self._declared += [
             session.liveliness().declare_subscriber(
@@ -668,7 +669,7 @@ class Hub:
         self.publishers[role].put(raw)
         self.last_sent[role] = message.step
         if self.recorder:
-            self.recorder.message("tx", self.keys.input(role, self.ids[role]), raw)
+            self.recorder.message("tx", self.input_key[role], raw)
 
     def _safe_stop_body(self) -> None:
         """Whatever ended the run, leave the robot stopped."""
