@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import gc
 import logging
+import math
 import queue
 import time
 from collections import Counter, defaultdict
@@ -146,6 +147,7 @@ class Hub:
         self.recorder: Recorder | None = None
         self.live: LiveBursts | None = None
         self.waiting_s = 0.0  # time the loop spent blocked, waiting for events
+        self.reply_deadline = math.inf  # realtime: replies arriving later are late
 
     # ================================================================ public
 
@@ -290,8 +292,7 @@ class Hub:
             if not ready():  # nothing came in time: the policy stands in
                 for role in ROLES:
                     if self.expect[role] < n:
-                        self.missed[role].add(self.expect[role])
-                        self._record_event("missed", role=role, step=self.expect[role])
+                        self._miss(role, self.expect[role])
                         self._pipeline(role, None, n)
             for role in ("culture", "body"):
                 while self.expect[role] in self.pending[role]:
@@ -405,13 +406,21 @@ class Hub:
 
         Returns True if a reply missed its deadline (the policy stands in for it).
         """
+        self.reply_deadline = deadline
         while time.monotonic() < deadline and not all(k in self.pending[r] for r in ROLES):
             self._next_event(deadline)
-        missing = [r for r in ROLES if k not in self.pending[r]]
-        for role in missing:
-            self.missed[role].add(k)
-            self._record_event("missed", role=role, step=k)
-        return bool(missing)
+        # Replies judged by when they arrived, not by when this thread got to them.
+        self._drain()
+        self.reply_deadline = math.inf
+        for role in ROLES:
+            if k not in self.pending[role] and k not in self.missed[role]:
+                self._miss(role, k)
+        return any(k not in self.pending[r] for r in ROLES)
+
+    def _miss(self, role: str, k: int) -> None:
+        """The reply of ``role`` for step ``k`` is missing: the policy stands in for it."""
+        self.missed[role].add(k)
+        self._record_event("missed", role=role, step=k)
 
     def _next_event(self, until: float) -> bool:
         """Handle one event, waiting at most until ``until``; False if none came."""
@@ -458,13 +467,13 @@ class Hub:
         elif kind == "stop":
             self._stop_reason = self._stop_reason or item[1]
 
-    def _on_reply(self, role: str, raw: bytes, t_wall_ns: int) -> None:
+    def _on_reply(self, role: str, raw: bytes, t_wall_ns: int, t_arrival: float) -> None:
         """Accept, count as late, or drop one reply; record it with that verdict."""
-        verdict = self._classify_reply(role, raw)
+        verdict = self._classify_reply(role, raw, t_arrival)
         if self.recorder:
             self.recorder.message(verdict, self.output_key[role], raw, t_wall_ns)
 
-    def _classify_reply(self, role: str, raw: bytes) -> str:
+    def _classify_reply(self, role: str, raw: bytes, t_arrival: float) -> str:
         try:
             message = OUTPUT_TYPE[role].decode(raw)
             self._check_against_description(role, message)
@@ -473,6 +482,8 @@ class Hub:
         step, expected = message.step, self.expect[role]
         if self.state == "waiting":
             return self._drop(role, "early", f"reply for step {step} before the run started")
+        if step == self.k and t_arrival > self.reply_deadline and step not in self.missed[role]:
+            self._miss(role, step)  # in after its deadline, however soon the loop looked
         if expected <= step <= self.last_sent.get(role, -1) and step not in self.missed[role]:
             if step in self.pending[role]:
                 return self._drop(role, "duplicate", f"second reply for step {step}")
@@ -571,7 +582,9 @@ class Hub:
         self._declared = [
             session.declare_subscriber(
                 key,
-                lambda s, role=role: put(("rx", role, payload_bytes(s), time.time_ns())),
+                lambda s, role=role: put(
+                    ("rx", role, payload_bytes(s), time.time_ns(), time.monotonic())
+                ),
             )
             for role, key in self.output_key.items()
         ]
