@@ -242,18 +242,25 @@ class Hub:
     def _steps_realtime(self) -> None:
         """Steps on a wall-clock schedule; a reply missing at its deadline is replaced by policy."""
         period_s = self.cfg.loop.period_ms / 1e3
-        prev: dict[str, Message | None] = {"body": None, "culture": None}
-        for k in range(self.cfg.n_steps):
+        n = self.cfg.n_steps
+        # Each step's inputs are coded and encoded in the slack of the step before, so
+        # that they leave the moment the step starts.
+        inputs = self._encoded(self._motor_for(0, None), self._stim_for(0, None))
+        for k in range(n):
             if not self._await_start(k, period_s):
                 return
             self.k = k
             self.expect = {"body": k, "culture": k}
             t0 = time.monotonic()
-            self._send("body", self._motor_for(k, prev["culture"]))
-            self._send("culture", self._stim_for(k, prev["body"]))
+            for role in ROLES:
+                self._send(role, *inputs[role])
             late = self._collect(k, self._deadline(k, period_s))
             prev = {role: self.pending[role].pop(k, None) for role in ROLES}
             self.step_wall_s[k] = time.monotonic() - t0
+            if k + 1 < n:
+                inputs = self._encoded(
+                    self._motor_for(k + 1, prev["culture"]), self._stim_for(k + 1, prev["body"])
+                )
             self.late_steps += bool(late or self.lateness_s[k] > LATE_START_SHARE * period_s)
             self.k_done = k + 1
             if prev["culture"] is not None and self.live is not None:
@@ -263,6 +270,10 @@ class Hub:
             self._tick()
         if self.live is not None:
             self._analyse_online(None, flush=True)
+
+    @staticmethod
+    def _encoded(motor: MotorCommand, stim: Stimulation) -> dict[str, tuple[Message, bytes]]:
+        return {"body": (motor, motor.encode()), "culture": (stim, stim.encode())}
 
     def _steps_lockstep(self) -> None:
         """As fast as the endpoints go, pipelined: each input of step k+1 leaves as soon as
@@ -677,8 +688,8 @@ class Hub:
 
     # ================================================================ output
 
-    def _send(self, role: str, message: Message) -> None:
-        raw = message.encode()
+    def _send(self, role: str, message: Message, raw: bytes | None = None) -> None:
+        raw = raw or message.encode()
         self.publishers[role].put(raw)
         self.last_sent[role] = message.step
         if self.recorder:
