@@ -17,6 +17,7 @@ import gc
 import logging
 import math
 import queue
+import sys
 import time
 from collections import Counter, defaultdict
 from collections.abc import Callable
@@ -30,7 +31,7 @@ from hub.analysis.bursts import BurstParams
 from hub.analysis.network_bursts import NetworkBurstParams
 from hub.bus import LOOP_PUBLISH, TELEMETRY_PUBLISH, open_session, payload_bytes
 from hub.config import ConfigError, ExperimentConfig
-from hub.live import LiveBursts
+from hub.live import BackgroundLiveBursts, LiveBursts
 from hub.protocol import (
     OUTPUT_TYPE,
     ROLES,
@@ -53,10 +54,12 @@ log = logging.getLogger(__name__)
 # A realtime step whose start lags its schedule by more than this share of a
 # period is counted late (its window is visibly shortened).
 LATE_START_SHARE = 0.25
-# The live burst detector is fed this much simulated time at once; in realtime it
-# works in the slack of a step, stopping this share of a period before the next one.
+# The live burst detector is fed this much simulated time at once (in realtime, on a
+# thread of its own).
 ONLINE_EVERY_MS = 100.0
-ONLINE_MARGIN_SHARE = 0.3
+# Realtime: the longest a thread holds the interpreter while another wants it (Python's
+# default, 5 ms, would let the live analysis hold up a step start or a reply).
+GIL_SWITCH_S = 2e-4
 
 
 class HubError(RuntimeError):
@@ -241,6 +244,17 @@ class Hub:
 
     def _steps_realtime(self) -> None:
         """Steps on a wall-clock schedule; a reply missing at its deadline is replaced by policy."""
+        background = BackgroundLiveBursts(self.live) if self.live is not None else None
+        switch_s = sys.getswitchinterval()
+        sys.setswitchinterval(GIL_SWITCH_S)
+        try:
+            self._steps_on_schedule(background)
+        finally:
+            sys.setswitchinterval(switch_s)
+            if background is not None:
+                self._record_network_bursts(background.close())
+
+    def _steps_on_schedule(self, background: BackgroundLiveBursts | None) -> None:
         period_s = self.cfg.loop.period_ms / 1e3
         n = self.cfg.n_steps
         # Each step's inputs are coded and encoded in the slack of the step before, so
@@ -263,13 +277,11 @@ class Hub:
                 )
             self.late_steps += bool(late or self.lateness_s[k] > LATE_START_SHARE * period_s)
             self.k_done = k + 1
-            if prev["culture"] is not None and self.live is not None:
-                # In the slack before the next step, never into it.
-                slack_end = self._scheduled(k + 1, period_s) - ONLINE_MARGIN_SHARE * period_s
-                self._analyse_online(prev["culture"], deadline=slack_end)
+            if background is not None:
+                if prev["culture"] is not None:
+                    background.add(prev["culture"])
+                self._record_network_bursts(background.completed())
             self._tick()
-        if self.live is not None:
-            self._analyse_online(None, flush=True)
 
     @staticmethod
     def _encoded(motor: MotorCommand, stim: Stimulation) -> dict[str, tuple[Message, bytes]]:
@@ -358,23 +370,17 @@ class Hub:
             raise HubError(f"scheme returned {message!r}, expected a {kind.__name__} for step {k}")
         return message
 
-    def _analyse_online(
-        self, spikes: SpikeBatch | None, *, flush: bool = False, deadline: float | None = None
-    ) -> None:
-        """Give a step's spikes to the live burst detector; record each network burst.
-
-        The detector is fed every ONLINE_EVERY_MS of simulated time (its cost is mostly
-        per call); with a ``deadline`` (realtime: the slack before the next step) a feed
-        stops there and goes on at the next call."""
+    def _analyse_online(self, spikes: SpikeBatch | None, *, flush: bool = False) -> None:
+        """Lockstep: give a step's spikes to the live burst detector, fed every
+        ONLINE_EVERY_MS of simulated time (its cost is mostly per call); record each
+        network burst completed."""
         live = self.live
         if spikes is not None:
             live.add(spikes)
-        if flush:
-            done = live.work()
-        elif live.due:
-            done = live.work(deadline)
-        else:
-            return
+        if flush or live.due:
+            self._record_network_bursts(live.work())
+
+    def _record_network_bursts(self, done: list) -> None:
         for nb in done:
             self._record_event(
                 "network_burst",

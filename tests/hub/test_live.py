@@ -6,7 +6,7 @@ import pytest
 from hub.analysis.bursts import BurstParams
 from hub.analysis.network_bursts import NetworkBurstParams
 from hub.config import ConfigError, load_config
-from hub.live import LiveBursts
+from hub.live import BackgroundLiveBursts, LiveBursts
 from hub.loop import Hub
 from hub.protocol import Description, SpikeBatch
 from tests.endpoints import EchoBody, EchoCulture
@@ -56,6 +56,15 @@ def test_a_planted_network_burst_is_found_once_however_it_is_fed(every_ms, deadl
     (nb,) = found
     assert nb.start_ms == pytest.approx(100.0) and nb.end_ms == pytest.approx(119.0)
     assert sorted(nb.channels) == [0, 1, 2]  # detector indices of channels 12, 13, 21
+
+
+def test_on_a_thread_of_its_own_the_detector_finds_the_same_network_burst():
+    background = BackgroundLiveBursts(LiveBursts(CULTURE, BurstParams(), NetworkBurstParams(), 100))
+    for batch in _batches(PLANTED, 60):
+        background.add(batch)
+    (nb,) = background.completed() + background.close()
+    assert nb.start_ms == pytest.approx(100.0) and nb.end_ms == pytest.approx(119.0)
+    assert background.live.bursts == 3 and background.live.network_bursts == 1
 
 
 def test_a_hub_that_has_no_time_for_live_analysis_drops_old_spikes_and_says_so(monkeypatch):
