@@ -13,6 +13,7 @@ one feed at the end of a large network burst can take tens of milliseconds of Py
 from __future__ import annotations
 
 import math
+import os
 import queue
 import threading
 import time
@@ -138,6 +139,10 @@ class BackgroundLiveBursts:
         return self.completed()
 
     def _run(self) -> None:
+        try:  # the lowest CPU priority: on a busy machine the loop and endpoints come first
+            os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), 19)
+        except (AttributeError, OSError):
+            pass
         live = self.live
         while (spikes := self._in.get()) is not None:
             live.add(spikes)
