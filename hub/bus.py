@@ -47,6 +47,10 @@ def zenoh_config(bus: BusSection, *, listener: bool) -> zenoh.Config:
     put("transport/link/tx/lease", bus.lease_ms)
     put("transport/unicast/lowlatency", bus.low_latency)
     put("transport/unicast/qos/enabled", not bus.low_latency)
+    # Zenoh moves payloads over ~3 kB through shared memory between local processes and
+    # sets that up on first use: the publish that does it blocks 7-10 ms (a realtime
+    # culture's first burst, every run). Loop messages are a few kB: TCP is as fast.
+    put("transport/shared_memory/enabled", False)
     if listener:
         put("listen/endpoints", list(bus.listen))
         put("connect/endpoints", [])
