@@ -2,11 +2,13 @@
 
 One step k (time k·dt to (k+1)·dt), in this order:
 1. noise: at the start of each noise window every neuron draws a new current with the
-   configured mean and s.d. from its own xoroshiro128+ generator (state kept in the
-   network), advanced once per window, so the stream depends neither on dt nor on chunking;
+   configured mean and s.d. from its own xoshiro128++ generator (state kept in the
+   network), advanced once per window, so the stream depends neither on dt nor on chunking
+   (for the Izhikevich model the draw is fused into the update pass of step 4);
 2. stimulation: the current of every pulse with start ≤ k < end is summed per neuron;
 3. synaptic input due at step k (ring-buffer slot k mod n_slots) is added to v (a voltage jump);
-4. the neuron model integrates one step; threshold crossings are recorded as spikes at step k;
+4. the neuron model integrates one step; threshold crossings are recorded as spikes at step k
+   (in index order) and reset;
 5. each spike adds its weights (scaled by short-term depression) to the ring slot of step
    k + delay of each outgoing synapse; STDP, if on, updates excitatory weights.
 No allocation happens inside; the output arrays have room for at least one full step, and
@@ -29,23 +31,24 @@ _MIX2 = np.uint64(0x94D049BB133111EB)
 _S30 = np.uint64(30)
 _S27 = np.uint64(27)
 _S31 = np.uint64(31)
-_S12 = np.uint64(12)
-_S13 = np.uint64(13)
-_S26 = np.uint64(26)
-_S16 = np.uint64(16)
-_S24 = np.uint64(24)
-_S37 = np.uint64(37)
-_S40 = np.uint64(40)
-# the four 13-bit fields of a draw r sit at bits 12, 25, 38 and 51; this mask keeps the
-# first and third, so (r & P) + ((r >> 13) & P) holds field 0 + field 1 at bit 12 and
-# field 2 + field 3 at bit 38 (14 bits each, no overlap); adding the two halves gives the sum
-_PAIR_MASK = np.uint64((0x1FFF << 12) | (0x1FFF << 38))
-_M15 = np.uint64(0x7FFF)
-_TWO52_BITS = np.uint64(0x4330000000000000)  # float64 2^52; OR-ing an integer < 2^52 adds it
-_TWO52 = 4503599627370496.0
-# four 13-bit fields f_j, uniforms u_j = (f_j + 0.5) / 8192; Irwin-Hall z = (sum u_j - 2)·√3
-_IH_SCALE = math.sqrt(3.0) / 8192.0
-_IH_SHIFT = (2.0 / 8192.0 - 2.0) * math.sqrt(3.0)
+_M32 = np.uint64(0xFFFFFFFF)
+_S32 = np.uint64(32)
+# xoshiro128++ (Blackman & Vigna 2018): four uint32 words of state per neuron, all 32 output
+# bits usable; only shifts, rotates, adds and xors, so it vectorises eight neurons to a ymm
+_U7 = np.uint32(7)
+_U25 = np.uint32(25)
+_U9 = np.uint32(9)
+_U11 = np.uint32(11)
+_U21 = np.uint32(21)
+_U8 = np.uint32(8)
+_U16 = np.uint32(16)
+_BYTES_02 = np.uint32(0x00FF00FF)  # bytes 0 and 2 of a word
+_M10 = np.uint32(0x3FF)
+# Irwin-Hall(4) from the four bytes f_j of one draw: uniforms u_j = (f_j + 0.5) / 256,
+# z = (sum u_j - 2)·√3 / √(1 - 2^-16), the last factor making the s.d. of the discrete sum
+# exactly 1 (the variance of a uniform on 256 centred cells is (1 - 2^-16)/12)
+_IH_SCALE = np.float32(math.sqrt(3.0) / 256.0 / math.sqrt(1.0 - 2.0**-16))
+_IH_SHIFT = np.float32((2.0 / 256.0 - 2.0) * math.sqrt(3.0) / math.sqrt(1.0 - 2.0**-16))
 # fast-math limited to what lets the update loops vectorise with FMA; no reassociation
 _FAST = {"contract", "nnan", "ninf", "nsz"}
 V_FLOOR_MV = -100.0
@@ -58,17 +61,6 @@ _F5 = np.float32(5.0)
 _F140 = np.float32(140.0)
 _F_PEAK = np.float32(30.0)
 _F_FLOOR = np.float32(V_FLOOR_MV)
-
-
-@intrinsic
-def _bits_as_float64(typingctx, bits):
-    """Reinterpret the 64 bits of a uint64 as a float64 (a bit cast, no conversion)."""
-    sig = types.float64(types.uint64)
-
-    def codegen(context, builder, signature, args):
-        return builder.bitcast(args[0], context.get_value_type(types.float64))
-
-    return sig, codegen
 
 
 @intrinsic
@@ -104,39 +96,70 @@ def splitmix64(x):
 
 @njit(cache=True, nogil=True)
 def seed_noise_state(seed, state):
-    """Fill the per-neuron xoroshiro128+ states (2, n) from a 64-bit seed via SplitMix64."""
+    """Fill the per-neuron xoshiro128++ states (4, n) uint32 from a 64-bit seed via SplitMix64.
+
+    Neuron j's four words are the two halves of the next two SplitMix64 outputs (never all
+    zero, the one state xoshiro cannot leave).
+    """
     x = np.uint64(seed)
     for j in range(state.shape[1]):
         for r in range(2):
             x = splitmix64(x)
-            state[r, j] = x if x != np.uint64(0) else _GOLDEN
+            state[2 * r, j] = np.uint32(x & _M32)
+            state[2 * r + 1, j] = np.uint32(x >> _S32)
+        if state[0, j] == 0 and state[1, j] == 0 and state[2, j] == 0 and state[3, j] == 0:
+            state[0, j] = np.uint32(1)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _xoshiro128pp(a0, a1, a2, a3):
+    """One xoshiro128++ step on a state held in four uint32 scalars: (output, new state).
+
+    (Scalars in, scalars out: a helper that takes the state arrays costs reference counting
+    per neuron, which keeps the loop from vectorising.)
+    """
+    t = np.uint32(a0 + a3)
+    r = np.uint32(np.uint32(np.uint32(t << _U7) | np.uint32(t >> _U25)) + a0)
+    t = np.uint32(a1 << _U9)
+    a2 ^= a0
+    a3 ^= a1
+    a1 ^= a2
+    a0 ^= a3
+    a2 ^= t
+    a3 = np.uint32(np.uint32(a3 << _U11) | np.uint32(a3 >> _U21))
+    return r, a0, a1, a2, a3
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _irwin_hall4(r):
+    """An Irwin–Hall(4) variate (float32) from the four bytes of the 32-bit draw r.
+
+    The bytes are four uniforms on 256 centred cells, summed (0..1020, by two masked adds),
+    centred and scaled to mean 0 and s.d. 1 exactly; bell-shaped (kurtosis 2.7), tails cut
+    at ±3.45 s.d.
+    """
+    pairs = np.uint32(np.uint32(r & _BYTES_02) + np.uint32(np.uint32(r >> _U8) & _BYTES_02))
+    total = np.uint32(np.uint32(pairs + np.uint32(pairs >> _U16)) & _M10)
+    return np.float32(np.int32(total)) * _IH_SCALE + _IH_SHIFT
 
 
 @njit(cache=True, nogil=True, fastmath=_FAST)
 def fill_noise(noise_cur, state, mean, sd):
     """Draw each neuron's noise current (per-neuron mean and sd arrays) for one window.
 
-    Advances each neuron's xoroshiro128+ state by one draw.
-
-    The variate is Irwin–Hall with four uniforms (the top 52 bits of one 64-bit draw, as four
-    13-bit fields centred on their cells), centred and scaled: exactly mean 0 and variance 1
-    (up to 1e-8), bell-shaped, tails cut at ±3.46, excess kurtosis -0.3. Each neuron has its
-    own generator, advanced once per window, so the stream does not depend on dt or chunking.
+    Advances each neuron's xoshiro128++ state (4, n) uint32 by one draw; the variate is
+    Irwin–Hall(4) (see `_irwin_hall4`). Each neuron has its own generator, advanced once per
+    window, so the stream does not depend on dt or chunking. The Izhikevich update draws the
+    same values itself (fused into its pass); this is the standalone form for the other
+    models.
     """
     s0 = state[0]
     s1 = state[1]
+    s2 = state[2]
+    s3 = state[3]
     for i in range(noise_cur.size):
-        a = s0[i]
-        b = s1[i]
-        r = a + b
-        b ^= a
-        s0[i] = ((a << _S24) | (a >> _S40)) ^ b ^ (b << _S16)
-        s1[i] = (b << _S37) | (b >> _S27)
-        pairs = (r & _PAIR_MASK) + ((r >> _S13) & _PAIR_MASK)
-        total = ((pairs + (pairs >> _S26)) >> _S12) & _M15  # sum of the four fields, < 2^15
-        # exact int -> float of the (< 2^15) sum by bit cast against 2^52 (vectorises on AVX2)
-        x = _bits_as_float64(total | _TWO52_BITS) - _TWO52
-        noise_cur[i] = mean[i] + sd[i] * (x * _IH_SCALE + _IH_SHIFT)
+        r, s0[i], s1[i], s2[i], s3[i] = _xoshiro128pp(s0[i], s1[i], s2[i], s3[i])
+        noise_cur[i] = mean[i] + sd[i] * _irwin_hall4(r)
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -180,43 +203,78 @@ def _hh_step(vi, m, h, nn, current, p, i, dt):
     return vi, m, h, nn
 
 
+@njit(cache=True, nogil=True, fastmath=_FAST, inline="always")
+def _izh_one(vi, ui, current, ai, bi, h, dtf):
+    """One Euler step of v (already jumped and floored), then u with the new v."""
+    vi += h * ((_F004 * vi + _F5) * vi + current + _F140 - ui)
+    return vi, ui + dtf * ai * (bi * vi - ui)
+
+
+@njit(cache=True, nogil=True, fastmath=_FAST, inline="always")
+def _izh_two(vi, ui, current, ai, bi, h, dtf):
+    """Izhikevich's two half-steps of v (clipped at the peak between them), then u."""
+    drive = current + _F140 - ui
+    vi += h * ((_F004 * vi + _F5) * vi + drive)
+    vi = min(vi, _F_PEAK)
+    vi += h * ((_F004 * vi + _F5) * vi + drive)
+    return vi, ui + dtf * ai * (bi * vi - ui)
+
+
 @njit(cache=True, nogil=True, fastmath=_FAST)
-def _izhikevich_update(v, u, a, b, row, noise_cur, stim_cur, scratch, dt, n_sub):
+def _izhikevich_update(
+    v, u, a, b, row, noise_cur, noise_state, noise_mean, noise_sd, redraw, stim_cur, scratch,
+    dt, n_sub,
+):  # fmt: skip
     """One Izhikevich step for all neurons, branch-free so that it vectorises.
 
-    v gets the synaptic jumps due now (floored at V_FLOOR_MV so that the quadratic cannot
-    run away from far below rest), then n_sub Euler sub-steps (two half-steps at 1 ms, as in
-    Izhikevich 2003), clipped at the 30 mV peak between sub-steps; u is then updated with v.
-    Returns how many neurons reached the peak (the caller scans for them only when > 0).
+    When `redraw`, each neuron first draws its noise current for the new window (the same
+    values as `fill_noise`) in the same pass, which keeps it in registers and touches v, u
+    and the generator state once per step. v gets the synaptic jumps due now (floored at
+    V_FLOOR_MV so that the quadratic cannot run away from far below rest), then n_sub Euler
+    sub-steps (two half-steps at 1 ms, as in Izhikevich 2003), clipped at the 30 mV peak
+    between sub-steps; u is then updated with v. The caller scans for the neurons at the
+    peak afterwards (counting them here costs more than the scan: it halves the SIMD width).
     """
     h = np.float32(dt / n_sub)
     dtf = np.float32(dt)
-    n_peak = 0
-    if n_sub == 1:  # the common case at dt <= 0.5 ms, kept free of the inner loop
-        for i in range(v.size):
-            vi = min(max(v[i] + row[i], _F_FLOOR), _F_PEAK)
-            row[i] = _F0
-            ui = u[i]
-            vi += h * ((_F004 * vi + _F5) * vi + noise_cur[i] + stim_cur[i] + _F140 - ui)
-            v[i] = vi
-            u[i] = ui + dtf * a[i] * (b[i] * vi - ui)
-            n_peak += vi >= _F_PEAK
-        return n_peak
+    s0 = noise_state[0]
+    s1 = noise_state[1]
+    s2 = noise_state[2]
+    s3 = noise_state[3]
+    if n_sub == 1:  # dt <= 0.5 ms
+        if redraw:
+            for i in range(v.size):
+                r, s0[i], s1[i], s2[i], s3[i] = _xoshiro128pp(s0[i], s1[i], s2[i], s3[i])
+                current = noise_mean[i] + noise_sd[i] * _irwin_hall4(r)
+                noise_cur[i] = current
+                vi = min(max(v[i] + row[i], _F_FLOOR), _F_PEAK)
+                row[i] = _F0
+                v[i], u[i] = _izh_one(vi, u[i], current + stim_cur[i], a[i], b[i], h, dtf)
+        else:
+            for i in range(v.size):
+                vi = min(max(v[i] + row[i], _F_FLOOR), _F_PEAK)
+                row[i] = _F0
+                v[i], u[i] = _izh_one(vi, u[i], noise_cur[i] + stim_cur[i], a[i], b[i], h, dtf)
+        return
     if n_sub == 2:  # dt in (0.5, 1] ms: Izhikevich's two half-steps, in one vectorised pass
-        for i in range(v.size):
-            vi = min(max(v[i] + row[i], _F_FLOOR), _F_PEAK)
-            row[i] = _F0
-            ui = u[i]
-            drive = noise_cur[i] + stim_cur[i] + _F140 - ui
-            vi += h * ((_F004 * vi + _F5) * vi + drive)
-            vi = min(vi, _F_PEAK)
-            vi += h * ((_F004 * vi + _F5) * vi + drive)
-            v[i] = vi
-            u[i] = ui + dtf * a[i] * (b[i] * vi - ui)
-            n_peak += vi >= _F_PEAK
-        return n_peak
-    # more sub-steps (dt > 0.5 ms): loop over sub-steps outside, neurons inside, so that
+        if redraw:
+            for i in range(v.size):
+                r, s0[i], s1[i], s2[i], s3[i] = _xoshiro128pp(s0[i], s1[i], s2[i], s3[i])
+                current = noise_mean[i] + noise_sd[i] * _irwin_hall4(r)
+                noise_cur[i] = current
+                vi = min(max(v[i] + row[i], _F_FLOOR), _F_PEAK)
+                row[i] = _F0
+                v[i], u[i] = _izh_two(vi, u[i], current + stim_cur[i], a[i], b[i], h, dtf)
+        else:
+            for i in range(v.size):
+                vi = min(max(v[i] + row[i], _F_FLOOR), _F_PEAK)
+                row[i] = _F0
+                v[i], u[i] = _izh_two(vi, u[i], noise_cur[i] + stim_cur[i], a[i], b[i], h, dtf)
+        return
+    # more sub-steps (dt > 1 ms): loop over sub-steps outside, neurons inside, so that
     # each pass still vectorises; drive (noise + stimulation + 140 - u) is held in `scratch`
+    if redraw:
+        fill_noise(noise_cur, noise_state, noise_mean, noise_sd)
     for i in range(v.size):
         v[i] = max(v[i] + row[i], _F_FLOOR)
         row[i] = _F0
@@ -226,10 +284,7 @@ def _izhikevich_update(v, u, a, b, row, noise_cur, stim_cur, scratch, dt, n_sub)
             vi = min(v[i], _F_PEAK)
             v[i] = vi + h * ((_F004 * vi + _F5) * vi + scratch[i])
     for i in range(v.size):
-        vi = v[i]
-        u[i] += dtf * a[i] * (b[i] * vi - u[i])
-        n_peak += vi >= _F_PEAK
-    return n_peak
+        u[i] += dtf * a[i] * (b[i] * v[i] - u[i])
 
 
 def ring_targets(delay_steps, post, n_neurons):
@@ -404,7 +459,8 @@ def advance(
         if cap - n_out < n:
             return s, n_out
         k = step0 + s
-        if k % noise_steps == 0:
+        redraw = k % noise_steps == 0
+        if redraw and model != 0:  # the Izhikevich update draws its noise itself
             fill_noise(noise_cur, noise_state, noise_mean, noise_sd)
         for j in range(n_p):
             stim_cur[p_neuron[j]] = 0.0
@@ -416,13 +472,13 @@ def advance(
         base = slot * n
         first = n_out
         if model == 0:
-            n_peak = _izhikevich_update(
-                v, aux[0], params[0], params[1], row, noise_cur, stim_cur, aux[1], dt, n_sub
+            _izhikevich_update(
+                v, aux[0], params[0], params[1], row, noise_cur, noise_state, noise_mean,
+                noise_sd, redraw, stim_cur, aux[1], dt, n_sub,
+            )  # fmt: skip
+            n_out = _izhikevich_spikes(
+                v, aux[0], params[2], params[3], k, out_neuron, out_step, n_out
             )
-            if n_peak > 0:
-                n_out = _izhikevich_spikes(
-                    v, aux[0], params[2], params[3], k, out_neuron, out_step, n_out
-                )
         elif model == 1:
             for i in range(n):
                 vi = v[i] + row[i]

@@ -23,7 +23,9 @@ from sim_network.mea import Mea, build_mea
 from sim_network.neurons import MODEL_IDS, build_params, initial_state, izhikevich_substeps
 from sim_network.records import Channels, PulseError, Pulses, Spikes
 
-_STATE_VERSION = 1
+# 2: noise generators are xoshiro128++ in 32-bit words, noise_state (4, n) uint32 (version 1
+# held xoroshiro128+ states (2, n) uint64, a stream this version no longer draws)
+_STATE_VERSION = 2
 _NEVER = -(2**40)  # "last spike" of a neuron that has not fired yet (depression fully recovered)
 
 
@@ -113,7 +115,7 @@ class Network:
         self.aux = aux.astype(kernels.STATE_DTYPE)
         self.ring = np.zeros((self._n_slots, n), dtype=np.float32)  # mV due per step
         self.noise_cur = np.zeros(n, dtype=kernels.STATE_DTYPE)
-        self.noise_state = np.zeros((2, n), dtype=np.uint64)
+        self.noise_state = np.zeros((4, n), dtype=np.uint32)
         noise_seed = np.random.SeedSequence([self.seed, 0x0153]).generate_state(1, np.uint64)[0]
         kernels.seed_noise_state(np.uint64(noise_seed), self.noise_state)
         self.dep_x = np.ones(n)
@@ -333,8 +335,16 @@ class Network:
         """Rebuild a network saved by `save`; running on gives the spikes it would have given."""
         with np.load(path, allow_pickle=False) as data:
             meta = json.loads(str(data["meta"]))
-            if meta.get("version") != _STATE_VERSION:
-                raise ValueError(f"{path}: state version {meta.get('version')} is not supported")
+            version = meta.get("version")
+            if version == 1:
+                raise ValueError(
+                    f"{path}: state version 1 was saved with the former noise generator "
+                    "(xoroshiro128+), which this version no longer has, so the run cannot be "
+                    "continued as it would have gone on; rebuild the network from its config "
+                    "and seed (Network(cfg, seed)) and run it again"
+                )
+            if version != _STATE_VERSION:
+                raise ValueError(f"{path}: state version {version} is not supported")
             cfg = config_from_dict(meta["config"])
             net = cls.__new__(cls)
             net.cfg = cfg

@@ -1,6 +1,7 @@
 """Network runs: determinism, chunking, pulses, noise, state, channels and the virtual MEA."""
 
 import dataclasses
+import json
 
 import numpy as np
 import pytest
@@ -117,6 +118,22 @@ def test_save_and_load_continue_identically(tmp_path):
     assert np.array_equal(ref.potentials(), again.potentials())
 
 
+def test_checkpoint_of_the_former_noise_generator_is_refused_clearly(tmp_path):
+    """Version 1 checkpoints hold xoroshiro128+ noise states (2, n) uint64, a generator this
+    version no longer has: loading one says so instead of continuing with another stream."""
+    Network(SMALL, seed=4).save(tmp_path / "net.ckpt")
+    with np.load(tmp_path / "net.ckpt") as data:
+        saved = {k: data[k] for k in data.files}
+    meta = json.loads(str(saved["meta"]))
+    meta["version"] = 1
+    saved["meta"] = np.array(json.dumps(meta))
+    saved["noise_state"] = np.ones((2, 144), dtype=np.uint64)
+    with open(tmp_path / "v1.ckpt", "wb") as fh:
+        np.savez(fh, **saved)
+    with pytest.raises(ValueError, match="former noise generator.*config and seed"):
+        Network.load(tmp_path / "v1.ckpt")
+
+
 def test_synapse_rows_are_in_ring_order_and_hold_the_drawn_synapses():
     net = Network(SMALL, seed=3)
     syn = net.synapses
@@ -174,21 +191,129 @@ def test_potentials_snapshot():
     assert np.all((v >= -100.0) & (v <= 30.0))
 
 
+def seeded_noise_state(n: int, seed: int = 12345) -> np.ndarray:
+    state = np.zeros((4, n), dtype=np.uint32)  # xoshiro128++: four 32-bit words per neuron
+    seed_noise_state(np.uint64(seed), state)
+    return state
+
+
 def test_noise_has_the_configured_mean_and_sd():
-    state = np.zeros((2, 200_000), dtype=np.uint64)
-    seed_noise_state(np.uint64(12345), state)
-    cur = np.empty(200_000)
-    mean, sd = np.full(200_000, 2.0), np.full(200_000, 5.0)
+    state = seeded_noise_state(200_000)
+    cur = np.empty(200_000, dtype=np.float32)
+    mean, sd = np.full(200_000, 2.0, np.float32), np.full(200_000, 5.0, np.float32)
     fill_noise(cur, state, mean, sd)
     assert cur.mean() == pytest.approx(2.0, abs=0.05)
     assert cur.std() == pytest.approx(5.0, rel=0.01)
-    z = (cur - 2.0) / 5.0
+    z = (cur.astype(np.float64) - 2.0) / 5.0
     assert np.mean(z**4) == pytest.approx(2.7, abs=0.05)  # Irwin-Hall(4): bell-shaped
     assert np.abs(z).max() <= np.sqrt(12.0)
-    other = np.empty(200_000)
+    other = np.empty(200_000, dtype=np.float32)
     fill_noise(other, state, mean, sd)
     assert abs(np.corrcoef(cur, other)[0, 1]) < 0.01  # successive windows are independent
     assert abs(np.corrcoef(cur[1:], cur[:-1])[0, 1]) < 0.01  # and so are neighbours
+
+
+def xoshiro128pp_reference(s: list[int]) -> int:
+    """xoshiro128++ next() (Blackman & Vigna, prng.di.unimi.it), transcribed from the C."""
+
+    def rotl(x: int, k: int) -> int:
+        return ((x << k) | (x >> (32 - k))) & 0xFFFFFFFF
+
+    result = (rotl((s[0] + s[3]) & 0xFFFFFFFF, 7) + s[0]) & 0xFFFFFFFF
+    t = (s[1] << 9) & 0xFFFFFFFF
+    s[2] ^= s[0]
+    s[3] ^= s[1]
+    s[1] ^= s[2]
+    s[0] ^= s[3]
+    s[2] ^= t
+    s[3] = rotl(s[3], 11)
+    return result
+
+
+def test_noise_generator_is_xoshiro128pp_and_its_bytes_make_the_variate():
+    n = 5
+    state = seeded_noise_state(n, 2024)
+    ref = [[int(w) for w in state[:, j]] for j in range(n)]
+    cur = np.empty(n, dtype=np.float32)
+    for _ in range(50):
+        fill_noise(cur, state, np.zeros(n, np.float32), np.ones(n, np.float32))
+        for j in range(n):
+            r = xoshiro128pp_reference(ref[j])
+            total = sum((r >> (8 * b)) & 0xFF for b in range(4))
+            z = ((total + 2) / 256 - 2) * np.sqrt(3.0) / np.sqrt(1 - 2.0**-16)
+            assert cur[j] == pytest.approx(z, abs=1e-5)
+            assert [int(w) for w in state[:, j]] == ref[j]
+
+
+def test_noise_variate_is_exactly_standardised_irwin_hall():
+    """Each draw's four bytes are uniforms on 256 centred cells: z takes 1021 values whose
+    exact distribution (the 4-fold convolution) has mean 0 and s.d. 1; the draws follow it."""
+    n_draws = 400_000
+    cur = np.empty(n_draws, dtype=np.float32)
+    fill_noise(
+        cur,
+        seeded_noise_state(n_draws, 3),
+        np.zeros(n_draws, np.float32),
+        np.ones(n_draws, np.float32),
+    )
+    one = np.ones(256)
+    counts = np.convolve(np.convolve(one, one), np.convolve(one, one))  # P(byte sum = s) * 2^32
+    p = counts / counts.sum()
+    s = np.arange(1021)
+    z_exact = (s * np.sqrt(3.0) / 256 + (2 / 256 - 2) * np.sqrt(3.0)) / np.sqrt(1 - 2.0**-16)
+    assert np.sum(p * z_exact) == pytest.approx(0.0, abs=1e-12)
+    assert np.sum(p * z_exact**2) == pytest.approx(1.0, abs=1e-12)
+    # every value drawn is one of the 1021 levels, and their frequencies match p (chi-square)
+    level = np.rint((cur.astype(np.float64) - z_exact[0]) / (z_exact[1] - z_exact[0])).astype(int)
+    assert np.allclose(z_exact[level], cur, atol=1e-5)
+    observed = np.bincount(level, minlength=1021)
+    # pool the sparse tails into the bins next to them (expected count >= 20)
+    exp = p * n_draws
+    keep = exp >= 20
+    lo, hi = np.argmax(keep), len(keep) - np.argmax(keep[::-1]) - 1
+    obs_b = observed[lo : hi + 1].astype(float)
+    exp_b = exp[lo : hi + 1].copy()
+    obs_b[0] += observed[:lo].sum()
+    exp_b[0] += exp[:lo].sum()
+    obs_b[-1] += observed[hi + 1 :].sum()
+    exp_b[-1] += exp[hi + 1 :].sum()
+    chi2 = np.sum((obs_b - exp_b) ** 2 / exp_b)
+    dof = len(obs_b) - 1
+    assert chi2 < dof + 5 * np.sqrt(2 * dof)
+
+
+def test_noise_is_independent_across_neurons_and_windows():
+    """64 neurons over 20,000 windows: no pair of neurons, and no neuron with itself one to
+    three windows later, is correlated beyond sampling noise (|r| < 5/sqrt(windows))."""
+    n, windows = 64, 20_000
+    state = seeded_noise_state(n, 99)
+    mean, sd = np.zeros(n, np.float32), np.ones(n, np.float32)
+    draws = np.empty((windows, n), dtype=np.float32)
+    for w in range(windows):
+        fill_noise(draws[w], state, mean, sd)
+    limit = 5.0 / np.sqrt(windows)
+    r = np.corrcoef(draws.T)
+    assert np.abs(r[~np.eye(n, dtype=bool)]).max() < limit
+    for lag in (1, 2, 3):
+        a, b = draws[:-lag] - draws.mean(0), draws[lag:] - draws.mean(0)
+        r_lag = (a * b).mean(0) / draws.std(0) ** 2
+        assert np.abs(r_lag).max() < limit
+    assert np.abs(draws.mean(0)).max() < limit  # every neuron's own mean and s.d. are right
+    assert np.abs(draws.std(0) - 1.0).max() < 5.0 / np.sqrt(2 * windows)
+
+
+def test_izhikevich_update_draws_the_same_noise_as_fill_noise():
+    """The Izhikevich kernel draws its noise fused into its update pass; it must give the
+    stream of the standalone `fill_noise` (used by the other models), at any dt."""
+    for dt in (0.1, 1.0):
+        net = Network(dataclasses.replace(SMALL, dt_ms=dt), seed=6)
+        state = net.noise_state.copy()
+        cur = np.empty_like(net.noise_cur)
+        for _ in range(3):
+            net.run(1.0)  # one noise window
+            fill_noise(cur, state, net._noise_mean, net._noise_sd)
+            assert np.array_equal(net.noise_cur, cur)
+            assert np.array_equal(net.noise_state, state)
 
 
 def test_inhibitory_noise_can_differ():
@@ -199,11 +324,12 @@ def test_inhibitory_noise_can_differ():
     assert net.noise_cur[inh].mean() > 4.0 > 1.0 > abs(net.noise_cur[~inh].mean())
 
 
-def test_noise_current_does_not_depend_on_dt():
+@pytest.mark.parametrize("coarse_dt", [0.5, 1.0])
+def test_noise_current_does_not_depend_on_dt(coarse_dt):
     fine = Network(dataclasses.replace(SMALL, dt_ms=0.1), seed=5)
-    coarse = Network(dataclasses.replace(SMALL, dt_ms=0.5), seed=5)
+    coarse = Network(dataclasses.replace(SMALL, dt_ms=coarse_dt), seed=5)
     for net in (fine, coarse):
-        net.run(7.5)
+        net.run(8.0)
     assert np.array_equal(fine.noise_cur, coarse.noise_cur)
 
 
