@@ -3,7 +3,8 @@
 1. Lockstep speed of configs/closed_loop.toml (dt 0.1 ms, 10 ms period) as simulated/wall
    time, and where the wall time goes: the culture's and the arena's time inside their
    step (measured by the endpoints themselves), and the hub's busy time (wall time minus
-   the time the hub spent waiting for replies).
+   the time the hub spent waiting for replies), and the CPU time per step of each
+   process: on a machine with few cores, the loop is bound by their sum.
 2. A realtime run at a 10 ms period: late steps and the lateness of step starts.
 
     python bench/closed_loop.py                 # 60 s lockstep + 60 s realtime
@@ -16,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import subprocess
 import sys
 import tempfile
@@ -57,7 +59,21 @@ def main() -> None:
         "  wall time shares: network {share_network:.1%}, arena {share_arena:.1%}, "
         "hub {share_hub:.1%} (the rest: messages in flight, process wake-ups)".format(**shares)
     )
+    n = t["steps"]
+    cpu_us = {
+        "hub": t["hub_cpu_s"] / n * 1e6,
+        "network": ep["culture"]["cpu_s"] / n * 1e6,
+        "arena": ep["body"]["cpu_s"] / n * 1e6,
+    }
+    total_us = sum(cpu_us.values())
+    print(
+        "  CPU per step (each process, all its threads): "
+        + ", ".join(f"{k} {v:.0f} us" for k, v in cpu_us.items())
+        + f"; total {total_us:.0f} us = {total_us / (wall / n * 1e6):.2f} of the "
+        f"{os.cpu_count()} cores busy"
+    )
     out["x_realtime_lockstep"] = round(t["x_realtime"], 2)
+    out.update({f"cpu_us_per_step_{k}": round(v, 1) for k, v in cpu_us.items()})
     out.update({k: round(v, 4) for k, v in shares.items()})
     with tempfile.TemporaryDirectory() as tmp:
         m = run("realtime", args.seconds, Path(tmp) / "realtime")

@@ -120,8 +120,14 @@ class Endpoint(abc.ABC):
     # ------------------------------------------------------------ serving
 
     def description(self) -> Description:
-        """:meth:`describe` with this endpoint's counters: drops by kind, steps, busy time."""
-        counters = {"dropped": dict(self.dropped), "steps": self.steps, "busy_s": self.busy_s}
+        """:meth:`describe` with this endpoint's counters: drops by kind, steps, busy time
+        (inside :meth:`step`) and CPU time of the process so far."""
+        counters = {
+            "dropped": dict(self.dropped),
+            "steps": self.steps,
+            "busy_s": self.busy_s,
+            "cpu_s": time.process_time(),  # the whole process, every thread
+        }
         return dataclasses.replace(self.describe(), counters=counters)
 
     def request_stop(self) -> None:

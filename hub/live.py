@@ -3,9 +3,10 @@
 The paper detects bursts and network bursts "on the fly". :class:`LiveBursts`
 buffers each step's :class:`~hub.protocol.SpikeBatch` (mapping the culture's
 channel ids to detector indices) and feeds the detector once ``every_ms`` of
-simulated time is buffered (its cost is mostly per call). Given a deadline, a
-feed goes in chunks and stops at it, keeping the rest for the next call, so a
-network burst's thousands of spikes never delay a realtime step.
+simulated time is buffered (its cost is mostly per call). A feed can go in chunks
+and break off, keeping the rest for the next call, at a deadline or when the caller
+has other work (the lockstep hub feeds it only while it waits for replies), so a
+network burst's thousands of spikes never hold up the loop.
 :class:`BackgroundLiveBursts` runs it on a thread of its own instead (realtime), since
 one feed at the end of a large network burst can take tens of milliseconds of Python.
 """
@@ -17,6 +18,7 @@ import os
 import queue
 import threading
 import time
+from collections.abc import Callable
 
 import numpy as np
 
@@ -25,8 +27,10 @@ from hub.analysis.network_bursts import NetworkBurstParams
 from hub.analysis.online import NetworkBurst, OnlineBurstDetector
 from hub.protocol import Description, SpikeBatch
 
-CHUNK_SPIKES = 128  # spikes fed per detector call when working to a deadline
-MAX_BACKLOG_MS = 2000.0  # with a deadline, spikes this far behind are dropped unanalysed
+CHUNK_SPIKES = 128  # spikes fed per detector call when working in chunks
+# Spikes this far behind: dropped unanalysed when working to a deadline (realtime); fed at
+# once, whatever it costs, by a lockstep hub that never found idle time for them.
+MAX_BACKLOG_MS = 2000.0
 
 
 class LiveBursts:
@@ -48,6 +52,7 @@ class LiveBursts:
         self.skipped_spikes = 0
         self._buffer: list[tuple[np.ndarray, np.ndarray]] = []
         self._until_ms = 0.0  # every spike before this has been buffered
+        self._fed_ms = 0.0  # ... and before this fed to the detector
         self._next_ms = every_ms
         self._chunk_s = 0.001  # estimated wall time of one chunk, refined as chunks run
 
@@ -62,12 +67,23 @@ class LiveBursts:
         """Whether enough simulated time is buffered to be worth a feed."""
         return bool(self._buffer) and self._until_ms >= self._next_ms
 
-    def work(self, deadline: float | None = None) -> list[NetworkBurst]:
-        """Feed the buffer to the detector. With a ``deadline`` (``time.monotonic()``), feed
-        in chunks and start a chunk only if it should end before the deadline (by the
-        chunks timed so far), keeping the rest; spikes more than MAX_BACKLOG_MS of
-        simulated time behind are then dropped unanalysed (counted in ``skipped_spikes``;
-        the record keeps them for offline analysis). Returns the network bursts completed."""
+    @property
+    def backlog_ms(self) -> float:
+        """Simulated time buffered but not yet fed to the detector."""
+        return self._until_ms - self._fed_ms
+
+    def work(
+        self, deadline: float | None = None, *, pause: Callable[[], bool] | None = None
+    ) -> list[NetworkBurst]:
+        """Feed the buffer to the detector; return the network bursts completed.
+
+        With a ``deadline`` (``time.monotonic()``), feed in chunks and start a chunk only if
+        it should end before the deadline (by the chunks timed so far), keeping the rest;
+        spikes more than MAX_BACKLOG_MS of simulated time behind are then dropped
+        unanalysed (counted in ``skipped_spikes``; the record keeps them for offline
+        analysis). With ``pause``, feed in chunks while ``pause()`` is False and keep the
+        rest, dropping nothing: work that can wait for a caller with better things to do.
+        """
         if not self._buffer:
             return []
         index = np.concatenate([b[0] for b in self._buffer])
@@ -78,13 +94,16 @@ class LiveBursts:
             if stale:
                 self.skipped_spikes += stale
                 index, t_ms = index[stale:], t_ms[stale:]
+        chunked = deadline is not None or pause is not None
         done: list[NetworkBurst] = []
         start = 0
         while start < index.size:
-            if deadline is not None and time.monotonic() + self._chunk_s > deadline:
+            if (deadline is not None and time.monotonic() + self._chunk_s > deadline) or (
+                pause is not None and pause()
+            ):
                 self._buffer.append((index[start:], t_ms[start:]))
                 return done
-            stop = index.size if deadline is None else min(start + CHUNK_SPIKES, index.size)
+            stop = min(start + CHUNK_SPIKES, index.size) if chunked else index.size
             if stop == index.size:
                 # A spike stamped at the window's very end may round a hair past it.
                 until_ms = max(self._until_ms, t_ms[-1]) if t_ms.size else self._until_ms
@@ -92,9 +111,11 @@ class LiveBursts:
                 until_ms = t_ms[stop - 1]
             t0 = time.monotonic()
             self._count(self.detector.feed(index[start:stop], t_ms[start:stop], until_ms), done)
+            self._fed_ms = until_ms
             if deadline is not None:  # running estimate of one chunk's cost
                 self._chunk_s = 0.8 * self._chunk_s + 0.2 * (time.monotonic() - t0)
             start = stop
+        self._fed_ms = self._until_ms
         self._next_ms = self._until_ms + self.every_ms
         return done
 

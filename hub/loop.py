@@ -31,7 +31,7 @@ from hub.analysis.bursts import BurstParams
 from hub.analysis.network_bursts import NetworkBurstParams
 from hub.bus import LOOP_PUBLISH, TELEMETRY_PUBLISH, open_session, payload_bytes
 from hub.config import ConfigError, ExperimentConfig
-from hub.live import BackgroundLiveBursts, LiveBursts
+from hub.live import MAX_BACKLOG_MS, BackgroundLiveBursts, LiveBursts
 from hub.protocol import (
     OUTPUT_TYPE,
     ROLES,
@@ -57,8 +57,9 @@ LATE_START_SHARE = 0.25
 # The live burst detector is fed this much simulated time at once (in realtime, on a
 # thread of its own).
 ONLINE_EVERY_MS = 100.0
-# Realtime: the longest a thread holds the interpreter while another wants it (Python's
-# default, 5 ms, would let the live analysis hold up a step start or a reply).
+# The longest a thread holds the interpreter while another wants it during the steps.
+# Python's default, 5 ms, would let live analysis hold up a step start (realtime) or keep
+# Zenoh's callback from handing the loop a reply (both modes).
 GIL_SWITCH_S = 2e-4
 
 
@@ -215,7 +216,7 @@ class Hub:
                     timing=timing,
                     counts=counts,
                     endpoints={
-                        r: {"kind": d.kind, "id": d.id, **endpoint_stats.get(r, {})}
+                        r: {"kind": d.kind, "id": d.id, **self._steps_share(d, endpoint_stats)}
                         for r, d in self.descriptions.items()
                     },
                 )
@@ -236,21 +237,24 @@ class Hub:
         gc.collect()
         gc.freeze()
         self._t_start = time.monotonic()
+        self._cpu_start_s = time.process_time()
         self.waiting_s = 0.0
-        if self.cfg.loop.mode == "lockstep":
-            self._steps_lockstep()
-        else:
-            self._steps_realtime()
+        switch_s = sys.getswitchinterval()
+        sys.setswitchinterval(GIL_SWITCH_S)
+        try:
+            if self.cfg.loop.mode == "lockstep":
+                self._steps_lockstep()
+            else:
+                self._steps_realtime()
+        finally:
+            sys.setswitchinterval(switch_s)
 
     def _steps_realtime(self) -> None:
         """Steps on a wall-clock schedule; a reply missing at its deadline is replaced by policy."""
         background = BackgroundLiveBursts(self.live) if self.live is not None else None
-        switch_s = sys.getswitchinterval()
-        sys.setswitchinterval(GIL_SWITCH_S)
         try:
             self._steps_on_schedule(background)
         finally:
-            sys.setswitchinterval(switch_s)
             if background is not None:
                 self._record_network_bursts(background.close())
 
@@ -302,11 +306,21 @@ class Hub:
         def ready():
             return any(self.expect[r] in self.pending[r] for r in ROLES)
 
+        def busy():
+            return not self.inbox.empty()
+
+        live = self.live
+
         while min(self.expect.values()) < n:
             if not self._await_start(self.k_done, 0.0):
                 return
             deadline = time.monotonic() + self.cfg.loop.reply_timeout_s
             while not ready() and time.monotonic() < deadline:
+                if live is not None and live.due and self.inbox.empty():
+                    # Nothing to do until a reply comes: analyse meanwhile, off the loop's
+                    # critical path, breaking off the moment something arrives.
+                    self._record_network_bursts(live.work(pause=busy))
+                    continue
                 self._next_event(deadline)
                 if self.state == "paused" or self._stop_reason:
                     break
@@ -371,13 +385,14 @@ class Hub:
         return message
 
     def _analyse_online(self, spikes: SpikeBatch | None, *, flush: bool = False) -> None:
-        """Lockstep: give a step's spikes to the live burst detector, fed every
-        ONLINE_EVERY_MS of simulated time (its cost is mostly per call); record each
+        """Lockstep: buffer a step's spikes for the live burst detector. The loop feeds it
+        while waiting for replies; here it is fed everything at once only at the end
+        (``flush``) or when MAX_BACKLOG_MS behind (a loop that never waits). Records each
         network burst completed."""
         live = self.live
         if spikes is not None:
             live.add(spikes)
-        if flush or live.due:
+        if flush or live.backlog_ms > MAX_BACKLOG_MS:
             self._record_network_bursts(live.work())
 
     def _record_network_bursts(self, done: list) -> None:
@@ -652,6 +667,16 @@ class Hub:
                 self._known_channel[desc.channel] = True
             self._record_event("described", role=role, id=i, kind=desc.kind)
 
+    @staticmethod
+    def _steps_share(desc: Description, final: dict[str, dict]) -> dict:
+        """An endpoint's final counters, its CPU time made that of the steps alone (the
+        counters it described itself with at the start taken off)."""
+        out = dict(final.get(desc.role, {}))
+        start = (desc.counters or {}).get("cpu_s")
+        if isinstance(out.get("cpu_s"), float) and isinstance(start, float):
+            out["cpu_s"] = out["cpu_s"] - start
+        return out
+
     def _final_counters(self, session: zenoh.Session) -> dict[str, dict]:
         """Each endpoint's own counters at the end (drops, steps, busy time), if it answers."""
         out = {}
@@ -758,6 +783,7 @@ class Hub:
             "steps_per_s": n / wall if wall > 0 else 0.0,
             "x_realtime": n * self.cfg.loop.period_ms / 1e3 / wall if wall > 0 else 0.0,
             "hub_busy_s": max(wall - self.waiting_s, 0.0),
+            "hub_cpu_s": time.process_time() - self._cpu_start_s if self._t_start else 0.0,
             "late_steps": int(self.late_steps),
             "late_share": self.late_steps / n if n else 0.0,
         }

@@ -58,6 +58,24 @@ def test_a_planted_network_burst_is_found_once_however_it_is_fed(every_ms, deadl
     assert sorted(nb.channels) == [0, 1, 2]  # detector indices of channels 12, 13, 21
 
 
+def test_a_feed_that_breaks_off_for_the_caller_keeps_the_rest_and_drops_nothing(monkeypatch):
+    monkeypatch.setattr("hub.live.CHUNK_SPIKES", 2)
+    live = LiveBursts(CULTURE, BurstParams(), NetworkBurstParams(), 0.0)
+    calls = iter(range(10**6))
+    found, behind_ms = [], []
+    for batch in _batches(PLANTED, 60):
+        live.add(batch)
+        assert live.work(pause=lambda: True) == []  # something else to do at once: no feed
+        found += live.work(pause=lambda: next(calls) % 3 == 2)  # two chunks, then a break
+        behind_ms.append(live.backlog_ms)
+    assert max(behind_ms) > PERIOD_MS  # it fell behind during the planted burst
+    found += live.work()
+    assert live.backlog_ms == 0 and live.skipped_spikes == 0
+    assert live.bursts == 3 and live.network_bursts == 1
+    (nb,) = found
+    assert nb.start_ms == pytest.approx(100.0) and nb.end_ms == pytest.approx(119.0)
+
+
 def test_on_a_thread_of_its_own_the_detector_finds_the_same_network_burst():
     background = BackgroundLiveBursts(LiveBursts(CULTURE, BurstParams(), NetworkBurstParams(), 100))
     for batch in _batches(PLANTED, 60):

@@ -9,6 +9,8 @@ import sys
 import numpy as np
 import pytest
 
+from hub.analysis.bursts import detect_bursts
+from hub.analysis.network_bursts import NetworkBurstParams, detect_network_bursts
 from hub.protocol import MotorCommand, SensorReading, SpikeBatch, Stimulation
 from hub.record import read_run
 
@@ -62,6 +64,14 @@ def test_the_closed_loop_run_leaves_a_record_a_summary_and_pictures(tmp_path, bu
     assert behaviour["distance_m"] == pytest.approx(
         np.hypot(*np.diff(poses[:, :2], axis=0).T).sum(), rel=1e-6
     )
+    # The hub's live detection, fed while it waits for replies, finds what offline
+    # detection finds in the record.
+    bursts = detect_bursts(*rec.spikes())
+    n_channels = rec.descriptions()["culture"].channel.size
+    network = detect_network_bursts(bursts, n_channels, NetworkBurstParams())
+    assert rec.manifest["counts"]["bursts_online"] == len(bursts) > 0
+    assert rec.manifest["counts"]["network_bursts_online"] == len(network)
+    assert len([e for e in rec.events if e.key == "network_burst"]) == len(network)
 
 
 def test_a_blind_run_sends_no_stimulation(tmp_path, bus_overrides):
