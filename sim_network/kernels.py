@@ -23,7 +23,7 @@ import numpy as np
 from llvmlite import ir
 from numba import njit, types
 from numba.core import cgutils
-from numba.extending import intrinsic
+from numba.extending import intrinsic, overload
 
 _GOLDEN = np.uint64(0x9E3779B97F4A7C15)
 _MIX1 = np.uint64(0xBF58476D1CE4E5B9)
@@ -221,6 +221,18 @@ def _izh_two(vi, ui, current, ai, bi, h, c2, c1, c0, dtf):
     return vi, ui + dtf * ai * (bi * vi - ui)
 
 
+def _with_stim(current, stim_cur, i):
+    """current + stim_cur[i], or current when stim_cur is None (no pulse on in this step)."""
+    return current if stim_cur is None else current + stim_cur[i]
+
+
+@overload(_with_stim, inline="always")
+def _with_stim_impl(current, stim_cur, i):
+    if isinstance(stim_cur, types.NoneType):  # compiled away: no load of a zero array
+        return lambda current, stim_cur, i: current
+    return lambda current, stim_cur, i: current + stim_cur[i]
+
+
 @njit(cache=True, nogil=True, fastmath=_FAST)
 def _izhikevich_update(
     v, u, a, b, row, noise_cur, noise_state, noise_mean, noise_sd, redraw, stim_cur, scratch,
@@ -235,6 +247,7 @@ def _izhikevich_update(
     sub-steps (two half-steps at 1 ms, as in Izhikevich 2003), clipped at the 30 mV peak
     between sub-steps; u is then updated with v. The caller scans for the neurons at the
     peak afterwards (counting them here costs more than the scan: it halves the SIMD width).
+    `stim_cur` is None when no pulse is on: that variant does not read it at all.
     """
     h = np.float32(dt / n_sub)
     c2 = np.float32(0.04 * dt / n_sub)
@@ -254,14 +267,14 @@ def _izhikevich_update(
                 vi = min(max(v[i] + row[i], _F_FLOOR), _F_PEAK)
                 row[i] = _F0
                 v[i], u[i] = _izh_one(
-                    vi, u[i], current + stim_cur[i], a[i], b[i], h, c2, c1, c0, dtf
+                    vi, u[i], _with_stim(current, stim_cur, i), a[i], b[i], h, c2, c1, c0, dtf
                 )
         else:
             for i in range(v.size):
                 vi = min(max(v[i] + row[i], _F_FLOOR), _F_PEAK)
                 row[i] = _F0
                 v[i], u[i] = _izh_one(
-                    vi, u[i], noise_cur[i] + stim_cur[i], a[i], b[i], h, c2, c1, c0, dtf
+                    vi, u[i], _with_stim(noise_cur[i], stim_cur, i), a[i], b[i], h, c2, c1, c0, dtf
                 )
         return
     if n_sub == 2:  # dt in (0.5, 1] ms: Izhikevich's two half-steps, in one vectorised pass
@@ -273,14 +286,14 @@ def _izhikevich_update(
                 vi = min(max(v[i] + row[i], _F_FLOOR), _F_PEAK)
                 row[i] = _F0
                 v[i], u[i] = _izh_two(
-                    vi, u[i], current + stim_cur[i], a[i], b[i], h, c2, c1, c0, dtf
+                    vi, u[i], _with_stim(current, stim_cur, i), a[i], b[i], h, c2, c1, c0, dtf
                 )
         else:
             for i in range(v.size):
                 vi = min(max(v[i] + row[i], _F_FLOOR), _F_PEAK)
                 row[i] = _F0
                 v[i], u[i] = _izh_two(
-                    vi, u[i], noise_cur[i] + stim_cur[i], a[i], b[i], h, c2, c1, c0, dtf
+                    vi, u[i], _with_stim(noise_cur[i], stim_cur, i), a[i], b[i], h, c2, c1, c0, dtf
                 )
         return
     # more sub-steps (dt > 1 ms): loop over sub-steps outside, neurons inside, so that
@@ -290,7 +303,7 @@ def _izhikevich_update(
     for i in range(v.size):
         v[i] = max(v[i] + row[i], _F_FLOOR)
         row[i] = _F0
-        scratch[i] = h * (noise_cur[i] + stim_cur[i] - u[i]) + c0
+        scratch[i] = h * (_with_stim(noise_cur[i], stim_cur, i) - u[i]) + c0
     for _ in range(n_sub):
         for i in range(v.size):
             vi = min(v[i], _F_PEAK)
@@ -476,18 +489,26 @@ def advance(
             fill_noise(noise_cur, noise_state, noise_mean, noise_sd)
         for j in range(n_p):
             stim_cur[p_neuron[j]] = 0.0
+        n_on = 0
         for j in range(n_p):
             if p_start[j] <= k and k < p_end[j]:
                 stim_cur[p_neuron[j]] += p_current[j]
+                n_on += 1
         slot = k % n_slots
         row = ring[slot]
         base = slot * n
         first = n_out
         if model == 0:
-            _izhikevich_update(
-                v, aux[0], params[0], params[1], row, noise_cur, noise_state, noise_mean,
-                noise_sd, redraw, stim_cur, aux[1], dt, n_sub,
-            )  # fmt: skip
+            if n_on > 0:
+                _izhikevich_update(
+                    v, aux[0], params[0], params[1], row, noise_cur, noise_state, noise_mean,
+                    noise_sd, redraw, stim_cur, aux[1], dt, n_sub,
+                )  # fmt: skip
+            else:  # no pulse on: the variant that does not read the (all-zero) stim_cur
+                _izhikevich_update(
+                    v, aux[0], params[0], params[1], row, noise_cur, noise_state, noise_mean,
+                    noise_sd, redraw, None, aux[1], dt, n_sub,
+                )  # fmt: skip
             n_out = _izhikevich_spikes(
                 v, aux[0], params[2], params[3], k, out_neuron, out_step, n_out
             )
