@@ -237,11 +237,14 @@ class Network:
 
     def _add_pulses(self, pulses: Pulses) -> None:
         n_channels = self.layout.n if self.mea is None else self.mea.n_electrodes
-        if np.any(pulses.channel >= n_channels):
-            bad = int(pulses.channel[pulses.channel >= n_channels][0])
-            raise PulseError(f"pulses.channel {bad} out of range (network has {n_channels})")
-        start = self.step + np.rint(pulses.onset_ms.astype(np.float64) / self._dt).astype(np.int64)
-        end = start + np.rint(pulses.width_ms.astype(np.float64) / self._dt).astype(np.int64)
+        top = int(pulses.channel.max())
+        if top >= n_channels:
+            raise PulseError(f"pulses.channel {top} out of range (network has {n_channels})")
+        n = len(pulses)
+        times_ms = np.concatenate((pulses.onset_ms, pulses.width_ms)).astype(np.float64)
+        steps = np.rint(times_ms / self._dt).astype(np.int64)
+        start = self.step + steps[:n]
+        end = start + steps[n:]
         current = pulses.amplitude_ua.astype(np.float64) * self._pulse_current_per_ua
         channel = pulses.channel.astype(np.int64)
         if self.mea is not None:
@@ -394,6 +397,10 @@ class _PendingPulses:
 
     def merged(self, other: _PendingPulses) -> _PendingPulses:
         """Both sets, stably sorted by start step (older pulses first among equal starts)."""
+        if self.start.size == 0 and (
+            other.start.size < 2 or bool((other.start[1:] >= other.start[:-1]).all())
+        ):
+            return other
         neuron = np.concatenate([self.neuron, other.neuron])
         current = np.concatenate([self.current, other.current])
         start = np.concatenate([self.start, other.start])

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -9,6 +10,10 @@ import numpy as np
 
 class PulseError(ValueError):
     """A stimulation pulse is malformed (lengths differ, negative width, unknown channel...)."""
+
+
+_FIELDS = ("channel", "amplitude_ua", "width_ms", "onset_ms")
+_DTYPES = (np.dtype(np.uint32), np.dtype(np.float32), np.dtype(np.float32), np.dtype(np.float32))
 
 
 @dataclass(frozen=True)
@@ -24,13 +29,34 @@ class Pulses:
     onset_ms: np.ndarray  # float32[k]
 
     def __post_init__(self) -> None:
+        if not self._valid_as_given():
+            self._normalise()
+
+    def _valid_as_given(self) -> bool:
+        """Quick path: True if the fields already have their dtypes and valid values (as a
+        hub's Stimulation gives them), so nothing needs converting; False sends them to
+        :meth:`_normalise`, which converts what it can and names what is wrong."""
+        arrays = (self.channel, self.amplitude_ua, self.width_ms, self.onset_ms)
+        for arr, dtype in zip(arrays, _DTYPES, strict=True):
+            if type(arr) is not np.ndarray or arr.dtype != dtype or arr.ndim != 1:
+                return False
+        n = self.channel.size
+        if any(arr.size != n for arr in arrays):
+            return False
+        if n == 0:
+            return True
+        times = np.concatenate((self.width_ms, self.onset_ms))
+        # min and max propagate NaN, so the comparisons fail on it
+        return (
+            float(times.min()) >= 0.0
+            and math.isfinite(float(times.max()))
+            and math.isfinite(float(self.amplitude_ua.min()))
+            and math.isfinite(float(self.amplitude_ua.max()))
+        )
+
+    def _normalise(self) -> None:
         arrays = {}
-        for name, dtype in (
-            ("channel", np.uint32),
-            ("amplitude_ua", np.float32),
-            ("width_ms", np.float32),
-            ("onset_ms", np.float32),
-        ):
+        for name, dtype in zip(_FIELDS, _DTYPES, strict=True):
             raw = np.asarray(getattr(self, name))
             if raw.ndim != 1:
                 raw = raw.reshape(-1)

@@ -349,6 +349,32 @@ def test_bad_run_arguments_are_rejected():
         Pulses([1], [np.nan], [1.0], [0.0])
 
 
+@pytest.mark.parametrize(
+    "field, value, error",
+    [
+        ("amplitude_ua", np.nan, "amplitude_ua must be finite"),
+        ("amplitude_ua", -np.inf, "amplitude_ua must be finite"),
+        ("width_ms", -1.0, "width_ms must be >= 0"),
+        ("width_ms", np.inf, "width_ms must be finite"),
+        ("onset_ms", -0.5, "onset_ms must be >= 0"),
+        ("onset_ms", np.nan, "onset_ms must be finite"),
+    ],
+)
+def test_pulses_in_their_own_dtypes_are_checked_as_closely_as_any(field, value, error):
+    # A hub's Stimulation hands over uint32/float32 arrays, which take a quicker path.
+    arrays = {
+        "channel": np.array([3, 4], np.uint32),
+        "amplitude_ua": np.array([50.0, 60.0], np.float32),
+        "width_ms": np.array([10.0, 10.0], np.float32),
+        "onset_ms": np.array([0.0, 2.0], np.float32),
+    }
+    assert len(Pulses(**arrays)) == 2
+    arrays[field] = arrays[field].copy()
+    arrays[field][1] = value
+    with pytest.raises(PulseError, match=error):
+        Pulses(**arrays)
+
+
 def test_neuron_channels_describe_the_neurons():
     net = Network(SMALL, seed=1)
     ch = net.channels
