@@ -108,9 +108,11 @@ def main(argv: list[str] | None = None) -> int:
 
 def cmd_endpoint(args) -> int:
     from hub.launch import make_endpoint
+    from hub.scheduling import endpoint_priority
 
     cfg = load_config(args.config, _overrides(args))
-    return make_endpoint(cfg, args.role).serve(cfg.bus)
+    priority = endpoint_priority(cfg.loop.mode, cfg.loop.realtime_priority)
+    return make_endpoint(cfg, args.role).serve(cfg.bus, realtime_priority=priority)
 
 
 def cmd_hub(args, local: bool = False) -> int:

@@ -51,6 +51,10 @@ class LoopSection:
     # (0 means one period: before the next step starts).
     deadline_ms: float = field(default=0.0, metadata=_check(ge=0))
     status_hz: float = field(default=4.0, metadata=_check(gt=0, le=100))
+    # Realtime: the SCHED_FIFO priority of the hub's threads during the steps (1-99; 0
+    # leaves the scheduler alone). Refused without CAP_SYS_NICE/RLIMIT_RTPRIO: the run
+    # goes on, and the manifest says so.
+    realtime_priority: int = field(default=10, metadata=_check(ge=0, le=99))
 
     @property
     def deadline_s(self) -> float:

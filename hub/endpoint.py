@@ -31,6 +31,7 @@ from hub.protocol import (
     Message,
     ProtocolError,
 )
+from hub.scheduling import Scheduling, raise_threads, restore_threads
 
 log = logging.getLogger(__name__)
 
@@ -66,6 +67,7 @@ class Endpoint(abc.ABC):
         self._session = None
         self._telemetry: dict = {}
         self.keys = Keys()
+        self.scheduling = Scheduling("normal", reason="not serving")
 
     # ------------------------------------------------------------ for subclasses
 
@@ -127,6 +129,7 @@ class Endpoint(abc.ABC):
             "steps": self.steps,
             "busy_s": self.busy_s,
             "cpu_s": time.process_time(),  # the whole process, every thread
+            "scheduling": self.scheduling.to_dict(),
         }
         return dataclasses.replace(self.describe(), counters=counters)
 
@@ -164,8 +167,14 @@ class Endpoint(abc.ABC):
             log.warning("%s/%s dropped a message (%s): %s", self.role, self.id, kind, detail)
         self.dropped[kind] += 1
 
-    def serve(self, bus: BusSection, *, install_signals: bool = True) -> int:
-        """Serve on the bus until stopped; return the exit status (0 on a clean stop)."""
+    def serve(
+        self, bus: BusSection, *, install_signals: bool = True, realtime_priority: int = 0
+    ) -> int:
+        """Serve on the bus until stopped; return the exit status (0 on a clean stop).
+
+        ``realtime_priority`` > 0 puts this process's threads under ``SCHED_FIFO`` at that
+        priority once warmed up (see :mod:`hub.scheduling`; refused: ordinary scheduling).
+        """
         if install_signals:
             for sig in (signal.SIGINT, signal.SIGTERM):
                 signal.signal(sig, lambda *_: self.request_stop())
@@ -173,6 +182,10 @@ class Endpoint(abc.ABC):
         inbox: queue.SimpleQueue = queue.SimpleQueue()
         self.warm_up()  # so that the first realtime steps are not late
         session = self._session = open_session(bus, listener=False)
+        # Once Zenoh's threads exist: the policy is not inherited by new threads.
+        self.scheduling = raise_threads(realtime_priority)
+        if realtime_priority and self.scheduling.policy != "fifo":
+            log.warning("%s/%s: %s", self.role, self.id, self.scheduling.reason)
         try:
             # Zenoh undeclares what is garbage-collected: keep every declaration.
             declared = [  # noqa: F841
@@ -212,6 +225,7 @@ class Endpoint(abc.ABC):
                 self._telemetry.clear()
                 self._session = None
                 session.close()
+                restore_threads(self.scheduling)
         if self.dropped:
             log.info("%s/%s dropped: %s", self.role, self.id, dict(self.dropped))
         return 0

@@ -14,7 +14,6 @@ one feed at the end of a large network burst can take tens of milliseconds of Py
 from __future__ import annotations
 
 import math
-import os
 import queue
 import threading
 import time
@@ -26,6 +25,7 @@ from hub.analysis.bursts import BurstParams
 from hub.analysis.network_bursts import NetworkBurstParams
 from hub.analysis.online import NetworkBurst, OnlineBurstDetector
 from hub.protocol import Description, SpikeBatch
+from hub.scheduling import Scheduling, lower_this_thread
 
 CHUNK_SPIKES = 128  # spikes fed per detector call when working in chunks
 # Spikes this far behind: dropped unanalysed when working to a deadline (realtime); fed at
@@ -132,10 +132,12 @@ class BackgroundLiveBursts:
     """:class:`LiveBursts` on a thread of its own: the loop hands each step's spikes over and
     collects the network bursts completed, so analysis never holds up a step. (With the
     hub's short GIL switch interval the loop's thread gets the interpreter back within a
-    fraction of a millisecond.) Counters are read from ``live``."""
+    fraction of a millisecond.) The thread runs just below the loop's priority
+    (:func:`~hub.scheduling.lower_this_thread`). Counters are read from ``live``."""
 
-    def __init__(self, live: LiveBursts):
+    def __init__(self, live: LiveBursts, scheduling: Scheduling | None = None):
         self.live = live
+        self.scheduling = scheduling or Scheduling("normal")
         self._in: queue.SimpleQueue = queue.SimpleQueue()
         self._out: queue.SimpleQueue = queue.SimpleQueue()
         self._thread = threading.Thread(target=self._run, name="live-bursts", daemon=True)
@@ -160,10 +162,7 @@ class BackgroundLiveBursts:
         return self.completed()
 
     def _run(self) -> None:
-        try:  # the lowest CPU priority: on a busy machine the loop and endpoints come first
-            os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), 19)
-        except (AttributeError, OSError):
-            pass
+        lower_this_thread(self.scheduling)
         live = self.live
         while (spikes := self._in.get()) is not None:
             live.add(spikes)

@@ -47,6 +47,7 @@ from hub.protocol import (
     Stimulation,
 )
 from hub.record import Recorder, host, utc_now, versions, write_manifest
+from hub.scheduling import Scheduling, raise_threads, restore_threads
 from hub.schemes import SchemeContext, load_scheme
 
 log = logging.getLogger(__name__)
@@ -152,6 +153,7 @@ class Hub:
         self.live: LiveBursts | None = None
         self.waiting_s = 0.0  # time the loop spent blocked, waiting for events
         self.reply_deadline = math.inf  # realtime: replies arriving later are late
+        self.scheduling: Scheduling | None = None  # realtime: what the hub's threads got
 
     # ================================================================ public
 
@@ -245,13 +247,23 @@ class Hub:
             if self.cfg.loop.mode == "lockstep":
                 self._steps_lockstep()
             else:
-                self._steps_realtime()
+                self.scheduling = raise_threads(self.cfg.loop.realtime_priority)
+                if self.scheduling.policy != "fifo" and self.cfg.loop.realtime_priority:
+                    log.warning(
+                        "realtime steps under the ordinary scheduler: %s", self.scheduling.reason
+                    )
+                self._record_event("scheduling", **self.scheduling.to_dict())
+                try:
+                    self._steps_realtime()
+                finally:
+                    restore_threads(self.scheduling)
         finally:
             sys.setswitchinterval(switch_s)
 
     def _steps_realtime(self) -> None:
         """Steps on a wall-clock schedule; a reply missing at its deadline is replaced by policy."""
-        background = BackgroundLiveBursts(self.live) if self.live is not None else None
+        live = self.live
+        background = BackgroundLiveBursts(live, self.scheduling) if live is not None else None
         try:
             self._steps_on_schedule(background)
         finally:
@@ -787,6 +799,8 @@ class Hub:
             "late_steps": int(self.late_steps),
             "late_share": self.late_steps / n if n else 0.0,
         }
+        if self.scheduling is not None:
+            out["scheduling"] = self.scheduling.to_dict()
         step_ms = self.step_wall_s[:n] * 1e3
         if n:
             out["step_ms_median"] = float(np.median(step_ms))

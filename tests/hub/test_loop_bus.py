@@ -74,6 +74,19 @@ def test_realtime_mode_holds_its_period(tmp_path, bus_overrides):
     assert 1.98 <= t["wall_s"] < 2.0 + 0.2
     assert t["lateness_ms_median"] < 2.0
     assert result.counts["missing"] == {}
+    # The record says how the hub's and the endpoints' threads were scheduled.
+    hub_sched = h.record.manifest["timing"]["scheduling"]
+    assert hub_sched == t["scheduling"]
+    ends = h.record.manifest["endpoints"]
+    if hub_sched["policy"] == "fifo":  # permitted here: hub at 10, endpoints two below
+        assert hub_sched["priority"] == 10 and hub_sched["threads"] > 1
+        assert {r: e["scheduling"]["priority"] for r, e in ends.items()} == {
+            "body": 8,
+            "culture": 8,
+        }
+    else:
+        assert "refused" in hub_sched["reason"]
+        assert all("refused" in e["scheduling"]["reason"] for e in ends.values())
 
 
 def test_a_late_reply_is_counted_and_the_policy_stands_in(tmp_path, bus_overrides):

@@ -1,0 +1,106 @@
+"""Real-time CPU scheduling for the hub's threads during a realtime run.
+
+Under the kernel's ordinary scheduler a thread that wakes on time may still wait
+a few milliseconds for a CPU that busy endpoints hold (seen here: a step start
+2.5–4 ms late about once a minute on two cores). A ``SCHED_FIFO`` thread takes a
+CPU the moment it wakes. The hub raises its own threads — the loop's and the
+Zenoh threads that carry replies to it — for the steps of a realtime run only,
+and puts them back afterwards. Its live burst analysis runs one priority below
+(it holds the interpreter the loop needs at times, so it must not wait behind the
+endpoints), and endpoints started for a realtime run one below that
+(:func:`endpoint_priority`): a step's reply is then not held up by other work on
+the machine, and the hub still takes a CPU first.
+
+Needs ``CAP_SYS_NICE`` or an ``RLIMIT_RTPRIO`` of at least the priority asked
+for; without either the run goes on under the ordinary scheduler and the
+manifest says so. The kernel's real-time throttling (by default 5 % of each
+second left to other work) still applies.
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+from dataclasses import dataclass, field
+
+
+@dataclass
+class Scheduling:
+    """What a run got: the policy of the hub's threads while it stepped."""
+
+    policy: str  # "fifo" or "normal"
+    priority: int = 0
+    threads: int = 0
+    reason: str = ""  # why the policy is "normal"
+    _previous: dict[int, tuple[int, int]] = field(default_factory=dict, repr=False)
+
+    def to_dict(self) -> dict:
+        out = {"policy": self.policy}
+        if self.policy == "fifo":
+            out.update(priority=self.priority, threads=self.threads)
+        else:
+            out["reason"] = self.reason
+        return out
+
+
+def endpoint_priority(mode: str, hub_priority: int) -> int:
+    """The real-time priority an endpoint takes for a run (0: none) — two below the hub's."""
+    if mode != "realtime" or hub_priority <= 0:
+        return 0
+    return max(hub_priority - 2, 1)
+
+
+def _thread_ids() -> list[int]:
+    return [int(t) for t in os.listdir("/proc/self/task")]
+
+
+def raise_threads(priority: int) -> Scheduling:
+    """Put every thread of this process under ``SCHED_FIFO`` at ``priority``.
+
+    Threads and processes started later do not inherit it (``SCHED_RESET_ON_FORK``):
+    call this once the threads that matter (Zenoh's) exist. Returns what was done,
+    with what to undo in :func:`restore_threads`.
+    """
+    if priority <= 0:
+        return Scheduling("normal", reason="loop.realtime_priority is 0")
+    if not hasattr(os, "sched_setscheduler"):
+        return Scheduling("normal", reason="this platform has no SCHED_FIFO")
+    got = Scheduling("fifo", priority)
+    policy = os.SCHED_FIFO | os.SCHED_RESET_ON_FORK
+    for tid in _thread_ids():
+        try:
+            previous = (os.sched_getscheduler(tid), os.sched_getparam(tid).sched_priority)
+            os.sched_setscheduler(tid, policy, os.sched_param(priority))
+        except ProcessLookupError:  # the thread ended meanwhile
+            continue
+        except OSError as exc:
+            restore_threads(got)
+            return Scheduling("normal", reason=f"SCHED_FIFO refused: {exc.strerror}")
+        got._previous[tid] = previous
+    got.threads = len(got._previous)
+    return got
+
+
+def restore_threads(got: Scheduling) -> None:
+    """Undo :func:`raise_threads` for the threads it raised that still exist."""
+    for tid, (policy, priority) in got._previous.items():
+        try:
+            os.sched_setscheduler(tid, policy, os.sched_param(priority))
+        except OSError:  # ended, or no longer ours to change
+            pass
+    got._previous.clear()
+
+
+def lower_this_thread(got: Scheduling) -> None:
+    """Run the calling thread just below the loop: one step under the run's real-time
+    priority if it has one (it then cannot be starved by busy endpoints while it holds
+    the interpreter the loop needs), else at the lowest ordinary priority."""
+    tid = threading.get_native_id()
+    try:
+        if got.policy == "fifo":
+            policy = os.SCHED_FIFO | os.SCHED_RESET_ON_FORK
+            os.sched_setscheduler(tid, policy, os.sched_param(max(got.priority - 1, 1)))
+        else:
+            os.setpriority(os.PRIO_PROCESS, tid, 19)
+    except (AttributeError, OSError):
+        pass

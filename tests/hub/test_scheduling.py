@@ -1,0 +1,121 @@
+"""Real-time scheduling of the hub's threads during realtime runs (hub/scheduling.py)."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import threading
+
+import pytest
+
+from hub.scheduling import (
+    endpoint_priority,
+    lower_this_thread,
+    raise_threads,
+    restore_threads,
+)
+
+
+def _policy(tid: int = 0) -> tuple[int, int]:
+    """(policy without the reset-on-fork flag, priority) of one thread (0: this one)."""
+    policy = os.sched_getscheduler(tid) & ~os.SCHED_RESET_ON_FORK
+    return policy, os.sched_getparam(tid).sched_priority
+
+
+def _policies() -> dict[int, tuple[int, int]]:
+    out = {}
+    for tid in map(int, os.listdir("/proc/self/task")):
+        try:
+            out[tid] = _policy(tid)
+        except ProcessLookupError:
+            pass
+    return out
+
+
+def _fifo_permitted() -> bool:
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))
+    except (AttributeError, OSError):
+        return False
+    os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    return True
+
+
+needs_fifo = pytest.mark.skipif(
+    not _fifo_permitted(), reason="SCHED_FIFO not permitted here (needs CAP_SYS_NICE)"
+)
+
+
+@needs_fifo
+def test_raised_threads_run_fifo_and_are_put_back_afterwards():
+    release = threading.Event()
+    earlier = threading.Thread(target=release.wait)
+    earlier.start()
+    before = _policies()
+    got = raise_threads(5)
+    try:
+        assert got.policy == "fifo" and got.priority == 5 and got.threads == len(before)
+        during = _policies()
+        assert all(during[tid] == (os.SCHED_FIFO, 5) for tid in before)
+        # Neither a thread started meanwhile ...
+        seen = {}
+        later = threading.Thread(target=lambda: seen.update(policy=_policy()), daemon=True)
+        later.start()
+        later.join()
+        assert seen["policy"] == (os.SCHED_OTHER, 0)
+        # ... nor a child process inherits it.
+        child = subprocess.run(
+            [sys.executable, "-c", "import os; print(os.sched_getscheduler(0))"],
+            capture_output=True,
+            text=True,
+            check=True,
+        )
+        assert int(child.stdout) == os.SCHED_OTHER
+    finally:
+        restore_threads(got)
+        release.set()
+        earlier.join()
+    after = _policies()
+    assert all(after[tid] == before[tid] for tid in after if tid in before)
+
+
+@needs_fifo
+def test_the_live_analysis_thread_runs_one_priority_below_the_loop():
+    got = raise_threads(5)
+    seen = {}
+
+    def analyse():
+        lower_this_thread(got)
+        seen["policy"] = _policy()
+
+    try:
+        thread = threading.Thread(target=analyse)
+        thread.start()
+        thread.join()
+    finally:
+        restore_threads(got)
+    assert seen["policy"] == (os.SCHED_FIFO, 4)
+
+
+def test_a_refused_request_changes_nothing_and_says_why():
+    before = _policies()
+    got = raise_threads(100)  # above the kernel's maximum: refused on every machine
+    assert got.policy == "normal" and got.threads == 0
+    assert "SCHED_FIFO refused" in got.reason
+    assert got.to_dict() == {"policy": "normal", "reason": got.reason}
+    assert _policies() == before
+
+
+def test_priority_zero_leaves_the_scheduler_alone():
+    before = _policies()
+    got = raise_threads(0)
+    assert got.policy == "normal" and "0" in got.reason
+    assert _policies() == before
+
+
+def test_endpoints_take_two_below_the_hub_and_only_in_realtime():
+    assert endpoint_priority("realtime", 10) == 8
+    assert endpoint_priority("realtime", 2) == 1  # never below the lowest FIFO priority
+    assert endpoint_priority("realtime", 0) == 0
+    assert endpoint_priority("lockstep", 10) == 0
