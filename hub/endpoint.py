@@ -215,6 +215,8 @@ class Endpoint(abc.ABC):
                     if output is not None:
                         publisher.put(output.encode())
                         last_input, timed_out = time.monotonic(), False
+                        if self.steps == 1:  # the input's callback thread has started
+                            self.scheduling.include_new_threads()
                 else:  # a describe query
                     item.reply(item.key_expr, self.description().encode())
                     item.drop()

@@ -285,6 +285,8 @@ class Hub:
             for role in ROLES:
                 self._send(role, *inputs[role])
             late = self._collect(k, self._deadline(k, period_s))
+            if k == 0:  # every thread that carries replies has started by now
+                self.scheduling.include_new_threads()
             prev = {role: self.pending[role].pop(k, None) for role in ROLES}
             self.step_wall_s[k] = time.monotonic() - t0
             if k + 1 < n:

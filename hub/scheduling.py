@@ -34,6 +34,16 @@ class Scheduling:
     reason: str = ""  # why the policy is "normal"
     _previous: dict[int, tuple[int, int]] = field(default_factory=dict, repr=False)
 
+    def include_new_threads(self) -> None:
+        """Raise the threads started since :func:`raise_threads` (none inherit it). Call it
+        once the loop has exchanged a step: zenoh-python starts a callback's thread on the
+        callback's first call."""
+        if self.policy == "fifo":
+            try:
+                _raise(self, [tid for tid in _thread_ids() if tid not in self._previous])
+            except OSError:  # permitted a moment ago; if no longer, the run goes on
+                pass
+
     def to_dict(self) -> dict:
         out = {"policy": self.policy}
         if self.policy == "fifo":
@@ -41,6 +51,9 @@ class Scheduling:
         else:
             out["reason"] = self.reason
         return out
+
+
+_FIFO = getattr(os, "SCHED_FIFO", 1) | getattr(os, "SCHED_RESET_ON_FORK", 0)
 
 
 def endpoint_priority(mode: str, hub_priority: int) -> int:
@@ -66,19 +79,23 @@ def raise_threads(priority: int) -> Scheduling:
     if not hasattr(os, "sched_setscheduler"):
         return Scheduling("normal", reason="this platform has no SCHED_FIFO")
     got = Scheduling("fifo", priority)
-    policy = os.SCHED_FIFO | os.SCHED_RESET_ON_FORK
-    for tid in _thread_ids():
+    try:
+        _raise(got, _thread_ids())
+    except OSError as exc:
+        restore_threads(got)
+        return Scheduling("normal", reason=f"SCHED_FIFO refused: {exc.strerror}")
+    return got
+
+
+def _raise(got: Scheduling, tids: list[int], priority: int | None = None) -> None:
+    for tid in tids:
         try:
             previous = (os.sched_getscheduler(tid), os.sched_getparam(tid).sched_priority)
-            os.sched_setscheduler(tid, policy, os.sched_param(priority))
+            os.sched_setscheduler(tid, _FIFO, os.sched_param(priority or got.priority))
         except ProcessLookupError:  # the thread ended meanwhile
             continue
-        except OSError as exc:
-            restore_threads(got)
-            return Scheduling("normal", reason=f"SCHED_FIFO refused: {exc.strerror}")
         got._previous[tid] = previous
     got.threads = len(got._previous)
-    return got
 
 
 def restore_threads(got: Scheduling) -> None:
@@ -98,8 +115,7 @@ def lower_this_thread(got: Scheduling) -> None:
     tid = threading.get_native_id()
     try:
         if got.policy == "fifo":
-            policy = os.SCHED_FIFO | os.SCHED_RESET_ON_FORK
-            os.sched_setscheduler(tid, policy, os.sched_param(max(got.priority - 1, 1)))
+            _raise(got, [tid], max(got.priority - 1, 1))
         else:
             os.setpriority(os.PRIO_PROCESS, tid, 19)
     except (AttributeError, OSError):

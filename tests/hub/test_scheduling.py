@@ -50,7 +50,8 @@ needs_fifo = pytest.mark.skipif(
 @needs_fifo
 def test_raised_threads_run_fifo_and_are_put_back_afterwards():
     release = threading.Event()
-    earlier = threading.Thread(target=release.wait)
+    earlier = threading.Thread(target=release.wait, daemon=True)
+    waiting = threading.Thread(target=release.wait, daemon=True)  # started once raised
     earlier.start()
     before = _policies()
     got = raise_threads(5)
@@ -72,12 +73,17 @@ def test_raised_threads_run_fifo_and_are_put_back_afterwards():
             check=True,
         )
         assert int(child.stdout) == os.SCHED_OTHER
+        # Threads started since are raised on request (zenoh-python's callback threads).
+        waiting.start()
+        assert _policy(waiting.native_id) == (os.SCHED_OTHER, 0)
+        got.include_new_threads()
+        assert _policy(waiting.native_id) == (os.SCHED_FIFO, 5)
     finally:
         restore_threads(got)
-        release.set()
-        earlier.join()
     after = _policies()
     assert all(after[tid] == before[tid] for tid in after if tid in before)
+    assert after[waiting.native_id] == (os.SCHED_OTHER, 0)
+    release.set()
 
 
 @needs_fifo
