@@ -3,10 +3,11 @@
 The paper detects bursts and network bursts "on the fly". :class:`LiveBursts`
 buffers each step's :class:`~hub.protocol.SpikeBatch` (mapping the culture's
 channel ids to detector indices) and feeds the detector once ``every_ms`` of
-simulated time is buffered (its cost is mostly per call). A feed can go in chunks
-and break off, keeping the rest for the next call, at a deadline or when the caller
-has other work (the lockstep hub feeds it only while it waits for replies), so a
-network burst's thousands of spikes never hold up the loop.
+simulated time is buffered (its cost is mostly per call). Spikes go in in chunks that
+can break off, keeping the rest for the next call, at a deadline or when the caller has
+other work (the lockstep hub feeds it only while it waits for replies), so a network
+burst's thousands of spikes never hold up the loop; what they complete is found in one
+pass once all are in (a pass per chunk would double the cost).
 :class:`BackgroundLiveBursts` runs it on a thread of its own instead (realtime), since
 one feed at the end of a large network burst can take tens of milliseconds of Python.
 """
@@ -95,26 +96,25 @@ class LiveBursts:
                 self.skipped_spikes += stale
                 index, t_ms = index[stale:], t_ms[stale:]
         chunked = deadline is not None or pause is not None
-        done: list[NetworkBurst] = []
         start = 0
         while start < index.size:
             if (deadline is not None and time.monotonic() + self._chunk_s > deadline) or (
                 pause is not None and pause()
             ):
                 self._buffer.append((index[start:], t_ms[start:]))
-                return done
+                return []
             stop = min(start + CHUNK_SPIKES, index.size) if chunked else index.size
-            if stop == index.size:
-                # A spike stamped at the window's very end may round a hair past it.
-                until_ms = max(self._until_ms, t_ms[-1]) if t_ms.size else self._until_ms
-            else:
-                until_ms = t_ms[stop - 1]
             t0 = time.monotonic()
-            self._count(self.detector.feed(index[start:stop], t_ms[start:stop], until_ms), done)
-            self._fed_ms = until_ms
+            # Chunks are only added: what they complete is found in one pass at the end.
+            self.detector.add(index[start:stop], t_ms[start:stop])
+            self._fed_ms = t_ms[stop - 1]
             if deadline is not None:  # running estimate of one chunk's cost
                 self._chunk_s = 0.8 * self._chunk_s + 0.2 * (time.monotonic() - t0)
             start = stop
+        # A spike stamped at the window's very end may round a hair past it.
+        until_ms = max(self._until_ms, t_ms[-1]) if t_ms.size else self._until_ms
+        done: list[NetworkBurst] = []
+        self._count(self.detector.advance(until_ms), done)
         self._fed_ms = self._until_ms
         self._next_ms = self._until_ms + self.every_ms
         return done
