@@ -100,3 +100,32 @@ def test_empty_stream_and_bad_input():
         det.feed([4], [20.0])
     with pytest.raises(AnalysisInputError, match="n_channels"):
         OnlineBurstDetector(0)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_spikes_added_in_pieces_then_advanced_once_give_the_events_of_window_feeds(seed):
+    rng = np.random.default_rng(100 + seed)
+    n, t_stop = 16, 3_000.0
+    ch, t = _random_record(rng, n, t_stop)
+    fed = OnlineBurstDetector(n)
+    expected = _stream(ch, t, fed, 10.0, t_stop)
+    added = OnlineBurstDetector(n)
+    events = []
+    for w0 in np.arange(0.0, t_stop + 100.0, 100.0):  # what the hub does: add, then advance
+        sel = np.flatnonzero((t >= w0) & (t < w0 + 100.0))
+        for piece in np.array_split(sel, 4):
+            added.add(ch[piece], t[piece])
+        events += added.advance(w0 + 100.0)
+    events += added.flush()
+    assert np.array_equal(added.bursts, fed.bursts)
+    assert sorted(map(repr, events)) == sorted(map(repr, expected))
+
+
+def test_adds_must_keep_time_order_and_a_window_end_must_follow_them():
+    det = OnlineBurstDetector(4)
+    det.add([1, 2], [5.0, 7.0])
+    with pytest.raises(AnalysisInputError, match="previous window end"):
+        det.add([1], [6.0])
+    with pytest.raises(AnalysisInputError, match="until_ms must be >= the last spike time 7.0"):
+        det.advance(6.5)
+    assert det.advance(8.0) == []
