@@ -9,6 +9,7 @@
 
     python bench/closed_loop.py                 # 60 s lockstep + 60 s realtime
     python bench/closed_loop.py --seconds 20
+    python bench/closed_loop.py --realtime-priority 0   # realtime under the ordinary scheduler
 
 The last line printed is one JSON object.
 """
@@ -26,8 +27,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 
 
-def run(mode: str, seconds: float, runs_dir: Path) -> dict:
-    cmd = [sys.executable, "-m", "hub.cli", "run", "configs/closed_loop.toml", "--quiet"]
+def run(mode: str, seconds: float, runs_dir: Path, *extra: str) -> dict:
+    cmd = [sys.executable, "-m", "hub.cli", "run", "configs/closed_loop.toml", "--quiet", *extra]
     cmd += ["--mode", mode, "--duration-s", str(seconds), "--runs-dir", str(runs_dir)]
     cmd += ["--session", f"bench-closed-loop-{mode}"]
     proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True)
@@ -37,9 +38,17 @@ def run(mode: str, seconds: float, runs_dir: Path) -> dict:
     return json.loads((run_dir / "manifest.json").read_text())
 
 
+def _scheduling(s: dict) -> str:
+    """``fifo 10`` or ``normal``: the hub's threads during a realtime run."""
+    return f"fifo {s['priority']}" if s["policy"] == "fifo" else "normal"
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--seconds", type=float, default=60.0, help="simulated seconds per run")
+    parser.add_argument(
+        "--realtime-priority", type=int, help="loop.realtime_priority of the realtime run"
+    )
     args = parser.parse_args()
     out = {}
     with tempfile.TemporaryDirectory() as tmp:
@@ -76,10 +85,15 @@ def main() -> None:
     out.update({f"cpu_us_per_step_{k}": round(v, 1) for k, v in cpu_us.items()})
     out.update({k: round(v, 4) for k, v in shares.items()})
     with tempfile.TemporaryDirectory() as tmp:
-        m = run("realtime", args.seconds, Path(tmp) / "realtime")
+        extra = []
+        if args.realtime_priority is not None:
+            extra = ["--set", f"loop.realtime_priority={args.realtime_priority}"]
+        m = run("realtime", args.seconds, Path(tmp) / "realtime", *extra)
     t = m["timing"]
+    sched = t["scheduling"]
     print(
-        f"realtime 10 ms, {t['steps']} steps: late steps {t['late_steps']}, lateness median "
+        f"realtime 10 ms ({_scheduling(sched)}), {t['steps']} steps: late steps "
+        f"{t['late_steps']}, lateness median "
         f"{t['lateness_ms_median']:.3f} ms, p99 {t['lateness_ms_p99']:.3f} ms, "
         f"max {t['lateness_ms_max']:.3f} ms; missing {m['counts']['missing']}"
     )
@@ -87,6 +101,7 @@ def main() -> None:
     out["rt10_p99_lateness_ms"] = round(t["lateness_ms_p99"], 4)
     out["rt10_median_lateness_ms"] = round(t["lateness_ms_median"], 4)
     out["rt10_max_lateness_ms"] = round(t["lateness_ms_max"], 3)
+    out["rt_scheduling"] = _scheduling(sched)
     out["seconds"] = args.seconds
     print(json.dumps(out))
 

@@ -8,6 +8,7 @@ of ``tests/endpoints.py`` (they do no work), so the figures are the loop's own.
 
     python bench/loop.py            # 10,000 steps per figure (about 2 minutes)
     python bench/loop.py --steps 2000
+    python bench/loop.py --realtime-priority 0     # realtime under the ordinary scheduler
 
 The last line printed is one JSON object.
 """
@@ -44,8 +45,10 @@ TRIVIAL = [
 ]
 
 
-def run_once(mode: str, period_ms: float, steps: int) -> dict:
-    overrides = TRIVIAL + [
+def run_once(mode: str, period_ms: float, steps: int, *extra: str) -> dict:
+    overrides = [
+        *TRIVIAL,
+        *extra,
         f'bus.session="bench-{os.getpid()}-{mode}-{period_ms:g}"',
         f'bus.listen=["tcp/127.0.0.1:{free_tcp_port()}"]',
         f'loop.mode="{mode}"',
@@ -115,6 +118,7 @@ def zenoh_round_trip_us(n: int = 2000) -> float:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--steps", type=int, default=10_000)
+    parser.add_argument("--realtime-priority", type=int, help="loop.realtime_priority")
     parser.add_argument("--echo", type=int, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.echo:
@@ -131,11 +135,18 @@ def main() -> None:
     )
     out = {"lockstep_steps_per_s": round(lock["steps_per_s"], 1)}
     out["zenoh_round_trip_us"] = round(rtt_us, 1)
+    extra = []
+    if args.realtime_priority is not None:
+        extra = [f"loop.realtime_priority={args.realtime_priority}"]
     for period in (10.0, 1.0):
-        t = run_once("realtime", period, n)
+        t = run_once("realtime", period, n, *extra)
         tag = f"rt{period:g}"
+        sched = t["scheduling"]
+        sched = f"fifo {sched['priority']}" if sched["policy"] == "fifo" else "normal"
+        out["rt_scheduling"] = sched
         print(
-            f"realtime {period:4g} ms {n} steps: lateness median {t['lateness_ms_median']:.3f} ms"
+            f"realtime {period:4g} ms ({sched}) {n} steps: "
+            f"lateness median {t['lateness_ms_median']:.3f} ms"
             f"  p99 {t['lateness_ms_p99']:.3f} ms  max {t['lateness_ms_max']:.3f} ms  "
             f"late steps {t['late_steps']} ({100 * t['late_share']:.2f} %)"
         )
