@@ -14,7 +14,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import operator
+import sys
+import threading
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
@@ -26,6 +27,7 @@ SCHEMA_VERSION = 1
 ROLES = ("body", "culture")
 MAX_MESSAGE_BYTES = 64 * 1024 * 1024
 SMALL_ARRAY = 64
+_FMAX = sys.float_info.max  # a finite bound: ``-_FMAX <= x <= _FMAX`` is False for NaN and inf
 
 
 class ProtocolError(ValueError):
@@ -203,8 +205,8 @@ def _decode_array(name: str, spec: Array, value: Any) -> np.ndarray:
         raise ProtocolError(
             "array", f"{name} has {len(value)} bytes, not a multiple of {dtype.itemsize}"
         )
-    arr = np.frombuffer(value, dtype=dtype)
-    return arr if dtype.isnative else arr.astype(dtype.newbyteorder("="))
+    arr = np.frombuffer(value, dtype)  # read-only: it views the immutable bytes
+    return arr if dtype.isnative else arr.astype(spec.native)
 
 
 def _as_array(name: str, spec: Array, value: Any) -> np.ndarray:
@@ -240,49 +242,69 @@ def _check_array_values(name: str, spec: Array, arr: np.ndarray) -> None:
         raise ProtocolError("range", f"{name} must be <= {spec.max}, got {hi}")
 
 
+def _valid_values(spec: Array) -> Callable[[np.ndarray], bool]:
+    """A predicate on a 1-D array of the schema's dtype: True if its length and values
+    pass (finite if float, inside the bounds); False sends it to the full check."""
+    length, is_float = spec.length, spec.native.kind == "f"
+    has_min, has_max = spec.min is not None, spec.max is not None
+    lo = spec.min if has_min else -_FMAX
+    hi = spec.max if has_max else _FMAX
+    if not (is_float or has_min or has_max):
+        return lambda arr: length is None or arr.size == length
+
+    def valid(arr):
+        size = arr.size
+        if length is not None and size != length:
+            return False
+        if not size:
+            return True
+        if size > SMALL_ARRAY:  # min and max propagate NaN
+            return lo <= float(arr.min()) and float(arr.max()) <= hi
+        values = arr.tolist()  # plain Python is faster than numpy calls here
+        # A sum of floats is finite only if every value is (a float64 sum can also
+        # overflow: that array just takes the full check).
+        if is_float and not math.isfinite(sum(values)):
+            return False
+        return (not has_min or lo <= min(values)) and (not has_max or max(values) <= hi)
+
+    return valid
+
+
 def _quick_check(spec) -> Callable[[Any], bool]:
     """A predicate that is True only for a value the full check would take unchanged
-    (exact type, in range); anything else, valid or not, gets the full check."""
+    (exact type, in range); anything else, valid or not, gets the full check.
+
+    Bounds left open in the schema are ``±_FMAX`` here, so one chained comparison
+    also rejects NaN and infinities."""
     if isinstance(spec, Scalar):
-        kind, lo, hi, optional = spec.kind, spec.min, spec.max, spec.optional
+        kind, optional = spec.kind, spec.optional
+        lo = -_FMAX if spec.min is None else spec.min
+        hi = _FMAX if spec.max is None else spec.max
         if kind is float:
-            lo = -math.inf if lo is None else lo
-            hi = math.inf if hi is None else hi
-
-            def accepts(value):  # a NaN fails both comparisons
-                return type(value) is float and lo <= value <= hi and value - value == 0.0
-
-        else:
-            lo = -math.inf if lo is None else lo
-            hi = math.inf if hi is None else hi
-            ranged = kind is int
 
             def accepts(value):
-                return type(value) is kind and (not ranged or lo <= value <= hi)
+                return type(value) is float and lo <= value <= hi
+
+        elif kind is int:
+
+            def accepts(value):
+                return type(value) is int and lo <= value <= hi
+
+        else:
+
+            def accepts(value):
+                return type(value) is kind
 
     elif isinstance(spec, Array):
-        dtype, length, optional = spec.native, spec.length, spec.optional
-        ranged = dtype.kind == "f" or spec.min is not None or spec.max is not None
-        lo = -math.inf if spec.min is None else spec.min
-        hi = math.inf if spec.max is None else spec.max
+        dtype, optional, valid = spec.native, spec.optional, _valid_values(spec)
 
         def accepts(value):
             if type(value) is not np.ndarray or value.ndim != 1 or value.dtype != dtype:
                 return False
-            if length is not None and value.size != length:
+            if not valid(value):
                 return False
-            if ranged and value.size:
-                if value.size > SMALL_ARRAY:  # min and max propagate NaN
-                    low, high = float(value.min()), float(value.max())
-                    finite = math.isfinite(low) and math.isfinite(high)
-                else:
-                    values = value.tolist()
-                    low, high = min(values), max(values)
-                    finite = dtype.kind != "f" or all(map(math.isfinite, values))
-                if not (finite and lo <= low and high <= hi):
-                    return False
-            if value.base is None:
-                value.flags.writeable = False
+            if value.base is None:  # setflags costs half of flags.writeable = False
+                value.setflags(write=False)
             return True
 
     elif isinstance(spec, Mapping):
@@ -302,6 +324,36 @@ def _quick_check(spec) -> Callable[[Any], bool]:
     return accepts
 
 
+def _to_wire(spec) -> Callable[[np.ndarray], bytes] | None:
+    """How a field's value goes on the wire: None for a value msgpack takes as it is,
+    else array → little-endian bytes (no conversion on a little-endian machine)."""
+    if not isinstance(spec, Array):
+        return None
+    if spec.wire.isnative:
+        return np.ndarray.tobytes
+    return lambda arr: arr.astype(spec.wire).tobytes()
+
+
+def _leader(leaders: dict[str, str], name: str, spec) -> str | None:
+    """The field whose length ``name`` must share (the first of its group), if any;
+    ``leaders`` collects the first field of each group."""
+    group = getattr(spec, "group", None)
+    if group is None:
+        return None
+    leader = leaders.setdefault(group, name)
+    return None if leader == name else leader
+
+
+def _empty(dtype: str) -> Callable[[], np.ndarray]:
+    """A ``default_factory`` of one shared empty array: read-only, like every message
+    array, so sharing it is safe and saves an allocation per message."""
+    empty = np.frombuffer(b"", np.dtype(dtype).newbyteorder("="))
+    return lambda: empty
+
+
+_PER_THREAD = threading.local()  # a msgpack Packer per thread: reused, never shared
+
+
 # --------------------------------------------------------------------------- base
 
 
@@ -318,10 +370,18 @@ class Message:
     def __init_subclass__(cls, **kwargs):
         super().__init_subclass__(**kwargs)
         cls._KNOWN = frozenset(cls.SCHEMA) | {"v"}
-        cls._QUICK = tuple(
-            (name, _quick_check(spec), getattr(spec, "group", None))
-            for name, spec in cls.SCHEMA.items()
-        )
+        leaders: dict[str, str] = {}  # group → its first field
+        quick, decode = [], []
+        for name, spec in cls.SCHEMA.items():
+            accepts, leader = _quick_check(spec), _leader(leaders, name, spec)
+            quick.append((name, accepts, leader))
+            # An array viewed from its bytes already has the schema's dtype: only its
+            # values need checking. On a big-endian machine arrays take the full path.
+            wire = spec.wire if isinstance(spec, Array) and spec.wire.isnative else None
+            valid = accepts if wire is None else _valid_values(spec)
+            decode.append((name, wire, valid, spec.optional, leader))
+        cls._QUICK, cls._DECODE = tuple(quick), tuple(decode)
+        cls._TO_WIRE = tuple((name, _to_wire(spec)) for name, spec in cls.SCHEMA.items())
 
     def __post_init__(self):
         if not self._accepted_at_once():
@@ -333,13 +393,14 @@ class Message:
         and passes its checks, so nothing needs converting. False sends the message to
         :meth:`_validate_fields`, which converts what it can and names what is wrong."""
         values = self.__dict__
-        sizes: dict[str, int] = {}
-        for name, accepts, group in self._QUICK:
+        for name, accepts, leader in self._QUICK:
             value = values[name]
             if not accepts(value):
                 return False
-            if group and value is not None and sizes.setdefault(group, value.size) != value.size:
-                return False
+            if leader and value is not None:
+                first = values[leader]
+                if first is None or first.size != value.size:
+                    return False
         return True
 
     def _validate_fields(self) -> None:
@@ -380,17 +441,19 @@ class Message:
     def to_dict(self) -> dict[str, Any]:
         """The msgpack-ready map: arrays as little-endian bytes, ``v`` added."""
         out: dict[str, Any] = {"v": SCHEMA_VERSION}
-        for name, spec in self.SCHEMA.items():
-            value = getattr(self, name)
-            if value is None:
-                continue
-            if isinstance(spec, Array):
-                value = value.astype(spec.wire, copy=False).tobytes()
-            out[name] = value
+        values = self.__dict__
+        for name, to_wire in self._TO_WIRE:
+            value = values[name]
+            if value is not None:
+                out[name] = value if to_wire is None else to_wire(value)
         return out
 
     def encode(self) -> bytes:
-        return msgpack.packb(self.to_dict(), use_bin_type=True)
+        try:
+            pack = _PER_THREAD.pack
+        except AttributeError:  # this thread's first message (packb builds a Packer per call)
+            pack = _PER_THREAD.pack = msgpack.Packer(use_bin_type=True).pack
+        return pack(self.to_dict())
 
     @classmethod
     def decode(cls, raw: bytes | bytearray | memoryview):
@@ -400,12 +463,40 @@ class Message:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]):
+        """Validate a decoded map. The fast path fills a bare instance (the dataclass
+        ``__init__`` costs more than the checks of a small message): arrays viewed
+        straight from their bytes, so only their values need checking, and the other
+        fields through the constructor's quick checks. Anything else takes the full
+        path, through the constructor, which names what is wrong."""
         version = data.get("v")
         if version != SCHEMA_VERSION:
             raise ProtocolError("version", f"v must be {SCHEMA_VERSION}, got {version!r}")
         if not data.keys() <= cls._KNOWN:
             unknown = sorted(set(data) - cls._KNOWN)
             raise ProtocolError("unknown", f"{cls.__name__} has no field(s) {unknown}")
+        message = object.__new__(cls)
+        values = message.__dict__
+        for name, wire, valid, optional, leader in cls._DECODE:
+            value = data.get(name)
+            if wire is None:  # not an array: ``valid`` is the constructor's quick check
+                ok = valid(value)
+            elif type(value) is bytes and not len(value) % wire.itemsize:
+                value = np.frombuffer(value, wire)  # read-only: a view of immutable bytes
+                ok = valid(value)
+            else:
+                ok = value is None and optional
+            if not ok:
+                return cls._from_dict_in_full(data)
+            if leader and value is not None:
+                first = values[leader]
+                if first is None or first.size != value.size:
+                    return cls._from_dict_in_full(data)
+            values[name] = value
+        message._check()
+        return message
+
+    @classmethod
+    def _from_dict_in_full(cls, data: dict[str, Any]):
         values = {}
         for name, spec in cls.SCHEMA.items():
             if name not in data:
@@ -438,8 +529,10 @@ def unpack_map(raw: bytes | bytearray | memoryview) -> dict[str, Any]:
     """msgpack bytes → dict with str keys, or :class:`ProtocolError`."""
     if len(raw) > MAX_MESSAGE_BYTES:
         raise ProtocolError("not_msgpack", f"message of {len(raw)} bytes exceeds the limit")
+    if type(raw) is not bytes:  # decoded arrays view the payload: it must be immutable
+        raw = bytes(raw)
     try:
-        data = msgpack.unpackb(bytes(raw), raw=False, strict_map_key=True)
+        data = msgpack.unpackb(raw, raw=False, strict_map_key=True)
     except Exception as exc:  # msgpack raises several unrelated types
         raise ProtocolError("not_msgpack", f"undecodable payload ({type(exc).__name__})") from None
     if not isinstance(data, dict):
@@ -500,10 +593,10 @@ class Stimulation(Message):
     """Hub → culture: the pulses to deliver during a step (parallel arrays)."""
 
     step: int
-    channel: np.ndarray = field(default_factory=lambda: np.zeros(0, np.uint32))
-    amplitude_ua: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
-    width_ms: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
-    onset_ms: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
+    channel: np.ndarray = field(default_factory=_empty("<u4"))
+    amplitude_ua: np.ndarray = field(default_factory=_empty("<f4"))
+    width_ms: np.ndarray = field(default_factory=_empty("<f4"))
+    onset_ms: np.ndarray = field(default_factory=_empty("<f4"))
 
     SCHEMA = {
         "step": _STEP,
@@ -525,8 +618,8 @@ class SpikeBatch(Message):
     step: int
     t0_s: float
     t1_s: float
-    channel: np.ndarray = field(default_factory=lambda: np.zeros(0, np.uint32))
-    t_ms: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
+    channel: np.ndarray = field(default_factory=_empty("<u4"))
+    t_ms: np.ndarray = field(default_factory=_empty("<f4"))
 
     SCHEMA = {
         "step": _STEP,
@@ -541,15 +634,17 @@ class SpikeBatch(Message):
             raise ProtocolError("inconsistent", f"t1_s {self.t1_s} precedes t0_s {self.t0_s}")
         t_ms = self.t_ms
         if t_ms.size:
-            if t_ms.size <= SMALL_ARRAY:
+            if t_ms.size <= SMALL_ARRAY:  # values are finite here: sorted() is a full order
                 values = t_ms.tolist()
-                unsorted = any(map(operator.gt, values, values[1:]))
+                unsorted = values != sorted(values)
+                last = values[-1]
             else:
                 unsorted = bool((t_ms[1:] < t_ms[:-1]).any())
+                last = float(t_ms[-1])
             if unsorted:
                 raise ProtocolError("inconsistent", "t_ms must be sorted")
             window_ms = (self.t1_s - self.t0_s) * 1e3
-            if t_ms[-1] > window_ms * (1 + 1e-6) + 1e-3:
+            if last > window_ms * (1 + 1e-6) + 1e-3:
                 raise ProtocolError(
                     "range", f"t_ms {t_ms[-1]} lies beyond the {window_ms} ms window"
                 )

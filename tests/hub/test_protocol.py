@@ -1,6 +1,8 @@
 """The wire contract: every message round-trips, and every kind of bad input is rejected."""
 
+import dataclasses
 import math
+import threading
 
 import msgpack
 import numpy as np
@@ -249,3 +251,229 @@ def test_the_quick_validation_path_accepts_only_what_the_full_one_leaves_unchang
 @pytest.mark.parametrize("example", EXAMPLES[:6], ids=lambda m: type(m).__name__)
 def test_valid_loop_messages_take_the_quick_validation_path(example):
     assert example._accepted_at_once()
+
+
+# --------------------------------------------------------------------------- decoding fast path
+
+LOOP_TYPES = (MotorCommand, SensorReading, Stimulation, SpikeBatch)
+MESSAGE_TYPES = {type(m) for m in EXAMPLES}
+
+
+@pytest.mark.parametrize("kind", sorted(MESSAGE_TYPES, key=lambda k: k.__name__), ids=str)
+def test_every_dataclass_field_is_in_the_schema(kind):
+    # from_dict fills a bare instance with the SCHEMA fields only
+    assert [f.name for f in dataclasses.fields(kind)] == list(kind.SCHEMA)
+
+
+@pytest.mark.parametrize("message", EXAMPLES, ids=lambda m: type(m).__name__)
+def test_valid_messages_decode_on_the_fast_path_and_re_encode_to_the_same_bytes(
+    message, monkeypatch
+):
+    def full_path(data):
+        raise AssertionError("a valid message took the full path")
+
+    monkeypatch.setattr(type(message), "_from_dict_in_full", full_path)
+    raw = message.encode()
+    back = type(message).decode(raw)
+    assert back == message
+    assert back.encode() == raw
+    for name, spec in back.SCHEMA.items():
+        value = getattr(back, name)
+        if isinstance(spec, Array) and value is not None:
+            assert value.dtype == spec.native and not value.flags.writeable
+
+
+def _spikes(**fields):
+    base = {
+        "v": 1,
+        "step": 3,
+        "t0_s": 0.03,
+        "t1_s": 0.04,
+        "channel": np.array([4, 1, 9], "<u4").tobytes(),
+        "t_ms": np.array([0.5, 2.0, 9.5], "<f4").tobytes(),
+    }
+    base.update(fields)
+    return msgpack.packb({k: v for k, v in base.items() if v is not ...}, use_bin_type=True)
+
+
+def _pulses(**fields):
+    base = {
+        "v": 1,
+        "step": 3,
+        "channel": np.array([4, 1], "<u4").tobytes(),
+        "amplitude_ua": np.array([10, 20], "<f4").tobytes(),
+        "width_ms": np.array([0.2, 0.2], "<f4").tobytes(),
+        "onset_ms": np.array([0.0, 5.0], "<f4").tobytes(),
+    }
+    base.update(fields)
+    return msgpack.packb({k: v for k, v in base.items() if v is not ...}, use_bin_type=True)
+
+
+def _f4(*values):
+    return np.array(values, "<f4").tobytes()
+
+
+LONG = SMALL_ARRAY + 6  # past the plain-Python size: numpy reductions check the values
+
+
+@pytest.mark.parametrize(
+    "kind, raw, error",
+    [
+        (SpikeBatch, _spikes(), None),
+        (SpikeBatch, _spikes(step=...), "missing"),
+        (SpikeBatch, _spikes(step=None), "missing"),
+        (SpikeBatch, _spikes(t_ms=...), "missing"),  # defaults are the constructor's only
+        (SpikeBatch, _spikes(step=-1), "range"),
+        (SpikeBatch, _spikes(step=1.0), "type"),
+        (SpikeBatch, _spikes(t0_s=float("inf"), t1_s=float("inf")), "non_finite"),
+        (SpikeBatch, _spikes(t0_s=-0.01), "range"),
+        (SpikeBatch, _spikes(t0_s=0), None),  # an int where a float is due: converted
+        (SpikeBatch, _spikes(t1_s=0.02), "inconsistent"),  # precedes t0_s
+        (SpikeBatch, _spikes(t_ms=_f4(0.5, float("nan"), 9.5)), "non_finite"),
+        (SpikeBatch, _spikes(t_ms=_f4(0.5, float("inf"), 9.5)), "non_finite"),
+        (SpikeBatch, _spikes(t_ms=_f4(-0.5, 2.0, 9.5)), "range"),
+        (SpikeBatch, _spikes(t_ms=_f4(0.5, 9.5, 2.0)), "inconsistent"),  # unsorted
+        (SpikeBatch, _spikes(t_ms=_f4(0.5, 2.0, 10.5)), "range"),  # beyond the window
+        (SpikeBatch, _spikes(t_ms=_f4(0.5, 2.0)), "inconsistent"),  # group length
+        (SpikeBatch, _spikes(t_ms=_f4(0.5, 2.0, 9.5)[:-1]), "array"),  # not whole float32
+        (SpikeBatch, _spikes(t_ms=np.array([0.5, 2.0, 9.5]).tobytes()), "inconsistent"),
+        (SpikeBatch, _spikes(t_ms=[0.5, 2.0, 9.5]), "type"),
+        (SpikeBatch, _spikes(channel="abc"), "type"),
+        (SpikeBatch, _spikes(channel=None), "type"),  # as ever: nil is not bin
+        (
+            SpikeBatch,
+            _spikes(
+                channel=np.zeros(LONG, "<u4").tobytes(),
+                t_ms=np.r_[np.linspace(0, 9, LONG - 1), np.nan].astype("<f4").tobytes(),
+            ),
+            "non_finite",
+        ),
+        (
+            SpikeBatch,
+            _spikes(
+                channel=np.zeros(LONG, "<u4").tobytes(),
+                t_ms=np.linspace(9, 0, LONG).astype("<f4").tobytes(),
+            ),
+            "inconsistent",
+        ),
+        (Stimulation, _pulses(), None),
+        (Stimulation, _pulses(onset_ms=_f4(0.0, -1.0)), "range"),
+        (Stimulation, _pulses(width_ms=_f4(0.2, float("nan"))), "non_finite"),
+        (Stimulation, _pulses(amplitude_ua=_f4(10, float("-inf"))), "non_finite"),
+        (Stimulation, _pulses(amplitude_ua=_f4(-10, 20)), None),  # no bound on amplitude
+        (Stimulation, _pulses(amplitude_ua=_f4(10)), "inconsistent"),
+        (Stimulation, _pulses(onset_ms=_f4(0.0)), "inconsistent"),
+        (Stimulation, _pulses(channel=...), "missing"),
+        (Stimulation, _pulses(channel=b"", amplitude_ua=b"", width_ms=b"", onset_ms=b""), None),
+        (Stimulation, _pulses(channel=b"\x01\x00\x00"), "array"),
+        (Stimulation, _pulses(extra=1), "unknown"),
+        (Stimulation, _pulses(v=2), "version"),
+        (MotorCommand, msgpack.packb({"v": 1, "step": 0, "left_mps": 0.0}), "missing"),
+        (MotorCommand, msgpack.packb({"v": 1, "step": 0, "left_mps": 0, "right_mps": 1}), None),
+        (
+            MotorCommand,
+            msgpack.packb({"v": 1, "step": 0, "left_mps": 0.0, "right_mps": 1e400}),
+            "non_finite",
+        ),
+        (
+            MotorCommand,
+            msgpack.packb({"v": 1, "step": 0, "left_mps": 0.0, "right_mps": 0.0, "v_mps": None}),
+            None,
+        ),
+        (
+            MotorCommand,
+            msgpack.packb(
+                {"v": 1, "step": 0, "left_mps": 0.0, "right_mps": 0.0, "omega_rad_s": True}
+            ),
+            "type",
+        ),
+    ],
+    ids=lambda v: v.__name__ if isinstance(v, type) else (v if isinstance(v, str) else ""),
+)
+def test_the_fast_and_full_decoding_paths_agree(kind, raw, error):
+    """Each case is decoded both ways: the same message, or the same ProtocolError."""
+    data = msgpack.unpackb(raw)
+    fast, full = _outcome(kind.from_dict, data), _outcome(kind._from_dict_in_full, data)
+    if error is None:
+        assert isinstance(fast, kind) and fast == full
+        assert kind.decode(raw) == fast
+    elif error in ("version", "unknown"):  # checked before the paths part
+        assert fast[0] == error
+    else:
+        assert fast == full and fast[0] == error
+        with pytest.raises(ProtocolError) as err:
+            kind.decode(raw)
+        assert err.value.kind == error
+
+
+def _wire_value_for(spec):
+    """A field's value as it may arrive: arrays as bytes of any dtype (so of any length,
+    with any bits), otherwise as :func:`_value_for` draws it."""
+    if isinstance(spec, Array):
+        as_bytes = _value_for(spec).map(np.ndarray.tobytes)
+        return st.one_of(as_bytes, as_bytes, as_bytes, st.none(), st.just([1.0]))
+    return _value_for(spec)
+
+
+@given(st.data())
+def test_the_fast_decoding_path_agrees_with_the_full_one_on_any_map(data):
+    for kind in LOOP_TYPES:
+        fields = {
+            name: data.draw(_wire_value_for(spec), label=name) for name, spec in kind.SCHEMA.items()
+        }
+        if kind is SpikeBatch and type(fields["t_ms"]) is bytes:  # often sorted and in window
+            fields["t1_s"] = 1e9
+            if data.draw(st.booleans(), label="sorted"):
+                n = len(fields["t_ms"]) // 4
+                fields["t_ms"] = np.sort(np.frombuffer(fields["t_ms"][: 4 * n], "<f4")).tobytes()
+        some = st.sets(st.sampled_from(list(fields)), max_size=2)
+        absent = data.draw(st.one_of(st.just(set()), st.just(set()), some), label="absent")
+        wire = {"v": 1} | {k: v for k, v in fields.items() if k not in absent}
+
+        fast, full = _outcome(kind.from_dict, wire), _outcome(kind._from_dict_in_full, wire)
+        assert fast == full
+
+
+def _outcome(from_dict, data):
+    """The message, or the kind and text of the ProtocolError."""
+    try:
+        return from_dict(data)
+    except ProtocolError as exc:
+        return exc.kind, str(exc)
+
+
+def test_default_arrays_are_shared_read_only_and_decoded_ones_read_only_from_any_buffer():
+    a, b = Stimulation(step=1), Stimulation(step=2)
+    assert a.channel is b.channel and not a.channel.flags.writeable
+    assert a.channel.dtype == np.uint32 and a.onset_ms.dtype == np.float32
+    raw = EXAMPLES[5].encode()
+    for buffer in (bytearray(raw), memoryview(raw)):
+        m = SpikeBatch.decode(buffer)
+        assert m == EXAMPLES[5] and not m.t_ms.flags.writeable
+    fresh = np.array([0.1, 0.2], np.float32)
+    SensorReading(step=1, t_s=0.0, ranges_m=fresh, pose=[0, 0, 0], contact=False)
+    assert not fresh.flags.writeable
+
+
+def test_encoding_from_many_threads_at_once_gives_each_its_own_bytes():
+    expected = [m.encode() for m in EXAMPLES]
+    failures = []
+
+    def encode_all():
+        for _ in range(200):
+            if [m.encode() for m in EXAMPLES] != expected:
+                failures.append(1)
+
+    threads = [threading.Thread(target=encode_all) for _ in range(4)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert not failures
+
+
+def test_a_message_that_fails_to_encode_leaves_the_next_one_whole():
+    bad = ControlReply(ok=True, state="x", data={"x": object()})
+    with pytest.raises(TypeError):
+        bad.encode()
+    assert ControlRequest.decode(ControlRequest(cmd="stop").encode()) == ControlRequest(cmd="stop")

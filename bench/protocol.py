@@ -1,0 +1,129 @@
+"""Benchmark of the wire layer (``hub/protocol.py``): CPU microseconds per call.
+
+Per loop message type, at the sizes a closed loop sends (SpikeBatch with 0-300 spikes,
+Stimulation empty and with 7 pulses, SensorReading with 7 ranges, MotorCommand), times
+construction from values already in their wire types, ``encode()`` and ``decode()``.
+Figures are CPU time (``time.process_time``) per call: each is the median over
+``--repeat`` rounds of enough calls to last about ``--round-s`` seconds, so another
+process on the machine changes them little.
+
+    .venv/bin/python bench/protocol.py             # about 15 s
+    .venv/bin/python bench/protocol.py --repeat 3  # quicker
+
+The last line printed is one JSON object (keys ``<op>_us_<message>_<size>``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from hub.protocol import MotorCommand, SensorReading, SpikeBatch, Stimulation  # noqa: E402
+
+
+def per_call_us(fn, repeat: int, round_s: float) -> float:
+    """Median CPU microseconds of one ``fn()`` call over ``repeat`` rounds."""
+    number, spent = 1, 0.0
+    while spent < round_s / 10:  # calibrate: a round lasts about round_s
+        number *= 2
+        start = time.process_time()
+        for _ in range(number):
+            fn()
+        spent = time.process_time() - start
+    number = max(1, int(number * round_s / max(spent, 1e-9)))
+    rounds = []
+    for _ in range(repeat):
+        start = time.process_time()
+        for _ in range(number):
+            fn()
+        rounds.append((time.process_time() - start) / number * 1e6)
+    return statistics.median(rounds)
+
+
+def spike_batch_fields(n: int, rng: np.random.Generator) -> dict:
+    return dict(
+        step=5,
+        t0_s=0.05,
+        t1_s=0.06,
+        channel=rng.integers(0, 1024, n).astype(np.uint32),
+        t_ms=np.sort(rng.uniform(0.0, 10.0, n)).astype(np.float32),
+    )
+
+
+def stimulation_fields(n: int, rng: np.random.Generator) -> dict:
+    if n == 0:
+        return dict(step=5)
+    return dict(
+        step=5,
+        channel=np.arange(n, dtype=np.uint32),
+        amplitude_ua=rng.uniform(10, 50, n).astype(np.float32),
+        width_ms=np.full(n, 0.2, dtype=np.float32),
+        onset_ms=rng.uniform(0, 9.9, n).astype(np.float32),
+    )
+
+
+def sensor_reading_fields(n: int, rng: np.random.Generator) -> dict:
+    return dict(
+        step=5,
+        t_s=0.06,
+        ranges_m=rng.uniform(0.0, 0.3, n).astype(np.float32),
+        pose=np.array([0.1, -0.2, 1.5]),
+        contact=False,
+    )
+
+
+def motor_command_fields(n: int, rng: np.random.Generator) -> dict:
+    return dict(step=5, left_mps=0.1, right_mps=-0.05, v_mps=0.025, omega_rad_s=-2.8)
+
+
+CASES = [  # (message type, its fields, size label, size)
+    (SpikeBatch, spike_batch_fields, 0),
+    (SpikeBatch, spike_batch_fields, 3),
+    (SpikeBatch, spike_batch_fields, 30),
+    (SpikeBatch, spike_batch_fields, 300),
+    (Stimulation, stimulation_fields, 0),
+    (Stimulation, stimulation_fields, 7),
+    (SensorReading, sensor_reading_fields, 7),
+    (MotorCommand, motor_command_fields, 0),
+]
+
+
+def main(argv=None) -> dict:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--repeat", type=int, default=5, help="rounds per figure (median taken)")
+    p.add_argument("--round-s", type=float, default=0.05, help="CPU seconds per round")
+    args = p.parse_args(argv)
+    rng = np.random.default_rng(1)
+    result = {}
+    for cls, make, n in CASES:
+        fields = make(n, rng)
+        message = cls(**fields)
+        raw = message.encode()
+        assert cls.decode(raw) == message
+        label = cls.__name__.lower() + ("" if cls is MotorCommand else f"_{n or 'empty'}")
+        ops = {
+            "construct": lambda cls=cls, fields=fields: cls(**fields),
+            "encode": message.encode,
+            "decode": lambda cls=cls, raw=raw: cls.decode(raw),
+        }
+        line = []
+        for op, fn in ops.items():
+            us = per_call_us(fn, args.repeat, args.round_s)
+            result[f"{op}_us_{label}"] = round(us, 2)
+            line.append(f"{op} {us:6.2f} us")
+        print(f"{label:<22} ({len(raw):5d} bytes): " + ", ".join(line), flush=True)
+    print(json.dumps(result))
+    return result
+
+
+if __name__ == "__main__":
+    main()
