@@ -7,7 +7,7 @@ Figures are CPU time (``time.process_time``) per call: each is the median over
 ``--repeat`` rounds of enough calls to last about ``--round-s`` seconds, so another
 process on the machine changes them little.
 
-    .venv/bin/python bench/protocol.py             # about 15 s
+    .venv/bin/python bench/protocol.py             # about 6 s
     .venv/bin/python bench/protocol.py --repeat 3  # quicker
 
 The last line printed is one JSON object (keys ``<op>_us_<message>_<size>``).
@@ -85,7 +85,7 @@ def motor_command_fields(n: int, rng: np.random.Generator) -> dict:
     return dict(step=5, left_mps=0.1, right_mps=-0.05, v_mps=0.025, omega_rad_s=-2.8)
 
 
-CASES = [  # (message type, its fields, size label, size)
+CASES = [  # (message type, a maker of its fields, size)
     (SpikeBatch, spike_batch_fields, 0),
     (SpikeBatch, spike_batch_fields, 3),
     (SpikeBatch, spike_batch_fields, 30),
