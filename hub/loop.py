@@ -62,6 +62,9 @@ ONLINE_EVERY_MS = 100.0
 # Python's default, 5 ms, would let live analysis hold up a step start (realtime) or keep
 # Zenoh's callback from handing the loop a reply (both modes).
 GIL_SWITCH_S = 2e-4
+# A step's spikes up to this many are checked against the culture's channels in plain
+# Python; more, with numpy.
+SMALL_BATCH = 64
 
 
 class HubError(RuntimeError):
@@ -550,16 +553,21 @@ class Hub:
             return
         if role == "body":
             ranges = message.ranges_m
-            if ranges.size != desc.n_sensors:
+            if ranges.size != self._n_sensors:
                 raise ProtocolError(
-                    "array", f"ranges_m has {ranges.size} values, body has {desc.n_sensors}"
+                    "array", f"ranges_m has {ranges.size} values, body has {self._n_sensors}"
                 )
-            if ranges.size and max(ranges.tolist()) > desc.max_range_m * (1 + 1e-6):
+            if ranges.size and max(ranges.tolist()) > self._max_range_m:
                 raise ProtocolError("range", f"ranges_m exceeds max_range_m {desc.max_range_m}")
         elif message.channel.size:
-            known = self._known_channel
             channel = message.channel
-            if channel.max() >= known.size or not known[channel].all():
+            if channel.size <= SMALL_BATCH:  # plain Python beats numpy calls here
+                known = self._known_channels
+                ok = all(c in known for c in channel.tolist())
+            else:
+                known = self._known_channel
+                ok = channel.max() < known.size and known[channel].all()
+            if not ok:
                 raise ProtocolError("range", "spikes on channels the culture does not have")
 
     def _drop(self, role: str, kind: str, detail: str) -> str:
@@ -679,6 +687,10 @@ class Hub:
             if role == "culture":
                 self._known_channel = np.zeros(int(desc.channel.max(initial=0)) + 1, bool)
                 self._known_channel[desc.channel] = True
+                self._known_channels = frozenset(desc.channel.tolist())
+            else:
+                self._n_sensors = desc.n_sensors
+                self._max_range_m = desc.max_range_m * (1 + 1e-6)
             self._record_event("described", role=role, id=i, kind=desc.kind)
 
     @staticmethod
