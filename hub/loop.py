@@ -683,15 +683,19 @@ class Hub:
                     raise HubError(f"{role}/{i} sent an invalid description: {exc}") from None
             if desc is None or desc.role != role or desc.id != i:
                 raise HubError(f"{role}/{i} did not describe itself on {key}")
-            self.descriptions[role] = desc
-            if role == "culture":
-                self._known_channel = np.zeros(int(desc.channel.max(initial=0)) + 1, bool)
-                self._known_channel[desc.channel] = True
-                self._known_channels = frozenset(desc.channel.tolist())
-            else:
-                self._n_sensors = desc.n_sensors
-                self._max_range_m = desc.max_range_m * (1 + 1e-6)
+            self._take_description(desc)
             self._record_event("described", role=role, id=i, kind=desc.kind)
+
+    def _take_description(self, desc: Description) -> None:
+        """Keep an endpoint's description, and what its replies are checked against."""
+        self.descriptions[desc.role] = desc
+        if desc.role == "culture":
+            self._known_channel = np.zeros(int(desc.channel.max(initial=0)) + 1, bool)
+            self._known_channel[desc.channel] = True
+            self._known_channels = frozenset(desc.channel.tolist())
+        else:
+            self._n_sensors = desc.n_sensors
+            self._max_range_m = desc.max_range_m * (1 + 1e-6)
 
     @staticmethod
     def _steps_share(desc: Description, final: dict[str, dict]) -> dict:
