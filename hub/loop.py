@@ -35,6 +35,7 @@ from hub.live import MAX_BACKLOG_MS, BackgroundLiveBursts, LiveBursts
 from hub.protocol import (
     OUTPUT_TYPE,
     ROLES,
+    SMALL_ARRAY,
     ControlReply,
     ControlRequest,
     Description,
@@ -62,9 +63,6 @@ ONLINE_EVERY_MS = 100.0
 # Python's default, 5 ms, would let live analysis hold up a step start (realtime) or keep
 # Zenoh's callback from handing the loop a reply (both modes).
 GIL_SWITCH_S = 2e-4
-# A step's spikes up to this many are checked against the culture's channels in plain
-# Python; more, with numpy.
-SMALL_BATCH = 64
 
 
 class HubError(RuntimeError):
@@ -561,7 +559,7 @@ class Hub:
                 raise ProtocolError("range", f"ranges_m exceeds max_range_m {desc.max_range_m}")
         elif message.channel.size:
             channel = message.channel
-            if channel.size <= SMALL_BATCH:  # plain Python beats numpy calls here
+            if channel.size <= SMALL_ARRAY:  # plain Python beats numpy calls here
                 known = self._known_channels
                 ok = all(c in known for c in channel.tolist())
             else:
