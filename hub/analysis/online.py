@@ -122,8 +122,7 @@ class OnlineBurstDetector:
         """
         t = self.add(channel, t_ms)
         # The last spike not yet behind the watermark (added now or by earlier adds).
-        last = self._latest if self._latest > self._watermark else -np.inf
-        last = max(last, float(t[-1])) if t.size else last
+        last = self._latest if t.size or self._latest > self._watermark else -np.inf
         w = until_ms if until_ms is not None else max(last, self._watermark)
         if w < last:
             raise AnalysisInputError(f"until_ms must be >= the last spike time {last}, got {w}")
