@@ -15,7 +15,6 @@ import abc
 import dataclasses
 import gc
 import logging
-import queue
 import signal
 import threading
 import time
@@ -179,55 +178,73 @@ class Endpoint(abc.ABC):
             for sig in (signal.SIGINT, signal.SIGTERM):
                 signal.signal(sig, lambda *_: self.request_stop())
         keys = self.keys = Keys(bus.session)
-        inbox: queue.SimpleQueue = queue.SimpleQueue()
         self.warm_up()  # so that the first realtime steps are not late
         session = self._session = open_session(bus, listener=False)
         # Once Zenoh's threads exist: the policy is not inherited by new threads.
         self.scheduling = raise_threads(realtime_priority)
         if realtime_priority and self.scheduling.policy != "fifo":
             log.warning("%s/%s: %s", self.role, self.id, self.scheduling.reason)
+        publisher = session.declare_publisher(keys.output(self.role, self.id), **LOOP_PUBLISH)
+        # Inputs are stepped on in the subscriber's own callback thread (one thread, so in
+        # order): handing them to this thread would cost a wake-up per step. This thread
+        # only watches for the input timeout and the stop request.
+        lock = threading.Lock()  # one of step, describe, timeout and close at a time
+        state = {"last_input": time.monotonic(), "serving": True}
+        failures: list[BaseException] = []
+
+        def on_input(sample) -> None:
+            raw = payload_bytes(sample)
+            with lock:
+                if not state["serving"]:
+                    return
+                try:
+                    output = self.handle(raw)
+                    if output is not None:
+                        publisher.put(output.encode())
+                        state["last_input"] = time.monotonic()
+                        if self.steps == 1:  # this callback thread has started now
+                            self.scheduling.include_new_threads()
+                except BaseException as exc:  # handed to serve(), which re-raises it
+                    state["serving"] = False
+                    failures.append(exc)
+                    self._stop.set()
+
+        def on_describe(query) -> None:
+            with lock:
+                query.reply(query.key_expr, self.description().encode())
+
         try:
             # Zenoh undeclares what is garbage-collected: keep every declaration.
             declared = [  # noqa: F841
-                session.declare_subscriber(
-                    keys.input(self.role, self.id), lambda s: inbox.put(payload_bytes(s))
-                ),
-                session.declare_queryable(keys.describe(self.role, self.id), inbox.put),
+                session.declare_subscriber(keys.input(self.role, self.id), on_input),
+                session.declare_queryable(keys.describe(self.role, self.id), on_describe),
             ]
-            publisher = session.declare_publisher(keys.output(self.role, self.id), **LOOP_PUBLISH)
             # Declared last: when the hub sees us alive, we already listen.
             token = session.liveliness().declare_token(keys.alive(self.role, self.id))  # noqa: F841
             gc.collect()
             gc.freeze()  # the model is long-lived: keep full collections short
             log.info("%s/%s (%s) ready on session %s", self.role, self.id, self.kind, bus.session)
-            last_input = time.monotonic()
             timed_out = False
-            while not self._stop.is_set():
-                try:
-                    item = inbox.get(timeout=0.05)
-                except queue.Empty:
-                    if not timed_out and time.monotonic() - last_input > self.input_timeout_s:
+            while not self._stop.wait(0.05):
+                with lock:
+                    idle_s = time.monotonic() - state["last_input"]
+                    if idle_s <= self.input_timeout_s:
+                        timed_out = False
+                    elif not timed_out:
                         timed_out = True
                         self.on_input_timeout()
-                    continue
-                if isinstance(item, bytes):
-                    output = self.handle(item)
-                    if output is not None:
-                        publisher.put(output.encode())
-                        last_input, timed_out = time.monotonic(), False
-                        if self.steps == 1:  # the input's callback thread has started
-                            self.scheduling.include_new_threads()
-                else:  # a describe query
-                    item.reply(item.key_expr, self.description().encode())
-                    item.drop()
         finally:
             try:
-                self.close()
+                with lock:
+                    state["serving"] = False
+                    self.close()
             finally:
                 self._telemetry.clear()
                 self._session = None
                 session.close()
                 restore_threads(self.scheduling)
+        if failures:
+            raise failures[0]
         if self.dropped:
             log.info("%s/%s dropped: %s", self.role, self.id, dict(self.dropped))
         return 0
