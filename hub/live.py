@@ -51,22 +51,35 @@ class LiveBursts:
         self.bursts = 0
         self.network_bursts = 0
         self.skipped_spikes = 0
-        self._buffer: list[tuple[np.ndarray, np.ndarray]] = []
+        self._batches: list[SpikeBatch] = []  # added since the last feed
+        self._left: tuple[np.ndarray, np.ndarray] | None = None  # what a feed broke off at
         self._until_ms = 0.0  # every spike before this has been buffered
         self._fed_ms = 0.0  # ... and before this fed to the detector
         self._next_ms = every_ms
         self._chunk_s = 0.001  # estimated wall time of one chunk, refined as chunks run
 
     def add(self, spikes: SpikeBatch) -> None:
-        """Buffer one step's spikes."""
-        t_ms = spikes.t0_s * 1e3 + spikes.t_ms.astype(np.float64)
-        self._buffer.append((self.index[spikes.channel], t_ms))
+        """Buffer one step's spikes (kept as they came: converted many steps at a time)."""
+        self._batches.append(spikes)
         self._until_ms = spikes.t1_s * 1e3
+
+    def _take(self) -> tuple[np.ndarray, np.ndarray]:
+        """Everything buffered, as detector indices and times in ms, emptying the buffer."""
+        batches, self._batches = self._batches, []
+        index, t_ms = self._left or (np.empty(0, np.int64), np.empty(0))
+        self._left = None
+        if batches:
+            t0_ms = np.repeat([b.t0_s * 1e3 for b in batches], [b.t_ms.size for b in batches])
+            index = np.concatenate(
+                [index, self.index[np.concatenate([b.channel for b in batches])]]
+            )
+            t_ms = np.concatenate([t_ms, t0_ms + np.concatenate([b.t_ms for b in batches])])
+        return index, t_ms
 
     @property
     def due(self) -> bool:
         """Whether enough simulated time is buffered to be worth a feed."""
-        return bool(self._buffer) and self._until_ms >= self._next_ms
+        return bool(self._batches or self._left) and self._until_ms >= self._next_ms
 
     @property
     def backlog_ms(self) -> float:
@@ -85,11 +98,9 @@ class LiveBursts:
         analysis). With ``pause``, feed in chunks while ``pause()`` is False and keep the
         rest, dropping nothing: work that can wait for a caller with better things to do.
         """
-        if not self._buffer:
+        if not (self._batches or self._left):
             return []
-        index = np.concatenate([b[0] for b in self._buffer])
-        t_ms = np.concatenate([b[1] for b in self._buffer])
-        self._buffer.clear()
+        index, t_ms = self._take()
         if deadline is not None:
             stale = int(np.searchsorted(t_ms, self._until_ms - MAX_BACKLOG_MS))
             if stale:
@@ -101,7 +112,7 @@ class LiveBursts:
             if (deadline is not None and time.monotonic() + self._chunk_s > deadline) or (
                 pause is not None and pause()
             ):
-                self._buffer.append((index[start:], t_ms[start:]))
+                self._left = (index[start:], t_ms[start:])
                 return []
             stop = min(start + CHUNK_SPIKES, index.size) if chunked else index.size
             t0 = time.monotonic()
