@@ -48,6 +48,7 @@ FORMAT_VERSION = 1
 DIRECTIONS = ("tx", "rx", "late", "drop", "ev")
 # What the analysis reads as the culture's and body's real output.
 DATA_DIRECTIONS = ("rx", "late")
+WRITE_BUFFER_BYTES = 1 << 20
 
 
 def utc_now() -> str:
@@ -106,7 +107,9 @@ class Recorder:
     def __init__(self, run_dir: str | Path, *, flush_s: float = 0.5):
         self.path = Path(run_dir) / RECORD_FILE
         self.flush_s = flush_s
-        self._file = open(self.path, "ab")
+        # Written in large blocks (a write call per few messages costs the loop); the
+        # flush every ``flush_s`` bounds what a crash can lose.
+        self._file = open(self.path, "ab", buffering=WRITE_BUFFER_BYTES)
         self._pack = msgpack.Packer(use_bin_type=True).pack
         self._last_flush = time.monotonic()
         self.n_frames = 0
