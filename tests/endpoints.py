@@ -59,7 +59,7 @@ class EchoBody(Endpoint):
             step=m.step,
             t_s=m.step * 0.01,
             ranges_m=np.full(N_SENSORS, 0.5, np.float32),
-            pose=[m.step, m.left_mps, m.right_mps],
+            pose=np.array([m.step, m.left_mps, m.right_mps]),
             contact=False,
         )
 
