@@ -8,11 +8,20 @@ defaults are what they are (scouting off, explicit loopback endpoints, 1 s lease
 from __future__ import annotations
 
 import json
+import os
 import socket
 
-import zenoh
+# Zenoh's threads are configured per process, from this variable, when the first session
+# opens. One network-receive thread, not two: with two, each arriving message wakes both
+# (one to steal the other's work), a wake-up per message more on every step's critical
+# path (bench/loop.py: ~10 % more lockstep steps per second on 2 cores). A
+# ZENOH_RUNTIME set by the user is kept as it is.
+ZENOH_RUNTIME = "(rx: (worker_threads: 1))"
+os.environ.setdefault("ZENOH_RUNTIME", ZENOH_RUNTIME)
 
-from hub.config import BusSection
+import zenoh  # noqa: E402
+
+from hub.config import BusSection  # noqa: E402
 
 # Loop messages must not be dropped under load, and should leave at once.
 LOOP_PUBLISH = dict(
