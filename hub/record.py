@@ -49,6 +49,7 @@ DIRECTIONS = ("tx", "rx", "late", "drop", "ev")
 # What the analysis reads as the culture's and body's real output.
 DATA_DIRECTIONS = ("rx", "late")
 WRITE_BUFFER_BYTES = 1 << 20
+HELD_FRAMES = 1024  # frames held at most before they are written
 
 
 def utc_now() -> str:
@@ -102,7 +103,10 @@ def _json_default(obj):
 
 
 class Recorder:
-    """Appends frames to ``record.nvrec``, flushing at least every ``flush_s``."""
+    """Appends frames to ``record.nvrec``, flushing at least every ``flush_s``.
+
+    Frames are held, and packed and written by :meth:`tick` (or once HELD_FRAMES are
+    held), so that recording a message costs the loop's critical path one append."""
 
     def __init__(self, run_dir: str | Path, *, flush_s: float = 0.5):
         self.path = Path(run_dir) / RECORD_FILE
@@ -113,14 +117,20 @@ class Recorder:
         self._pack = msgpack.Packer(use_bin_type=True).pack
         self._last_flush = time.monotonic()
         self.n_frames = 0
+        self._held: list = []
         self._write(
             {"format": FORMAT, "v": FORMAT_VERSION, "t0_wall_ns": time.time_ns(), "host": host()}
         )
 
     def _write(self, obj) -> None:
-        self._file.write(self._pack(obj))
+        self._held.append(obj)
         self.n_frames += 1
-        self.tick()
+        if len(self._held) >= HELD_FRAMES:
+            self._write_held()
+
+    def _write_held(self) -> None:
+        held, self._held = self._held, []
+        self._file.write(b"".join(map(self._pack, held)))
 
     def message(self, direction: str, key: str, payload: bytes, t_wall_ns: int | None = None):
         """Record a message sent or received, with the loop's verdict on it."""
@@ -131,7 +141,10 @@ class Recorder:
         self._write([time.time_ns(), "ev", name, details])
 
     def tick(self) -> None:
-        """Flush if the last flush is ``flush_s`` old; call often."""
+        """Write the frames held; flush if the last flush is ``flush_s`` old. Call often
+        (at least every ``flush_s``)."""
+        if self._held:
+            self._write_held()
         now = time.monotonic()
         if now - self._last_flush >= self.flush_s:
             self._file.flush()
@@ -139,6 +152,7 @@ class Recorder:
 
     def close(self) -> None:
         if not self._file.closed:
+            self._write_held()
             self._file.flush()
             os.fsync(self._file.fileno())
             self._file.close()
