@@ -7,8 +7,11 @@ mode the next step starts when both are in; in ``realtime`` mode steps start
 on a wall-clock schedule and a reply that misses its deadline is late: the
 configured policy stands in for it and it is counted.
 
-All Zenoh callbacks only enqueue; everything else, recording included, runs on
-the loop's thread, so the loop has one order of events and no locks.
+Zenoh callbacks enqueue events for the loop's thread, with one exception: during
+lockstep steps each reply is taken, and the input that depends on it sent, by the
+thread that received it, under the loop's lock (a hand-over to the loop's thread would
+put a thread wake-up on every step's critical path). Everything that touches the loop's
+state, recording included, holds that lock, so the loop keeps one order of events.
 """
 
 from __future__ import annotations
@@ -18,6 +21,7 @@ import logging
 import math
 import queue
 import sys
+import threading
 import time
 from collections import Counter, defaultdict
 from collections.abc import Callable
@@ -31,7 +35,7 @@ from hub.analysis.bursts import BurstParams
 from hub.analysis.network_bursts import NetworkBurstParams
 from hub.bus import LOOP_PUBLISH, TELEMETRY_PUBLISH, open_session, payload_bytes
 from hub.config import ConfigError, ExperimentConfig
-from hub.live import MAX_BACKLOG_MS, BackgroundLiveBursts, LiveBursts
+from hub.live import BackgroundLiveBursts, LiveBursts
 from hub.protocol import (
     OUTPUT_TYPE,
     ROLES,
@@ -153,8 +157,15 @@ class Hub:
         self.recorder: Recorder | None = None
         self.live: LiveBursts | None = None
         self.waiting_s = 0.0  # time the loop spent blocked, waiting for events
+        self.direct_busy_s = 0.0  # lockstep: time spent on replies in the threads they came on
         self.reply_deadline = math.inf  # realtime: replies arriving later are late
         self.scheduling: Scheduling | None = None  # realtime: what the hub's threads got
+        # Lockstep: replies are taken in the threads they arrive on while ``direct``.
+        self.lock = threading.Lock()  # held by whatever touches the loop's state then
+        self.direct = False
+        self._failure: BaseException | None = None  # raised in such a thread
+        self._last_progress = 0.0  # when the last step completed
+        self._live_in: queue.SimpleQueue = queue.SimpleQueue()  # spikes for live analysis
 
     # ================================================================ public
 
@@ -241,7 +252,7 @@ class Hub:
         gc.freeze()
         self._t_start = time.monotonic()
         self._cpu_start_s = time.process_time()
-        self.waiting_s = 0.0
+        self.waiting_s = self.direct_busy_s = 0.0
         switch_s = sys.getswitchinterval()
         sys.setswitchinterval(GIL_SWITCH_S)
         try:
@@ -311,54 +322,89 @@ class Hub:
         the reply it depends on is in (the motor command when the culture's spikes of step
         k arrive, the stimulation when the body's sensors of step k arrive), so neither
         endpoint waits for the other's round trip. Every endpoint still gets exactly the
-        inputs of the Jacobi scheme, so results are those of a strict step-by-step loop."""
+        inputs of the Jacobi scheme, so results are those of a strict step-by-step loop.
+
+        Replies are taken in the threads they arrive on (:meth:`_on_reply_direct`); this
+        thread handles the other events, stands in by policy for replies that do not come
+        within ``reply_timeout_s``, publishes the status and runs the live analysis."""
         n = self.cfg.n_steps
-        self.expect = {"body": 0, "culture": 0}
-        self._send("body", self._motor_for(0, None))
-        self._send("culture", self._stim_for(0, None))
-        last_done = time.monotonic()
-
-        def ready():
-            return any(self.expect[r] in self.pending[r] for r in ROLES)
-
-        def busy():
-            return not self.inbox.empty()
-
-        live = self.live
-
-        while min(self.expect.values()) < n:
-            if not self._await_start(self.k_done, 0.0):
-                return
-            deadline = time.monotonic() + self.cfg.loop.reply_timeout_s
-            while not ready() and time.monotonic() < deadline:
-                if live is not None and live.due and self.inbox.empty():
-                    # Nothing to do until a reply comes: analyse meanwhile, off the loop's
-                    # critical path, breaking off the moment something arrives.
-                    self._record_network_bursts(live.work(pause=busy))
+        timeout_s = self.cfg.loop.reply_timeout_s
+        with self.lock:
+            self.expect = {"body": 0, "culture": 0}
+            self._last_progress = time.monotonic()
+            self._send("body", self._motor_for(0, None))
+            self._send("culture", self._stim_for(0, None))
+            self.direct = True
+        try:
+            while True:
+                with self.lock:
+                    if self._failure is not None:
+                        raise self._failure
+                    if self._stop_reason or self.k_done >= n:
+                        return
+                    now = time.monotonic()
+                    if self.state == "paused":
+                        self._last_progress = now
+                    elif now - self._last_progress >= timeout_s:
+                        self._stand_in(n)
+                    until = self._last_progress + timeout_s
+                if self.live is not None and self._work_live(pause=self._has_event):
                     continue
-                self._next_event(deadline)
-                if self.state == "paused" or self._stop_reason:
-                    break
-            if self.state == "paused" or self._stop_reason:
-                continue
-            if not ready():  # nothing came in time: the policy stands in
-                for role in ROLES:
-                    if self.expect[role] < n:
-                        self._miss(role, self.expect[role])
-                        self._pipeline(role, None, n)
-            for role in ("culture", "body"):
-                while self.expect[role] in self.pending[role]:
-                    self._pipeline(role, self.pending[role].pop(self.expect[role]), n)
-            done = min(self.expect.values())
-            if done > self.k_done:
-                self.step_wall_s[self.k_done : done] = (time.monotonic() - last_done) / (
-                    done - self.k_done
-                )
-                last_done = time.monotonic()
-                self.k_done = self.k = done
-                self._tick()
-        if self.live is not None:
-            self._analyse_online(None, flush=True)
+                item = self._wait_event(until)
+                with self.lock:
+                    if item is not None:
+                        self._handle(item)
+                    self._advance(n)
+                    self._tick()
+        finally:
+            with self.lock:
+                self.direct = False
+            if self.live is not None:
+                self._work_live(flush=True)
+
+    def _on_reply_direct(self, item: tuple) -> None:
+        """A reply in lockstep, in the thread it came on: take it, send what it allows."""
+        t0 = time.perf_counter()
+        with self.lock:
+            if not self.direct:  # the steps ended meanwhile: the loop's thread decides
+                return self.inbox.put(item)
+            try:
+                self._on_reply(*item[1:])
+                self._advance(self.cfg.n_steps)
+            except BaseException as exc:  # the loop's thread raises it
+                self.direct, self._failure = False, exc
+                self.inbox.put(("wake",))
+            self.direct_busy_s += time.perf_counter() - t0
+
+    def _advance(self, n: int) -> None:
+        """Lockstep: send every input whose reply is in (unless paused or stopping), and
+        note the steps completed."""
+        if self.state != "running" or self._stop_reason:
+            return
+        for role in ("culture", "body"):
+            pending, expect = self.pending[role], self.expect
+            while expect[role] in pending:
+                self._pipeline(role, pending.pop(expect[role]), n)
+        done = min(self.expect.values())
+        if done > self.k_done:
+            now = time.monotonic()
+            self.step_wall_s[self.k_done : done] = (now - self._last_progress) / (
+                done - self.k_done
+            )
+            self._last_progress = now
+            self.k_done = self.k = done
+            if done >= n:
+                self.inbox.put(("wake",))
+
+    def _stand_in(self, n: int) -> None:
+        """Lockstep: no reply for ``reply_timeout_s``: the policy stands in for each reply
+        owed (an input that waits on another reply is not owed yet)."""
+        owed = [r for r in ROLES if self.last_sent.get(r, -1) >= self.expect[r] < n]
+        for role in owed:
+            self._miss(role, self.expect[role])
+            self._pipeline(role, None, n)
+        self._last_progress = time.monotonic()
+        self._advance(n)
 
     def _pipeline(self, role: str, reply: Message | None, n: int) -> None:
         """Take the reply of ``role`` for its expected step k; send the other side step k+1."""
@@ -370,7 +416,7 @@ class Hub:
             else:
                 self._send("culture", self._stim_for(k + 1, reply))
         if role == "culture" and reply is not None and self.live is not None:
-            self._analyse_online(reply)
+            self._live_in.put(reply)
 
     def _motor_for(self, k: int, spikes: SpikeBatch | None) -> MotorCommand:
         if k == 0:
@@ -399,16 +445,25 @@ class Hub:
             raise HubError(f"scheme returned {message!r}, expected a {kind.__name__} for step {k}")
         return message
 
-    def _analyse_online(self, spikes: SpikeBatch | None, *, flush: bool = False) -> None:
-        """Lockstep: buffer a step's spikes for the live burst detector. The loop feeds it
-        while waiting for replies; here it is fed everything at once only at the end
-        (``flush``) or when MAX_BACKLOG_MS behind (a loop that never waits). Records each
-        network burst completed."""
+    def _work_live(self, *, flush: bool = False, pause: Callable[[], bool] | None = None) -> bool:
+        """Lockstep: feed the live burst detector the spikes handed over (``_live_in``) once
+        ONLINE_EVERY_MS of them are in (``flush``: whatever is in, to the end), breaking off
+        when ``pause()`` says so. Records each network burst completed. True if it worked."""
         live = self.live
-        if spikes is not None:
-            live.add(spikes)
-        if flush or live.backlog_ms > MAX_BACKLOG_MS:
-            self._record_network_bursts(live.work())
+        while True:
+            try:
+                live.add(self._live_in.get_nowait())
+            except queue.Empty:
+                break
+        if not (flush or live.due):
+            return False
+        done = live.work(pause=None if flush else pause)
+        with self.lock:
+            self._record_network_bursts(done)
+        return True
+
+    def _has_event(self) -> bool:
+        return not self.inbox.empty()
 
     def _record_network_bursts(self, done: list) -> None:
         for nb in done:
@@ -471,17 +526,25 @@ class Hub:
 
     def _next_event(self, until: float) -> bool:
         """Handle one event, waiting at most until ``until``; False if none came."""
-        timeout = min(until - time.monotonic(), self._next_status - time.monotonic())
-        t0 = time.perf_counter()
-        try:
-            item = self.inbox.get(timeout=max(timeout, 0.0))
-        except queue.Empty:
-            self.waiting_s += time.perf_counter() - t0
+        item = self._wait_event(until)
+        if item is None:
             self._tick()
             return False
-        self.waiting_s += time.perf_counter() - t0
         self._handle(item)
         return True
+
+    def _wait_event(self, until: float) -> tuple | None:
+        """The next event, waiting at most until ``until``, the next status, or a flush
+        of the record is due."""
+        now = time.monotonic()
+        timeout = min(until - now, self._next_status - now, self.cfg.record.flush_s)
+        t0 = time.perf_counter()
+        try:
+            return self.inbox.get(timeout=max(timeout, 0.0))
+        except queue.Empty:
+            return None
+        finally:
+            self.waiting_s += time.perf_counter() - t0
 
     def _drain(self) -> None:
         while True:
@@ -513,6 +576,7 @@ class Hub:
             self._on_control(item[1])
         elif kind == "stop":
             self._stop_reason = self._stop_reason or item[1]
+        # "wake": nothing to do but look at the state
 
     def _on_reply(self, role: str, raw: bytes, t_wall_ns: int, t_arrival: float) -> None:
         """Accept, count as late, or drop one reply; record it with that verdict."""
@@ -625,6 +689,14 @@ class Hub:
 
     def _declare(self, session: zenoh.Session) -> None:
         put = self.inbox.put
+
+        def on_reply(sample, role):
+            item = ("rx", role, payload_bytes(sample), time.time_ns(), time.monotonic())
+            if self.direct:
+                self._on_reply_direct(item)
+            else:
+                put(item)
+
         self.publishers = {
             role: session.declare_publisher(key, **LOOP_PUBLISH)
             for role, key in self.input_key.items()
@@ -632,12 +704,7 @@ class Hub:
         self.status_pub = session.declare_publisher(self.keys.hub_status, **TELEMETRY_PUBLISH)
         # Zenoh undeclares what is garbage-collected: keep every declaration.
         self._declared = [
-            session.declare_subscriber(
-                key,
-                lambda s, role=role: put(
-                    ("rx", role, payload_bytes(s), time.time_ns(), time.monotonic())
-                ),
-            )
+            session.declare_subscriber(key, lambda s, role=role: on_reply(s, role))
             for role, key in self.output_key.items()
         ]
         self._declared += [
@@ -810,7 +877,7 @@ class Hub:
             "wall_s": wall,
             "steps_per_s": n / wall if wall > 0 else 0.0,
             "x_realtime": n * self.cfg.loop.period_ms / 1e3 / wall if wall > 0 else 0.0,
-            "hub_busy_s": max(wall - self.waiting_s, 0.0),
+            "hub_busy_s": self._busy_s(wall),
             "hub_cpu_s": time.process_time() - self._cpu_start_s if self._t_start else 0.0,
             "late_steps": int(self.late_steps),
             "late_share": self.late_steps / n if n else 0.0,
@@ -827,6 +894,11 @@ class Hub:
             out["lateness_ms_p99"] = float(np.nanpercentile(late_ms, 99))
             out["lateness_ms_max"] = float(np.nanmax(late_ms))
         return out
+
+    def _busy_s(self, wall_s: float) -> float:
+        """Time the hub spent on the steps: its loop thread's time not waiting, and in
+        lockstep the time spent on replies in the threads they came on."""
+        return max(wall_s - self.waiting_s, 0.0) + self.direct_busy_s
 
     def counts(self) -> dict:
         return {

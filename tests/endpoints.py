@@ -107,6 +107,12 @@ def code_step_count(ctx):
     return coder
 
 
+def code_wrong_step_at_20(ctx):
+    """Coder with a bug: no pulses, and at step 20 the stimulation of step 21."""
+    ctx.check_params(set())
+    return lambda sensors, step: Stimulation(step=step + (step == 20))
+
+
 def decode_step(ctx):
     """Decoder: left_mps = step of the spike batch, right_mps = its spike count."""
     ctx.check_params(set())

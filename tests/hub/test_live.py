@@ -108,8 +108,8 @@ def test_the_hub_reports_live_bursts_in_its_status():
     # The test culture's channels are 0..3.
     renamed = {new: PLANTED[old] for new, old in enumerate(PLANTED)}
     for batch in _batches(renamed, 60):
-        hub._analyse_online(batch)
-    hub._analyse_online(None, flush=True)
+        hub._live_in.put(batch)  # as the lockstep hub hands each step's spikes over
+    hub._work_live(flush=True)
     assert hub._status().extra["network_bursts"] == 1
     assert hub.counts()["bursts_online"] == 3
 

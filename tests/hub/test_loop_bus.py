@@ -115,6 +115,46 @@ def test_a_late_reply_is_counted_and_the_policy_stands_in(tmp_path, bus_override
     assert stims[min(set(range(2, 59)) - set(missed) - {k + 1 for k in missed})].n_pulses > 0
 
 
+def test_in_lockstep_a_reply_owed_past_the_reply_timeout_is_replaced_by_the_policy(
+    tmp_path, bus_overrides
+):
+    with harness(
+        tmp_path,
+        bus_overrides,
+        "experiment.duration_s=0.3",
+        "loop.reply_timeout_s=0.03",
+        "body.params.late_every=10",  # the body sleeps 50 ms on steps 9, 19, ...
+    ) as h:
+        result = h.run()
+    assert result.outcome == "completed" and result.steps == 30
+    missed = [e.payload for e in h.record.events if e.key == "missed"]
+    assert {m["step"] for m in missed if m["role"] == "body"} >= {9, 19}
+    assert result.counts["late"]["body"] >= 2  # the replies came after all, and were counted
+    # The culture's next stimulation waited on the late reading: no culture reply was owed.
+    assert not [m for m in missed if m["role"] == "culture"]
+    assert "culture" not in result.counts["late"]
+    stims = h.sent(Stimulation)
+    assert stims[10].n_pulses == stims[20].n_pulses == 0  # missing_sensors = zero_stim
+    assert stims[9].n_pulses > 0
+    assert sorted(h.received(SpikeBatch)) == list(range(30))
+
+
+def test_a_scheme_that_fails_ends_the_run_as_a_fault_with_the_robot_stopped(
+    tmp_path, bus_overrides
+):
+    with harness(
+        tmp_path, bus_overrides, 'coding.scheme="tests.endpoints:code_wrong_step_at_20"'
+    ) as h:
+        result = h.run()
+    assert result.outcome == "fault"
+    assert "expected a Stimulation for step 20" in result.reason
+    assert h.record.manifest["outcome"] == "fault"
+    assert max(h.sent(Stimulation)) == 19  # the bad stimulation never left
+    last_motor = h.record.decoded(MotorCommand, "tx")[-1]
+    assert last_motor.left_mps == last_motor.right_mps == 0
+    assert h.exit_codes == {"body": 0, "culture": 0}
+
+
 def test_killing_an_endpoint_ends_the_run_within_a_second(tmp_path, bus_overrides):
     killed = {}
 
@@ -206,7 +246,11 @@ def _spray_garbage(bus, keys):
 def test_garbage_on_every_key_is_dropped_and_counted_and_the_run_goes_on(tmp_path, bus_overrides):
     out = {}
 
-    with harness(tmp_path, bus_overrides, "experiment.duration_s=6", "loop.status_hz=50") as h:
+    # The body takes 5 ms a step, so that the run (3 s) outlasts the spraying.
+    slow = "body.params.delay_ms=5"
+    with harness(
+        tmp_path, bus_overrides, "experiment.duration_s=6", "loop.status_hz=50", slow
+    ) as h:
         bus, keys = h.cfg.bus, h.cfg.bus.keys
 
         def spray():
