@@ -29,6 +29,7 @@ from hub.protocol import Description, SpikeBatch
 from hub.scheduling import Scheduling, lower_this_thread
 
 CHUNK_SPIKES = 128  # spikes fed per detector call when working in chunks
+MIN_CHUNK_SPIKES = 32  # ... and at least, when working to a deadline (unless fewer are left)
 # Spikes this far behind: dropped unanalysed when working to a deadline (realtime); fed at
 # once, whatever it costs, by a lockstep hub that never found idle time for them.
 MAX_BACKLOG_MS = 2000.0
@@ -56,7 +57,7 @@ class LiveBursts:
         self._until_ms = 0.0  # every spike before this has been buffered
         self._fed_ms = 0.0  # ... and before this fed to the detector
         self._next_ms = every_ms
-        self._chunk_s = 0.001  # estimated wall time of one chunk, refined as chunks run
+        self._spike_s = 5e-6  # estimated CPU time per spike fed, refined as chunks run
 
     def add(self, spikes: SpikeBatch) -> None:
         """Buffer one step's spikes (kept as they came: converted many steps at a time)."""
@@ -91,8 +92,8 @@ class LiveBursts:
     ) -> list[NetworkBurst]:
         """Feed the buffer to the detector; return the network bursts completed.
 
-        With a ``deadline`` (``time.monotonic()``), feed in chunks and start a chunk only if
-        it should end before the deadline (by the chunks timed so far), keeping the rest;
+        With a ``deadline`` (``time.monotonic()``), feed in chunks sized to end before the
+        deadline (by the cost per spike of the chunks timed so far), keeping the rest;
         spikes more than MAX_BACKLOG_MS of simulated time behind are then dropped
         unanalysed (counted in ``skipped_spikes``; the record keeps them for offline
         analysis). With ``pause``, feed in chunks while ``pause()`` is False and keep the
@@ -109,18 +110,24 @@ class LiveBursts:
         chunked = deadline is not None or pause is not None
         start = 0
         while start < index.size:
-            if (deadline is not None and time.monotonic() + self._chunk_s > deadline) or (
-                pause is not None and pause()
-            ):
+            size = CHUNK_SPIKES if chunked else index.size
+            if deadline is not None and deadline < math.inf:
+                fits = int((deadline - time.monotonic()) / self._spike_s)
+                size = min(size, fits) if fits >= min(MIN_CHUNK_SPIKES, index.size - start) else 0
+            if size < 1 or (pause is not None and pause()):
                 self._left = (index[start:], t_ms[start:])
                 return []
-            stop = min(start + CHUNK_SPIKES, index.size) if chunked else index.size
-            t0 = time.monotonic()
+            stop = min(start + size, index.size)
+            t0 = time.thread_time()
             # Chunks are only added: what they complete is found in one pass at the end.
             self.detector.add(index[start:stop], t_ms[start:stop])
             self._fed_ms = t_ms[stop - 1]
-            if deadline is not None:  # running estimate of one chunk's cost
-                self._chunk_s = 0.8 * self._chunk_s + 0.2 * (time.monotonic() - t0)
+            if deadline is not None and stop - start >= MIN_CHUNK_SPIKES:
+                # Running estimate of the cost of a spike, in CPU time (a chunk held up by
+                # other threads says nothing of the next one's cost), from chunks large
+                # enough for the cost of the call itself to matter little.
+                spike_s = (time.thread_time() - t0) / (stop - start)
+                self._spike_s = 0.8 * self._spike_s + 0.2 * spike_s
             start = stop
         # A spike stamped at the window's very end may round a hair past it.
         until_ms = max(self._until_ms, t_ms[-1]) if t_ms.size else self._until_ms
@@ -141,21 +148,24 @@ class LiveBursts:
 
 class BackgroundLiveBursts:
     """:class:`LiveBursts` on a thread of its own: the loop hands each step's spikes over and
-    collects the network bursts completed, so analysis never holds up a step. (With the
-    hub's short GIL switch interval the loop's thread gets the interpreter back within a
-    fraction of a millisecond.) The thread runs just below the loop's priority
-    (:func:`~hub.scheduling.lower_this_thread`). Counters are read from ``live``."""
+    collects the network bursts completed, so analysis never holds up a step. The thread
+    runs just below the loop's priority (:func:`~hub.scheduling.lower_this_thread`) and
+    works only until the ``until`` given with the spikes (the next step's start): a
+    thread holding the interpreter when the loop's thread wakes would delay the step by up
+    to the interpreter's switch interval. Counters are read from ``live``."""
 
     def __init__(self, live: LiveBursts, scheduling: Scheduling | None = None):
         self.live = live
         self.scheduling = scheduling or Scheduling("normal")
         self._in: queue.SimpleQueue = queue.SimpleQueue()
         self._out: queue.SimpleQueue = queue.SimpleQueue()
+        self._failure: BaseException | None = None
         self._thread = threading.Thread(target=self._run, name="live-bursts", daemon=True)
         self._thread.start()
 
-    def add(self, spikes: SpikeBatch) -> None:
-        self._in.put(spikes)
+    def add(self, spikes: SpikeBatch, until: float = math.inf) -> None:
+        """Hand one step's spikes over; analysis may run until ``until`` (monotonic)."""
+        self._in.put((spikes, until))
 
     def completed(self) -> list[NetworkBurst]:
         """The network bursts completed since the last call."""
@@ -167,18 +177,29 @@ class BackgroundLiveBursts:
                 return out
 
     def close(self, timeout_s: float = 30.0) -> list[NetworkBurst]:
-        """Analyse what is left, stop the thread, return the last network bursts."""
+        """Analyse what is left, stop the thread, return the last network bursts (or
+        raise what ended the thread)."""
         self._in.put(None)
         self._thread.join(timeout_s)
+        if self._failure is not None:
+            raise self._failure
         return self.completed()
 
     def _run(self) -> None:
+        try:
+            self._analyse()
+        except BaseException as exc:  # raised again by close()
+            self._failure = exc
+            raise
+
+    def _analyse(self) -> None:
         lower_this_thread(self.scheduling)
         live = self.live
-        while (spikes := self._in.get()) is not None:
+        while (item := self._in.get()) is not None:
+            spikes, until = item
             live.add(spikes)
             if live.due:  # chunked, and spikes too far behind are dropped and counted
-                for nb in live.work(deadline=math.inf):
+                for nb in live.work(deadline=until):
                     self._out.put(nb)
         for nb in live.work():
             self._out.put(nb)

@@ -60,6 +60,8 @@ log = logging.getLogger(__name__)
 # A realtime step whose start lags its schedule by more than this share of a
 # period is counted late (its window is visibly shortened).
 LATE_START_SHARE = 0.25
+# Realtime live analysis stops this share of a period before the next step's start.
+LIVE_GUARD_SHARE = 0.1
 # The live burst detector is fed this much simulated time at once (in realtime, on a
 # thread of its own).
 ONLINE_EVERY_MS = 100.0
@@ -285,6 +287,7 @@ class Hub:
     def _steps_on_schedule(self, background: BackgroundLiveBursts | None) -> None:
         period_s = self.cfg.loop.period_ms / 1e3
         n = self.cfg.n_steps
+        guard_s = LIVE_GUARD_SHARE * period_s
         # Each step's inputs are coded and encoded in the slack of the step before, so
         # that they leave the moment the step starts.
         inputs = self._encoded(self._motor_for(0, None), self._stim_for(0, None))
@@ -309,7 +312,8 @@ class Hub:
             self.k_done = k + 1
             if background is not None:
                 if prev["culture"] is not None:
-                    background.add(prev["culture"])
+                    # Analysis may use what is left of this step, not the next one's start.
+                    background.add(prev["culture"], self._scheduled(k + 1, period_s) - guard_s)
                 self._record_network_bursts(background.completed())
             self._tick()
 

@@ -118,3 +118,13 @@ def test_live_analysis_can_be_switched_off_and_its_parameters_are_checked():
     assert _hub("online.enabled=false").live is None
     with pytest.raises(ConfigError, match="online.network"):
         _hub("online.network.min_fraction=2.0")
+
+
+def test_on_a_thread_of_its_own_work_left_past_its_time_is_done_at_close():
+    live = LiveBursts(CULTURE, BurstParams(), NetworkBurstParams(), 0.0)
+    background = BackgroundLiveBursts(live)
+    for batch in _batches(PLANTED, 60):
+        background.add(batch, until=0.0)  # the next step has always begun already
+    (nb,) = background.completed() + background.close()
+    assert nb.start_ms == pytest.approx(100.0) and nb.end_ms == pytest.approx(119.0)
+    assert live.bursts == 3 and live.skipped_spikes == 0  # 600 ms behind at most: kept
