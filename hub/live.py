@@ -1,15 +1,16 @@
 """Live burst detection: the hub's use of the online detector on the spike stream.
 
 The paper detects bursts and network bursts "on the fly". :class:`LiveBursts`
-buffers each step's :class:`~hub.protocol.SpikeBatch` (mapping the culture's
-channel ids to detector indices) and feeds the detector once ``every_ms`` of
-simulated time is buffered (its cost is mostly per call). Spikes go in in chunks that
-can break off, keeping the rest for the next call, at a deadline or when the caller has
-other work (the lockstep hub feeds it only while it waits for replies), so a network
+buffers each step's :class:`~hub.protocol.SpikeBatch` and feeds the detector once
+``every_ms`` of simulated time is buffered (its cost is mostly per call), mapping the
+culture's channel ids to detector indices many steps at a time. Spikes go in in chunks
+that can break off, keeping the rest for the next call, at a deadline or when the caller
+has other work (the lockstep hub's thread breaks off for any event), so a network
 burst's thousands of spikes never hold up the loop; what they complete is found in one
 pass once all are in (a pass per chunk would double the cost).
-:class:`BackgroundLiveBursts` runs it on a thread of its own instead (realtime), since
-one feed at the end of a large network burst can take tens of milliseconds of Python.
+:class:`BackgroundLiveBursts` runs it on a thread of its own (realtime), in the rest of
+each step, since one feed at the end of a large network burst can take tens of
+milliseconds of Python.
 """
 
 from __future__ import annotations
