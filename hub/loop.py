@@ -352,7 +352,9 @@ class Hub:
                     elif now - self._last_progress >= timeout_s:
                         self._stand_in(n)
                     until = self._last_progress + timeout_s
-                if self.live is not None and self._work_live(pause=self._has_event):
+                # Analysis when nothing else waits, breaking off when something comes.
+                idle = self.live is not None and not self._has_event()
+                if idle and self._work_live(pause=self._has_event):
                     continue
                 item = self._wait_event(until)
                 with self.lock:
