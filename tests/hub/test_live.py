@@ -1,10 +1,13 @@
 """The hub detects bursts and network bursts on the live spike stream, step by step."""
 
+import threading
+
 import numpy as np
 import pytest
 
 from hub.analysis.bursts import BurstParams
 from hub.analysis.network_bursts import NetworkBurstParams
+from hub.bus import open_session
 from hub.config import ConfigError, load_config
 from hub.live import BackgroundLiveBursts, LiveBursts
 from hub.loop import Hub
@@ -128,3 +131,25 @@ def test_on_a_thread_of_its_own_work_left_past_its_time_is_done_at_close():
     (nb,) = background.completed() + background.close()
     assert nb.start_ms == pytest.approx(100.0) and nb.end_ms == pytest.approx(119.0)
     assert live.bursts == 3 and live.skipped_spikes == 0  # 600 ms behind at most: kept
+
+
+def test_a_lockstep_hub_with_analysis_due_still_handles_the_event_that_waits(bus_overrides):
+    hub = Hub(load_config(None, bus_overrides))
+    hub.descriptions = {"body": EchoBody().describe(), "culture": EchoCulture().describe()}
+    hub._build_schemes()
+    session = open_session(hub.cfg.bus, listener=True)
+    try:
+        hub._declare(session)
+        hub.state = "running"
+        renamed = {new: PLANTED[old] for new, old in enumerate(PLANTED)}
+        for batch in _batches(renamed, 60):  # 600 ms of spikes: analysis is due
+            hub._live_in.put(batch)
+        hub.request_stop("test")  # ... and an event waits
+        steps = threading.Thread(target=hub._steps_lockstep, daemon=True)
+        steps.start()
+        steps.join(10)
+        assert not steps.is_alive(), "the loop never handled the stop"
+        assert hub._stop_reason == "test"
+        assert hub.live.network_bursts == 1  # analysed in full at the end all the same
+    finally:
+        session.close()
