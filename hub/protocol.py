@@ -86,6 +86,12 @@ class Keys:
     def spikes(self, id: str) -> str:
         return f"{self.root}/culture/{id}/spikes"
 
+    @property
+    def outputs_all(self) -> str:
+        """Every endpoint's output (``sensors`` and ``spikes`` of any id) in one key
+        expression; it also matches ``stim``, which a subscriber must tell apart."""
+        return f"{self.root}/*/*/s$*"
+
     def potentials(self, id: str) -> str:
         return f"{self.root}/culture/{id}/potentials"
 

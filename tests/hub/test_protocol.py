@@ -7,6 +7,7 @@ import threading
 import msgpack
 import numpy as np
 import pytest
+import zenoh
 from hypothesis import given
 from hypothesis import strategies as st
 
@@ -172,6 +173,17 @@ def test_key_expressions_follow_the_architecture():
     assert k.parse_alive("nv/other/alive/culture/0") is None
     with pytest.raises(ValueError):
         Keys("a/b")
+
+
+def test_one_key_expression_covers_every_endpoint_output():
+    k = Keys("lab1")
+    outputs = zenoh.KeyExpr(k.outputs_all)
+    for key in (k.sensors("0"), k.spikes("0"), k.sensors("left"), k.spikes("mea2")):
+        assert outputs.intersects(zenoh.KeyExpr(key))
+    assert outputs.intersects(zenoh.KeyExpr(k.stim("0")))  # the subscriber tells it apart
+    for key in (k.motor("0"), k.potentials("0"), k.hub_status, k.describe("body", "0")):
+        assert not outputs.intersects(zenoh.KeyExpr(key))
+    assert not outputs.intersects(zenoh.KeyExpr(Keys("lab2").spikes("0")))
 
 
 finite = st.floats(allow_nan=False, allow_infinity=False, width=32)
