@@ -3,6 +3,11 @@
 Measures the bare Zenoh round trip between two processes (the floor under every step),
 lockstep steps per second, and for realtime mode at 1 ms and 10 ms
 periods the lateness of step starts (median, p99) and the share of late steps.
+
+Lockstep runs twice: with the hub on a CPU of its own and the endpoints on the others
+(``loop.cpus``, ``body.cpus``, ``culture.cpus``; README, "CPU placement") — the
+``lockstep_steps_per_s`` figure — and with every process wherever the OS puts it, the
+default (``lockstep_os_placement_steps_per_s``). Realtime runs use the default.
 Recording is on, as in a real run. The endpoints are the trivial test fixtures
 of ``tests/endpoints.py`` (they do no work), so the figures are the loop's own.
 
@@ -67,6 +72,18 @@ def run_once(mode: str, period_ms: float, steps: int, *extra: str) -> dict:
     return result.timing
 
 
+def placement() -> tuple[list[str], str]:
+    """Config overrides that give the hub a CPU of its own and the endpoints the others
+    (README, "CPU placement"), and their description; none on a single CPU."""
+    cpus = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else []
+    if len(cpus) < 2:
+        return [], "wherever the OS puts them"
+    hub, rest = cpus[-1], cpus[:-1]
+    overrides = [f"loop.cpus=[{hub}]"]
+    overrides += [f"{role}.cpus={rest}" for role in ("body", "culture")]
+    return overrides, f"hub on CPU {hub}, endpoints on CPU {','.join(map(str, rest))}"
+
+
 def _bus(port: int) -> BusSection:
     return BusSection(session=f"bench-rtt-{port}", listen=(f"tcp/127.0.0.1:{port}",))
 
@@ -128,12 +145,20 @@ def main() -> None:
     rtt_us = zenoh_round_trip_us()
     print(f"bare Zenoh round trip (router -> client -> router, no work): median {rtt_us:.0f} us")
 
-    lock = run_once("lockstep", 10.0, n)
-    print(
-        f"lockstep      {n} steps: {lock['steps_per_s']:8.0f} steps/s  "
-        f"step median {lock['step_ms_median']:.3f} ms  p99 {lock['step_ms_p99']:.3f} ms"
-    )
-    out = {"lockstep_steps_per_s": round(lock["steps_per_s"], 1)}
+    placed, where = placement()
+    out = {}
+    for tag, extra in (("placed", placed), ("os", [])):
+        lock = run_once("lockstep", 10.0, n, *extra)
+        print(
+            f"lockstep      {n} steps: {lock['steps_per_s']:8.0f} steps/s  "
+            f"step median {lock['step_ms_median']:.3f} ms  p99 {lock['step_ms_p99']:.3f} ms  "
+            f"({where if tag == 'placed' else 'wherever the OS puts them'})"
+        )
+        key = "lockstep_steps_per_s" if tag == "placed" else "lockstep_os_placement_steps_per_s"
+        out[key] = round(lock["steps_per_s"], 1)
+        if not placed:
+            break
+    out["lockstep_placement"] = where
     out["zenoh_round_trip_us"] = round(rtt_us, 1)
     extra = []
     if args.realtime_priority is not None:

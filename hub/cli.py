@@ -112,7 +112,8 @@ def cmd_endpoint(args) -> int:
 
     cfg = load_config(args.config, _overrides(args))
     priority = endpoint_priority(cfg.loop.mode, cfg.loop.realtime_priority)
-    return make_endpoint(cfg, args.role).serve(cfg.bus, realtime_priority=priority)
+    cpus = cfg.endpoint(args.role).cpus
+    return make_endpoint(cfg, args.role).serve(cfg.bus, realtime_priority=priority, cpus=cpus)
 
 
 def cmd_hub(args, local: bool = False) -> int:
@@ -125,6 +126,7 @@ def cmd_hub(args, local: bool = False) -> int:
     )
     from hub.loop import Hub
     from hub.record import new_run_dir
+    from hub.scheduling import check_cpus
 
     overrides = _overrides(args)
     cfg = load_config(args.config, overrides)
@@ -132,9 +134,11 @@ def cmd_hub(args, local: bool = False) -> int:
         # Everything on this machine: a free loopback port keeps parallel runs apart.
         overrides.append(f'bus.listen=["tcp/127.0.0.1:{free_tcp_port()}"]')
         cfg = load_config(args.config, overrides)
+    check_cpus("loop.cpus", cfg.loop.cpus)
     for role in ("body", "culture"):  # an unknown kind fails here, before anything starts
         if local and cfg.endpoint(role).launch == "local":
             endpoint_class(role, cfg.endpoint(role).kind)
+            check_cpus(f"{role}.cpus", cfg.endpoint(role).cpus)
     run_dir = new_run_dir(cfg.experiment.runs_dir, cfg.experiment.name)
     print(f"neuvision: run folder {run_dir}", file=sys.stderr)
     procs = start_local_endpoints(args.config, overrides, cfg, run_dir) if local else []

@@ -55,6 +55,10 @@ class LoopSection:
     # leaves the scheduler alone). Refused without CAP_SYS_NICE/RLIMIT_RTPRIO: the run
     # goes on, and the manifest says so.
     realtime_priority: int = field(default=10, metadata=_check(ge=0, le=99))
+    # The CPUs the hub's process runs on (empty: wherever the OS puts it). A CPU of its
+    # own keeps the hub's threads from waiting behind the endpoints' (README, "CPU
+    # placement"). Not for runs side by side: each would take the same CPUs.
+    cpus: tuple[int, ...] = ()
 
     @property
     def deadline_s(self) -> float:
@@ -114,6 +118,8 @@ class EndpointSection:
     kind: str = ""
     # local: `neuvision run` starts it; external: started elsewhere, the hub waits for it.
     launch: str = field(default="local", metadata=_check(choices=("local", "external")))
+    # The CPUs the endpoint's process runs on (empty: wherever the OS puts it).
+    cpus: tuple[int, ...] = ()
     params: dict = field(default_factory=dict)
 
 
@@ -318,6 +324,14 @@ def _coerce(dotted: str, hint, value, meta) -> Any:
     elif hint is str:
         if not isinstance(value, str):
             raise ConfigError(f"{dotted} must be a string, got {value!r}")
+    elif origin is tuple and typing.get_args(hint)[0] is int:
+        if not isinstance(value, (list, tuple)) or not all(
+            isinstance(v, int) and not isinstance(v, bool) and v >= 0 for v in value
+        ):
+            raise ConfigError(f"{dotted} must be a list of CPU numbers (>= 0), got {value!r}")
+        if len(set(value)) != len(value):
+            raise ConfigError(f"{dotted} names a CPU twice: {value!r}")
+        value = tuple(value)
     elif origin is tuple:
         if isinstance(value, str):
             value = [value]

@@ -19,6 +19,7 @@ import signal
 import threading
 import time
 from collections import Counter
+from collections.abc import Sequence
 
 from hub.bus import LOOP_PUBLISH, TELEMETRY_PUBLISH, open_session, payload_bytes
 from hub.config import BusSection, ConfigError, EndpointSection, ExperimentConfig
@@ -30,7 +31,14 @@ from hub.protocol import (
     Message,
     ProtocolError,
 )
-from hub.scheduling import Scheduling, raise_threads, restore_threads
+from hub.scheduling import (
+    Scheduling,
+    available_cpus,
+    place_threads,
+    raise_threads,
+    restore_placement,
+    restore_threads,
+)
 
 log = logging.getLogger(__name__)
 
@@ -130,6 +138,9 @@ class Endpoint(abc.ABC):
             "cpu_s": time.process_time(),  # the whole process, every thread
             "scheduling": self.scheduling.to_dict(),
         }
+        cpus = available_cpus()
+        if cpus is not None:
+            counters["cpus"] = sorted(cpus)  # those this process could run on
         return dataclasses.replace(self.describe(), counters=counters)
 
     def request_stop(self) -> None:
@@ -167,19 +178,33 @@ class Endpoint(abc.ABC):
         self.dropped[kind] += 1
 
     def serve(
-        self, bus: BusSection, *, install_signals: bool = True, realtime_priority: int = 0
+        self,
+        bus: BusSection,
+        *,
+        install_signals: bool = True,
+        realtime_priority: int = 0,
+        cpus: Sequence[int] = (),
     ) -> int:
         """Serve on the bus until stopped; return the exit status (0 on a clean stop).
 
         ``realtime_priority`` > 0 puts this process's threads under ``SCHED_FIFO`` at that
         priority once warmed up (see :mod:`hub.scheduling`; refused: ordinary scheduling).
+        ``cpus`` keeps the process's threads on those CPUs (``<role>.cpus``; empty: the
+        OS decides).
         """
         if install_signals:
             for sig in (signal.SIGINT, signal.SIGTERM):
                 signal.signal(sig, lambda *_: self.request_stop())
         keys = self.keys = Keys(bus.session)
-        self.warm_up()  # so that the first realtime steps are not late
-        session = self._session = open_session(bus, listener=False)
+        placement = place_threads(f"{self.role}.cpus", cpus)
+        if placement.reason:
+            log.warning("%s.cpus not applied: %s", self.role, placement.reason)
+        try:
+            self.warm_up()  # so that the first realtime steps are not late
+            session = self._session = open_session(bus, listener=False)
+        except BaseException:
+            restore_placement(placement)
+            raise
         # Once Zenoh's threads exist: the policy is not inherited by new threads.
         self.scheduling = raise_threads(realtime_priority)
         if realtime_priority and self.scheduling.policy != "fifo":
@@ -243,6 +268,7 @@ class Endpoint(abc.ABC):
                 self._session = None
                 session.close()
                 restore_threads(self.scheduling)
+                restore_placement(placement)
         if failures:
             raise failures[0]
         if self.dropped:

@@ -52,7 +52,15 @@ from hub.protocol import (
     Stimulation,
 )
 from hub.record import Recorder, host, utc_now, versions, write_manifest
-from hub.scheduling import Scheduling, raise_threads, restore_threads
+from hub.scheduling import (
+    Placement,
+    Scheduling,
+    available_cpus,
+    place_threads,
+    raise_threads,
+    restore_placement,
+    restore_threads,
+)
 from hub.schemes import SchemeContext, load_scheme
 
 log = logging.getLogger(__name__)
@@ -162,6 +170,7 @@ class Hub:
         self.direct_busy_s = 0.0  # lockstep: time spent on replies in the threads they came on
         self.reply_deadline = math.inf  # realtime: replies arriving later are late
         self.scheduling: Scheduling | None = None  # realtime: what the hub's threads got
+        self.placement = Placement()  # the CPUs the hub's threads are kept on (loop.cpus)
         # Lockstep: replies are taken in the threads they arrive on while ``direct``.
         self.lock = threading.Lock()  # held by whatever touches the loop's state then
         self.direct = False
@@ -190,10 +199,18 @@ class Hub:
             "start_utc": utc_now(),
             "outcome": "running",
         }
+        # Before Zenoh starts its threads, which inherit the placement.
+        self.placement = place_threads("loop.cpus", cfg.loop.cpus)
+        if self.placement.reason:
+            log.warning("loop.cpus not applied: %s", self.placement.reason)
         if self.run_dir and cfg.record.enabled:
             self.recorder = Recorder(self.run_dir, flush_s=cfg.record.flush_s)
             write_manifest(self.run_dir, manifest)
-        session = open_session(cfg.bus, listener=True)
+        try:
+            session = open_session(cfg.bus, listener=True)
+        except BaseException:
+            restore_placement(self.placement)
+            raise
         outcome, reason = "completed", ""
         try:
             self._declare(session)
@@ -238,6 +255,7 @@ class Hub:
                 )
                 write_manifest(self.run_dir, manifest)
             session.close()
+            restore_placement(self.placement)
         return RunResult(
             outcome, reason, self.k_done, timing, counts, self.run_dir, self.descriptions
         )
@@ -897,6 +915,9 @@ class Hub:
         }
         if self.scheduling is not None:
             out["scheduling"] = self.scheduling.to_dict()
+        cpus = available_cpus()
+        if cpus is not None:
+            out["cpus"] = sorted(cpus)  # those the hub's process could run on
         step_ms = self.step_wall_s[:n] * 1e3
         if n:
             out["step_ms_median"] = float(np.median(step_ms))

@@ -1,4 +1,4 @@
-"""Real-time CPU scheduling for the hub's threads during a realtime run.
+"""CPU scheduling: real-time priority for realtime runs, and placement on chosen CPUs.
 
 Under the kernel's ordinary scheduler a thread that wakes on time may still wait
 a few milliseconds for a CPU that busy endpoints hold (seen here: a step start
@@ -15,13 +15,19 @@ Needs ``CAP_SYS_NICE`` or an ``RLIMIT_RTPRIO`` of at least the priority asked
 for; without either the run goes on under the ordinary scheduler and the
 manifest says so. The kernel's real-time throttling (by default 5 % of each
 second left to other work) still applies.
+
+Placement (:func:`place_threads`, the ``cpus`` keys of the config) keeps a process's
+threads on the CPUs named, for any mode; by default the OS places them.
 """
 
 from __future__ import annotations
 
 import os
 import threading
+from collections.abc import Sequence
 from dataclasses import dataclass, field
+
+from hub.config import ConfigError
 
 
 @dataclass
@@ -103,6 +109,74 @@ def restore_threads(got: Scheduling) -> None:
     for tid, (policy, priority) in got._previous.items():
         try:
             os.sched_setscheduler(tid, policy, os.sched_param(priority))
+        except OSError:  # ended, or no longer ours to change
+            pass
+    got._previous.clear()
+
+
+# --------------------------------------------------------------------------- CPU placement
+
+
+def available_cpus() -> frozenset[int] | None:
+    """The CPUs this process may run on (None where the platform cannot say)."""
+    if not hasattr(os, "sched_getaffinity"):
+        return None
+    return frozenset(os.sched_getaffinity(0))
+
+
+def check_cpus(key: str, cpus: Sequence[int]) -> None:
+    """Raise :class:`~hub.config.ConfigError` naming ``key`` if ``cpus`` asks for a CPU
+    this process may not run on (checked before anything starts)."""
+    available = available_cpus()
+    if not cpus or available is None:
+        return
+    missing = sorted(set(cpus) - available)
+    if missing:
+        raise ConfigError(
+            f"{key}: CPU {missing[0]} is not available to this process "
+            f"(it may run on {sorted(available)})"
+        )
+
+
+@dataclass
+class Placement:
+    """Which CPUs this process's threads were kept on (empty: wherever the OS put them)."""
+
+    cpus: tuple[int, ...] = ()
+    reason: str = ""  # why a placement asked for was not made
+    _previous: dict[int, frozenset[int]] = field(default_factory=dict, repr=False)
+
+
+def place_threads(key: str, cpus: Sequence[int]) -> Placement:
+    """Keep every thread of this process on ``cpus``, and the threads they start later,
+    which inherit it: call this before Zenoh starts its threads. Empty ``cpus`` leaves
+    placement to the OS. A CPU not available is a :class:`~hub.config.ConfigError`
+    naming ``key``; a platform without CPU affinity gets a placement with a reason.
+
+    Why: the hub's threads hand each message to one another; kept on one CPU of their
+    own, they neither wait behind the endpoints' threads nor wake a thread on another
+    CPU (costly in a virtual machine). See README, "CPU placement"."""
+    if not cpus:
+        return Placement()
+    if not hasattr(os, "sched_setaffinity"):
+        return Placement(reason="this platform cannot keep threads on chosen CPUs")
+    check_cpus(key, cpus)
+    got = Placement(tuple(sorted(set(cpus))))
+    for tid in _thread_ids():
+        try:
+            previous = frozenset(os.sched_getaffinity(tid))
+            os.sched_setaffinity(tid, got.cpus)
+        except ProcessLookupError:  # the thread ended meanwhile
+            continue
+        got._previous[tid] = previous
+    return got
+
+
+def restore_placement(got: Placement) -> None:
+    """Undo :func:`place_threads` for the threads it placed that still exist."""
+    for tid, cpus in got._previous.items():
+        try:
+            os.sched_setaffinity(tid, cpus)
         except OSError:  # ended, or no longer ours to change
             pass
     got._previous.clear()

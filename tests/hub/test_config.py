@@ -45,6 +45,9 @@ def test_a_file_and_overrides_are_merged_over_the_defaults(tmp_path):
         ("loop=3", "loop must be a table"),
         ("record.flush_s=2", "record.flush_s must be <= 1.0"),
         ("loop.period_ms=nan", "loop.period_ms must be finite"),
+        ("loop.cpus=1", "loop.cpus must be a list of CPU numbers (>= 0), got 1"),
+        ("body.cpus=[-1]", "body.cpus must be a list of CPU numbers (>= 0)"),
+        ("culture.cpus=[0, 0]", "culture.cpus names a CPU twice"),
     ],
 )
 def test_bad_keys_are_named_with_the_reason(override, message):
@@ -63,8 +66,9 @@ def test_a_missing_or_broken_file_is_a_config_error(tmp_path):
 
 
 def test_the_config_is_recorded_as_plain_data():
-    d = load_config(None, ["loop.period_ms=2"]).to_dict()
+    d = load_config(None, ["loop.period_ms=2", "culture.cpus=[1, 0]"]).to_dict()
     assert d["loop"]["period_ms"] == 2.0
+    assert d["loop"]["cpus"] == [] and d["culture"]["cpus"] == [1, 0]
     assert d["bus"]["listen"] == ["tcp/127.0.0.1:7447"]
 
 

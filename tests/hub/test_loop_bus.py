@@ -59,6 +59,23 @@ def test_lockstep_keeps_the_step_order_with_one_step_of_latency(tmp_path, bus_ov
     assert h.record.manifest["counts"]["late"] == {}
 
 
+@pytest.mark.skipif(not hasattr(os, "sched_setaffinity"), reason="no CPU affinity here")
+def test_the_hub_and_each_endpoint_run_on_the_cpus_their_config_names(tmp_path, bus_overrides):
+    cpus = sorted(os.sched_getaffinity(0))
+    hub_cpu, endpoint_cpu = cpus[-1], cpus[0]  # one CPU each where there are two
+    placement = [f"loop.cpus=[{hub_cpu}]", f"body.cpus=[{endpoint_cpu}]"]
+    placement.append(f"culture.cpus=[{endpoint_cpu}]")
+    with harness(tmp_path, bus_overrides, "experiment.duration_s=0.2", *placement) as h:
+        result = h.run()
+    assert result.outcome == "completed" and result.steps == 20
+    manifest = h.record.manifest
+    assert manifest["timing"]["cpus"] == [hub_cpu]
+    assert manifest["endpoints"]["body"]["cpus"] == [endpoint_cpu]
+    assert manifest["endpoints"]["culture"]["cpus"] == [endpoint_cpu]
+    # The run over, this process's threads may run where they could before.
+    assert sorted(os.sched_getaffinity(0)) == cpus
+
+
 def test_realtime_mode_holds_its_period(tmp_path, bus_overrides):
     with harness(
         tmp_path,

@@ -9,10 +9,15 @@ import threading
 
 import pytest
 
+from hub.config import ConfigError
 from hub.scheduling import (
+    available_cpus,
+    check_cpus,
     endpoint_priority,
     lower_this_thread,
+    place_threads,
     raise_threads,
+    restore_placement,
     restore_threads,
 )
 
@@ -125,3 +130,59 @@ def test_endpoints_take_two_below_the_hub_and_only_in_realtime():
     assert endpoint_priority("realtime", 2) == 1  # never below the lowest FIFO priority
     assert endpoint_priority("realtime", 0) == 0
     assert endpoint_priority("lockstep", 10) == 0
+
+
+# --------------------------------------------------------------------------- CPU placement
+
+needs_affinity = pytest.mark.skipif(
+    not hasattr(os, "sched_setaffinity"), reason="no CPU affinity on this platform"
+)
+
+
+def _affinities() -> dict[int, set[int]]:
+    out = {}
+    for tid in map(int, os.listdir("/proc/self/task")):
+        try:
+            out[tid] = os.sched_getaffinity(tid)
+        except ProcessLookupError:
+            pass
+    return out
+
+
+@needs_affinity
+def test_placed_threads_and_those_they_start_stay_on_the_cpus_until_put_back():
+    cpu = min(available_cpus())
+    release = threading.Event()
+    earlier = threading.Thread(target=release.wait, daemon=True)
+    earlier.start()
+    before = _affinities()
+    got = place_threads("loop.cpus", [cpu])
+    later = threading.Thread(target=release.wait, daemon=True)  # inherits the placement
+    later.start()
+    try:
+        assert got.cpus == (cpu,) and not got.reason
+        assert all(cpus == {cpu} for cpus in _affinities().values())
+        assert os.sched_getaffinity(later.native_id) == {cpu}
+    finally:
+        restore_placement(got)
+        release.set()
+    assert all(os.sched_getaffinity(tid) == cpus for tid, cpus in before.items())
+    earlier.join()
+    later.join()
+
+
+def test_no_cpus_asked_for_leaves_placement_to_the_os():
+    before = _affinities()
+    got = place_threads("loop.cpus", [])
+    assert got.cpus == () and _affinities() == before
+
+
+@needs_affinity
+def test_a_cpu_this_process_may_not_use_is_a_config_error_naming_the_key():
+    missing = max(available_cpus()) + 1000
+    before = _affinities()
+    with pytest.raises(ConfigError, match=rf"body\.cpus: CPU {missing} is not available"):
+        place_threads("body.cpus", [missing])
+    with pytest.raises(ConfigError, match=r"loop\.cpus"):
+        check_cpus("loop.cpus", [missing])
+    assert _affinities() == before

@@ -93,12 +93,19 @@ def test_lockstep_runs_with_the_same_seed_are_identical(tmp_path, bus_overrides)
         ]
 
 
-def test_a_bad_config_names_the_key_and_starts_nothing(tmp_path):
+@pytest.mark.parametrize(
+    "override, message",
+    [
+        ("loop.period_ms=-5", "loop.period_ms must be > 0, got -5"),
+        ("culture.cpus=[100000]", "culture.cpus: CPU 100000 is not available to this process"),
+    ],
+)
+def test_a_bad_config_names_the_key_and_starts_nothing(tmp_path, override, message):
     proc = neuvision(
-        "run", "configs/closed_loop.toml", "--set", "loop.period_ms=-5", "--runs-dir", str(tmp_path)
+        "run", "configs/closed_loop.toml", "--set", override, "--runs-dir", str(tmp_path)
     )
     assert proc.returncode == 3
-    assert "loop.period_ms must be > 0, got -5" in proc.stderr
+    assert message in proc.stderr
     assert list(tmp_path.iterdir()) == []
 
 
