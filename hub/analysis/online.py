@@ -18,18 +18,19 @@ When is an event complete? With a watermark ``W`` (every spike before ``W`` has 
 
 The delay from a burst's last spike to its report is thus about ``window_ms + max_isi_ms`` (40 ms
 by default); a network burst follows its last participating burst's report.
-Cost is a few Python operations per spike (fine for the hub's live stream; offline analysis of
-recorded runs should use the vectorised functions).
+The per-spike work is compiled (``online_kernels.py``) and runs without the interpreter
+lock, so the hub's other threads go on meanwhile; bursts and network bursts are handled
+in Python (offline analysis of recorded runs should use the vectorised functions).
 """
 
 from __future__ import annotations
 
 import heapq
-from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
 
+from hub.analysis import online_kernels as kernels
 from hub.analysis.bursts import BURST_DTYPE, BurstParams, sort_bursts
 from hub.analysis.network_bursts import NetworkBurstParams, NetworkBursts
 from hub.analysis.spikes import AnalysisInputError, check_spikes
@@ -63,16 +64,7 @@ class NetworkBurst:
         return self.end_ms - self.start_ms
 
 
-class _Channel:
-    """Per-channel stream state: non-final spikes and the open burst."""
-
-    __slots__ = ("queue", "open_start", "open_last", "open_n")
-
-    def __init__(self):
-        self.queue: deque[list] = deque()  # [t_ms, is_core] of spikes whose core status may change
-        self.open_start: float | None = None
-        self.open_last = 0.0
-        self.open_n = 0
+QUEUE_START = 16  # spikes a channel's buffer holds at first (doubled when full)
 
 
 class OnlineBurstDetector:
@@ -94,7 +86,16 @@ class OnlineBurstDetector:
         self._isi = self.burst_params.isi_limit_ms
         self._gap = float(self.network_params.merge_gap_ms)
         self._threshold = self.network_params.min_channels(self.n_channels)
-        self._channels: dict[int, _Channel] = {}  # only channels with queued spikes or open burst
+        # Per channel: spikes whose core status may change (a ring buffer each, grown when
+        # full) and the open burst (open_n = 0: none). See online_kernels.py.
+        n = self.n_channels
+        self._q_t = np.zeros((n, QUEUE_START), np.float64)
+        self._q_core = np.zeros((n, QUEUE_START), np.bool_)
+        self._q_head = np.zeros(n, np.int64)
+        self._q_len = np.zeros(n, np.int64)
+        self._open_start = np.zeros(n, np.float64)
+        self._open_last = np.zeros(n, np.float64)
+        self._open_n = np.zeros(n, np.int64)
         self._watermark = -np.inf
         self._latest = -np.inf  # the watermark, or the last spike added after it if later
         # network-burst sweep state
@@ -111,6 +112,18 @@ class OnlineBurstDetector:
         self._pending_end = -np.inf  # latest end of the bursts starting in the gap
         self._bursts: list[Burst] = []
         self._network_bursts: list[NetworkBurst] = []
+        # Compiled (or loaded from numba's cache) now, not at the first spikes of a run.
+        kernels.add_spikes(
+            np.empty(0, np.int64),
+            np.empty(0),
+            self._q_t,
+            self._q_core,
+            self._q_head,
+            self._q_len,
+            self._m,
+            self._window,
+        )
+        self._advance(self._watermark, [])
 
     # ------------------------------------------------------------------ public API
     def feed(self, channel, t_ms, until_ms: float | None = None) -> list:
@@ -140,8 +153,20 @@ class OnlineBurstDetector:
             raise AnalysisInputError(
                 f"t_ms must not go back before the previous window end {self._latest}, got {t[0]}"
             )
-        for c, tt in zip(ch.tolist(), t.tolist(), strict=True):
-            self._add_spike(c, tt)
+        done = 0
+        while done < t.size:
+            done += kernels.add_spikes(
+                ch[done:],
+                t[done:],
+                self._q_t,
+                self._q_core,
+                self._q_head,
+                self._q_len,
+                self._m,
+                self._window,
+            )
+            if done < t.size:
+                self._grow_queues()
         if t.size:
             self._latest = float(t[-1])
         return t
@@ -177,63 +202,43 @@ class OnlineBurstDetector:
         )
 
     # ------------------------------------------------------------------ bursts
-    def _add_spike(self, c: int, t: float) -> None:
-        st = self._channels.get(c)
-        if st is None:
-            st = self._channels[c] = _Channel()
-        q = st.queue
-        q.append([t, False])
-        m = self._m
-        # Spikes of the run ending here are all non-final (a final spike is > window_ms earlier).
-        if len(q) >= m and t - q[-m][0] <= self._window:
-            for i in range(1, m + 1):
-                q[-i][1] = True
+    def _grow_queues(self) -> None:
+        """Double every channel's spike buffer, each queue then starting at its first slot."""
+        cap = self._q_t.shape[1]
+        order = (self._q_head[:, None] + np.arange(cap)) % cap
+        for name in ("_q_t", "_q_core"):
+            old = np.take_along_axis(getattr(self, name), order, axis=1)
+            new = np.zeros((self.n_channels, 2 * cap), old.dtype)
+            new[:, :cap] = old
+            setattr(self, name, new)
+        self._q_head[:] = 0
 
     def _advance(self, w: float, out: list) -> None:
         self._watermark = w
         self._latest = max(self._latest, w)
-        safe = w  # every burst starting before `safe` is known after this pass
-        done = []
-        for c, st in self._channels.items():
-            q = st.queue
-            while q and w - q[0][0] > self._window:
-                t, core = q.popleft()
-                self._finalize_spike(c, st, t, core, out)
-            if st.open_start is not None and w - st.open_last > self._isi:
-                if not q or q[0][0] - st.open_last > self._isi:
-                    self._close(c, st, out)
-            if st.open_start is not None:
-                safe = min(safe, st.open_start)
-            if q:
-                safe = min(safe, q[0][0])
-            elif st.open_start is None:
-                done.append(c)
-        for c in done:
-            del self._channels[c]
-        self._sweep(safe, out)
-
-    def _finalize_spike(self, c: int, st: _Channel, t: float, core: bool, out: list) -> None:
-        if core:
-            if st.open_start is not None and t - st.open_last <= self._isi:
-                st.open_last = t
-                st.open_n += 1
-                return
-            self._close(c, st, out)
-            st.open_start, st.open_last, st.open_n = t, t, 1
-        else:
-            self._close(c, st, out)
-
-    def _close(self, c: int, st: _Channel, out: list) -> None:
-        if st.open_start is None:
-            return
-        if st.open_n >= self._m:
-            b = Burst(c, st.open_start, st.open_last, st.open_n)
+        done = np.empty((int(self._q_len.sum()) + self.n_channels, 4))
+        n, safe = kernels.advance_bursts(
+            w,
+            self._q_t,
+            self._q_core,
+            self._q_head,
+            self._q_len,
+            self._open_start,
+            self._open_last,
+            self._open_n,
+            self._m,
+            self._window,
+            self._isi,
+            done,
+        )
+        for c, start, end, n_spikes in done[:n].tolist():
+            b = Burst(int(c), start, end, int(n_spikes))
             self._bursts.append(b)
             out.append(b)
-            heapq.heappush(self._events, (b.start_ms, 0, c, b.end_ms))
-            heapq.heappush(self._events, (b.end_ms, 1, c, b.start_ms))
-        st.open_start = None
-        st.open_n = 0
+            heapq.heappush(self._events, (start, 0, b.channel, end))
+            heapq.heappush(self._events, (end, 1, b.channel, start))
+        # Every burst starting before `safe` is known now.
+        self._sweep(safe, out)
 
     # ------------------------------------------------------------------ network bursts
     def _sweep(self, safe: float, out: list) -> None:

@@ -129,3 +129,14 @@ def test_adds_must_keep_time_order_and_a_window_end_must_follow_them():
     with pytest.raises(AnalysisInputError, match="until_ms must be >= the last spike time 7.0"):
         det.advance(6.5)
     assert det.advance(8.0) == []
+
+
+def test_a_channel_firing_more_spikes_than_its_buffer_holds_at_first_loses_none():
+    # 10 kHz on channel 0 for 50 ms, fed at once: far more spikes than QUEUE_START.
+    ch = np.zeros(500, np.int64)
+    t = np.arange(500) * 0.1
+    det = OnlineBurstDetector(2)
+    events = det.feed(ch[:250], t[:250]) + det.feed(ch[250:], t[250:], until_ms=60.0)
+    events += det.flush()
+    assert np.array_equal(det.bursts, detect_bursts(ch, t))
+    assert events[0] == Burst(0, 0.0, float(t[-1]), 500)
