@@ -113,16 +113,7 @@ class OnlineBurstDetector:
         self._bursts: list[Burst] = []
         self._network_bursts: list[NetworkBurst] = []
         # Compiled (or loaded from numba's cache) now, not at the first spikes of a run.
-        kernels.add_spikes(
-            np.empty(0, np.int64),
-            np.empty(0),
-            self._q_t,
-            self._q_core,
-            self._q_head,
-            self._q_len,
-            self._m,
-            self._window,
-        )
+        self._queue(np.empty(0, np.int64), np.empty(0))
         self._advance(self._watermark, [])
 
     # ------------------------------------------------------------------ public API
@@ -155,16 +146,7 @@ class OnlineBurstDetector:
             )
         done = 0
         while done < t.size:
-            done += kernels.add_spikes(
-                ch[done:],
-                t[done:],
-                self._q_t,
-                self._q_core,
-                self._q_head,
-                self._q_len,
-                self._m,
-                self._window,
-            )
+            done += self._queue(ch[done:], t[done:])
             if done < t.size:
                 self._grow_queues()
         if t.size:
@@ -202,6 +184,12 @@ class OnlineBurstDetector:
         )
 
     # ------------------------------------------------------------------ bursts
+    def _queue(self, ch: np.ndarray, t: np.ndarray) -> int:
+        """Queue spikes on their channels' buffers; returns how many fitted."""
+        return kernels.add_spikes(
+            ch, t, self._q_t, self._q_core, self._q_head, self._q_len, self._m, self._window
+        )
+
     def _grow_queues(self) -> None:
         """Double every channel's spike buffer, each queue then starting at its first slot."""
         cap = self._q_t.shape[1]
