@@ -204,7 +204,7 @@ class OnlineBurstDetector:
     def _advance(self, w: float, out: list) -> None:
         self._watermark = w
         self._latest = max(self._latest, w)
-        done = np.empty((int(self._q_len.sum()) + self.n_channels, 4))
+        rows = np.empty((int(self._q_len.sum()) + self.n_channels, 4))  # room for every burst
         n, safe = kernels.advance_bursts(
             w,
             self._q_t,
@@ -217,9 +217,9 @@ class OnlineBurstDetector:
             self._m,
             self._window,
             self._isi,
-            done,
+            rows,
         )
-        for c, start, end, n_spikes in done[:n].tolist():
+        for c, start, end, n_spikes in rows[:n].tolist():
             b = Burst(int(c), start, end, int(n_spikes))
             self._bursts.append(b)
             out.append(b)
