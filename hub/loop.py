@@ -199,13 +199,13 @@ class Hub:
             "start_utc": utc_now(),
             "outcome": "running",
         }
+        if self.run_dir and cfg.record.enabled:
+            self.recorder = Recorder(self.run_dir, flush_s=cfg.record.flush_s)
+            write_manifest(self.run_dir, manifest)
         # Before Zenoh starts its threads, which inherit the placement.
         self.placement = place_threads("loop.cpus", cfg.loop.cpus)
         if self.placement.reason:
             log.warning("loop.cpus not applied: %s", self.placement.reason)
-        if self.run_dir and cfg.record.enabled:
-            self.recorder = Recorder(self.run_dir, flush_s=cfg.record.flush_s)
-            write_manifest(self.run_dir, manifest)
         try:
             session = open_session(cfg.bus, listener=True)
         except BaseException:
