@@ -56,6 +56,7 @@ from hub.scheduling import (
     Placement,
     Scheduling,
     available_cpus,
+    check_cpus,
     place_threads,
     raise_threads,
     restore_placement,
@@ -187,6 +188,7 @@ class Hub:
     def run(self) -> RunResult:
         """Run the experiment to its end, a stop, or a fault; always close up."""
         cfg = self.cfg
+        check_cpus("loop.cpus", cfg.loop.cpus)  # a config error before anything is written
         manifest = {
             "format": "neuvision-run",
             "v": 1,
