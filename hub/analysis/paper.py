@@ -1,7 +1,7 @@
 """The paper's reported figures (``../shared/reference/paper-targets.md``) and the ±30 % check.
 
-One place for these numbers: the calibration script (``sim_network.calibrate``) and the
-reproduction (``hub.analysis.reproduce``) both read them from here. Keys match the metrics dict
+One place for these numbers: the calibration script (``lab.calibrate``) and the
+reproduction (``lab.reproduce``) both read them from here. Keys match the metrics dict
 of ``hub.analysis.metrics``.
 """
 

@@ -1,9 +1,10 @@
 """Activity figures of a simulated culture, computed by ``hub.analysis`` (the project's one
 definition of bursts, network bursts and their statistics; see ``docs/analysis.md``).
 
-This is the adapter that calibration and reproduction scripts use to hand neuron-level spikes
-and the grid layout to ``hub.analysis``. Only such scripts import it: the simulator itself
-(``network``, ``kernels``, ...) never imports ``hub``.
+This is the adapter that calibration and reproduction (``lab.calibrate``, ``lab.reproduce``)
+use to hand neuron-level spikes and the grid layout to ``hub.analysis``. It lives in the lab
+layer because it joins the two: the simulator never imports ``hub``, and ``hub`` never imports
+the simulator.
 """
 
 from __future__ import annotations

@@ -1,12 +1,12 @@
 """Calibration run: simulate the culture and print the paper's activity figures.
 
-    python -m sim_network.calibrate --config configs/culture_1024.toml --seconds 60 \
+    python -m lab.calibrate --config configs/culture_1024.toml --seconds 60 \
         --set connectivity.weight_exc_mv=[0,6] --set noise.sd=3.5 [--evoked]
 
 Spontaneous mode prints MFR, MBR, MNBR, network-burst duration and the excitatory share of
 network-burst spikes against the paper's values; `--evoked` stimulates one excitatory neuron
 near the centre with the paper's 10 ms, 100 µA, 0.2 Hz pulses and prints the PSTH peak.
-The figures are computed by `hub.analysis` (through `sim_network.activity`), the project's
+The figures are computed by `hub.analysis` (through `lab.activity`), the project's
 one definition of bursts and network bursts. The last line is a JSON object with the figures.
 """
 
@@ -21,7 +21,7 @@ import numpy as np
 
 from hub.analysis.metrics import AnalysisParams
 from hub.analysis.paper import PAPER_TARGETS, relative_error
-from sim_network.activity import analyze_culture
+from lab.activity import analyze_culture
 from sim_network.config import NetworkConfig, config_from_dict, config_to_dict, load_config
 from sim_network.network import Network
 from sim_network.records import PeriodicStimulus, Spikes
