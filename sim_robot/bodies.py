@@ -5,12 +5,12 @@ the order the sensors are listed (that order is the order of ``read_sensors()``)
 
 Presets (``PRESETS``):
 
-* ``khepera2`` — 70 mm disc, wheel base 53 mm, 8 IR sensors at the real positions and facings
-  (``shared/reference/devices.md``), max wheel speed 127 units x 8 mm/s = 1.016 m/s, range
-  finders capped at the IR fade distance (0.12 m) with the Khepera II IR response.
-* ``khepera4`` — radius 70.4 mm, wheel base 105.4 mm, 8 IR sensors evenly spaced from forward
-  counter-clockwise on the rim; max range 0.25 m and max wheel speed 0.81 m/s are our
-  assumptions (not in the reference notes).
+* ``khepera2`` — the real robot's disc, wheel base, 8 IR sensors at their positions and
+  facings and max wheel speed (``devices.khepera``: 70 mm, 53 mm, 1.016 m/s), range finders
+  capped at the IR fade distance (0.12 m) with the Khepera II IR response.
+* ``khepera4`` — the real robot's radius, wheel base and 8 IR facings (``devices.khepera``:
+  70.4 mm, 105.4 mm, evenly spaced on the rim); max range 0.25 m and max wheel speed 0.81 m/s
+  are our assumptions (not in the reference notes).
 * ``paper7`` — the paper's Figure 7 robot: a Khepera II-sized disc with 7 range finders on the
   rim at -90°..+90° every 30° (right to left), max range 0.25 m, wheels capped at 0.2 m/s.
 """
@@ -23,6 +23,8 @@ import numbers
 from dataclasses import dataclass
 
 import numpy as np
+
+from devices import khepera
 
 from .errors import WorldError
 from .ir import IR_FADE_M, IR_MODELS
@@ -104,8 +106,8 @@ def rim_offsets(radius_m: float, angles_rad: np.ndarray) -> np.ndarray:
 def custom_body(
     sensor_angles_deg,
     max_range_m: float,
-    radius_m: float = 0.035,
-    wheel_base_m: float = 0.053,
+    radius_m: float = khepera.KHEPERA2_RADIUS_M,
+    wheel_base_m: float = khepera.KHEPERA2_WHEEL_BASE_M,
     max_wheel_mps: float = 0.2,
     sensor_offsets_m=None,
     ir_model: str | None = None,
@@ -127,16 +129,13 @@ def custom_body(
 
 
 def _khepera2() -> Body:
-    mm = 1e-3
-    positions = [(10, 24), (19, 17), (25, 6), (25, -6), (19, -17), (10, -24), (-24, -10), (-24, 10)]
-    facings_deg = [90, 45, 0, 0, -45, -90, 180, 180]
     return custom_body(
-        facings_deg,
+        khepera.KHEPERA2_SENSOR_FACINGS_DEG,
         max_range_m=IR_FADE_M,
-        radius_m=0.035,
-        wheel_base_m=0.053,
-        max_wheel_mps=127 * 0.008,
-        sensor_offsets_m=np.array(positions, dtype=np.float64) * mm,
+        radius_m=khepera.KHEPERA2_RADIUS_M,
+        wheel_base_m=khepera.KHEPERA2_WHEEL_BASE_M,
+        max_wheel_mps=khepera.KHEPERA2_MAX_WHEEL_MPS,
+        sensor_offsets_m=khepera.KHEPERA2_SENSOR_POSITIONS_M,
         ir_model="khepera2",
         name="khepera2",
     )
@@ -144,10 +143,10 @@ def _khepera2() -> Body:
 
 def _khepera4() -> Body:
     return custom_body(
-        np.arange(8) * 45.0,
+        khepera.KHEPERA4_SENSOR_FACINGS_DEG,
         max_range_m=0.25,
-        radius_m=0.0704,
-        wheel_base_m=0.1054,
+        radius_m=khepera.KHEPERA4_RADIUS_M,
+        wheel_base_m=khepera.KHEPERA4_WHEEL_BASE_M,
         max_wheel_mps=0.81,
         name="khepera4",
     )
