@@ -49,7 +49,20 @@ class Synapses:
 
 
 def connection_probability(distance_um: np.ndarray, cfg: ConnectivityConfig) -> np.ndarray:
-    """P_C(d) of the configured rule, zero beyond the cut-off distance."""
+    """The probability that a neuron connects to another at a distance: the builder's rule.
+
+    Parameters
+    ----------
+    distance_um : array_like
+        Distances between the two neurons (µm).
+    cfg : ConnectivityConfig
+        ``p_c_max``, ``d_pc_um`` and ``cutoff_um``.
+
+    Returns
+    -------
+    float64 array
+        ``p_c_max · exp(-d / d_pc_um)`` for ``d <= cutoff_um``, else 0.
+    """
     d = np.asarray(distance_um, dtype=np.float64)
     p = cfg.p_c_max * np.exp(-d / cfg.d_pc_um)
     return np.where(d <= cfg.cutoff_um, p, 0.0)
@@ -71,13 +84,33 @@ def _offsets(layout: Layout, cfg: ConnectivityConfig) -> tuple[np.ndarray, np.nd
 
 
 def build_synapses(layout: Layout, cfg: ConnectivityConfig, rng: np.random.Generator) -> Synapses:
-    """Draw connections, weights (uniform per pre type) and conduction speeds (uniform)."""
+    """Draw the culture's synapses.
+
+    Every ordered pair of neurons connects with :func:`connection_probability` of its
+    distance (no self-connections unless ``cfg.allow_self``); weights are uniform in the
+    range of the presynaptic neuron's type, conduction speeds uniform in ``speed_m_s``.
+
+    Parameters
+    ----------
+    layout : Layout
+        Grid positions and cell types.
+    cfg : ConnectivityConfig
+        The rule, weights, delays and speeds.
+    rng : numpy.random.Generator
+        The source of every draw (the same generator state gives the same synapses).
+
+    Returns
+    -------
+    Synapses
+        In CSR form by presynaptic neuron, with weights (mV), delays (synaptic delay plus
+        distance / speed, ms) and distances (µm).
+    """
     rows, cols = layout.rows, layout.cols
     pres: list[np.ndarray] = []
     posts: list[np.ndarray] = []
     dists: list[np.ndarray] = []
     for dr, dc, d in zip(*_offsets(layout, cfg), strict=True):
-        p = cfg.p_c_max * np.exp(-d / cfg.d_pc_um)
+        p = connection_probability(d, cfg)
         if p <= 0.0:
             continue
         r = np.arange(max(0, -dr), rows - max(0, dr))

@@ -86,11 +86,11 @@ class Network:
         st = cfg.stdp
         self._stdp = (
             bool(st.enabled),
-            st.a_plus_mv,
-            st.a_minus_mv,
+            float(st.a_plus_mv),
+            float(st.a_minus_mv),
             math.exp(-self._dt / st.tau_plus_ms),
             math.exp(-self._dt / st.tau_minus_ms),
-            st.w_max_mv,
+            float(st.w_max_mv),
         )
         self._dep_tau_steps = cfg.depression.tau_rec_ms / self._dt
         inh = self.layout.cell_type != EXCITATORY
@@ -191,24 +191,29 @@ class Network:
         k1 = k0 + n_steps
         self._pending = self._pending.alive_after(k0)
         pend = self._pending
-        st = self._stdp
         n_out = 0
         neurons: list[np.ndarray] = []
         steps: list[np.ndarray] = []
+        groups = (  # the parts of the model, as `kernels.advance` takes them
+            (self._model, self._dt, self._n_sub, self.v, self.aux, self.params),
+            (self.ring, self.synapses.indptr, self.synapses.post, self.weight, self._target),
+            (float(self.cfg.depression.u), self._dep_tau_steps, self.dep_x, self.dep_last),
+            (self._noise_mean, self._noise_sd, self._noise_steps, self.noise_state, self.noise_cur),
+            (pend.neuron, pend.current, pend.start, pend.end, self._stim_cur),
+            (
+                *self._stdp,
+                self.x_pre,
+                self.y_post,
+                self._in_indptr,
+                self._in_syn,
+                self._pre,
+                self._is_exc,
+            ),
+            (self._out_neuron, self._out_step),
+        )
         k = k0
         while k < k1:
-            done, n_out = kernels.advance(
-                self._model, k1 - k, k, self._dt, self._n_sub,
-                self.v, self.aux, self.params, self.ring,
-                self.synapses.indptr, self.synapses.post, self.weight, self._target,
-                self.cfg.depression.u, self._dep_tau_steps, self.dep_x, self.dep_last,
-                self._noise_mean, self._noise_sd, self._noise_steps, self.noise_state,
-                self.noise_cur,
-                pend.neuron, pend.current, pend.start, pend.end, self._stim_cur,
-                st[0], st[1], st[2], st[3], st[4], st[5], self.x_pre, self.y_post,
-                self._in_indptr, self._in_syn, self._pre, self._is_exc,
-                self._out_neuron, self._out_step, 0,
-            )  # fmt: skip
+            done, n_out = kernels.advance(k1 - k, k, *groups, 0)
             k += done
             self.step = k
             neurons.append(self._out_neuron[:n_out].copy())

@@ -26,8 +26,6 @@ IZHIKEVICH_TYPES: dict[str, tuple[float, float, float, float]] = {
 }
 
 MODEL_IDS = {"izhikevich": 0, "lif": 1, "hh": 2}
-IZH_V_PEAK_MV = 30.0
-HH_SPIKE_THRESHOLD_MV = 0.0
 HH_V_REST_MV = -65.0
 
 

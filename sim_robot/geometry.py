@@ -317,18 +317,6 @@ def disc_update(
     return entries, any_overlap, m < 0.0, abs(m) <= radius + CONTACT_TOLERANCE_M
 
 
-@njit(cache=True, nogil=True)
-def point_in_obstacles(xs, ys, obs_kind, obs_circle, poly_vertex, obs_start, out):
-    """``out[k]`` = index of an obstacle containing point k, or -1."""
-    for k in range(xs.shape[0]):
-        out[k] = -1
-        for j in range(obs_kind.shape[0]):
-            c = _obstacle_clearance(xs[k], ys[k], j, obs_kind, obs_circle, poly_vertex, obs_start)
-            if c == 0.0:
-                out[k] = j
-                break
-
-
 # ---------------------------------------------------------------- plain-Python helpers
 
 
