@@ -19,7 +19,21 @@ UM_PER_MS_PER_M_S = 1000.0  # 1 m/s = 1000 µm/ms
 
 @dataclass
 class Synapses:
-    """Synapses sorted by presynaptic neuron (CSR): those of neuron i are indptr[i]:indptr[i+1]."""
+    """Synapses sorted by presynaptic neuron (CSR): those of neuron i are indptr[i]:indptr[i+1].
+
+    Attributes
+    ----------
+    indptr : int64[n + 1]
+        Row pointers.
+    post : int32[m]
+        Postsynaptic neuron of each synapse.
+    weight_mv : float64[m]
+        Jump of the postsynaptic potential on arrival (mV; negative for inhibitory).
+    delay_ms : float32[m]
+        Synaptic delay + distance / conduction speed.
+    distance_um : float32[m]
+        Distance between the two neurons.
+    """
 
     indptr: np.ndarray  # int64[n + 1]
     post: np.ndarray  # int32[m]
@@ -33,7 +47,19 @@ class Synapses:
         return int(self.post.size)
 
     def permuted(self, order: np.ndarray) -> Synapses:
-        """The same synapses in another order within each row (`order` keeps rows intact)."""
+        """The same synapses in another order within each row.
+
+        Parameters
+        ----------
+        order : int64[m]
+            A permutation that keeps every synapse in its row (e.g. from
+            `kernels.row_order`).
+
+        Returns
+        -------
+        Synapses
+            With ``indptr`` unchanged and every other array reordered.
+        """
         return Synapses(
             indptr=self.indptr,
             post=self.post[order],
@@ -43,7 +69,13 @@ class Synapses:
         )
 
     def pre(self) -> np.ndarray:
-        """Presynaptic neuron of every synapse, int32[m]."""
+        """The presynaptic neuron of every synapse.
+
+        Returns
+        -------
+        int32[m]
+            Row index of each synapse.
+        """
         counts = np.diff(self.indptr)
         return np.repeat(np.arange(counts.size, dtype=np.int32), counts)
 
@@ -150,5 +182,18 @@ def build_synapses(layout: Layout, cfg: ConnectivityConfig, rng: np.random.Gener
 
 
 def delay_steps(delay_ms: np.ndarray, dt_ms: float) -> np.ndarray:
-    """Delays in whole steps (rounded, at least one step), int32."""
+    """Delays in whole steps.
+
+    Parameters
+    ----------
+    delay_ms : float array
+        Delays (ms).
+    dt_ms : float
+        The step.
+
+    Returns
+    -------
+    int32 array
+        round(delay / dt), at least 1 (a spike never arrives in the step it was fired).
+    """
     return np.maximum(1, np.rint(delay_ms / dt_ms)).astype(np.int32)

@@ -97,10 +97,17 @@ def splitmix64(x):
 
 @njit(cache=True, nogil=True)
 def seed_noise_state(seed, state):
-    """Fill the per-neuron xoshiro128++ states (4, n) uint32 from a 64-bit seed via SplitMix64.
+    """Seed every neuron's noise generator from one 64-bit seed.
 
     Neuron j's four words are the two halves of the next two SplitMix64 outputs (never all
     zero, the one state xoshiro cannot leave).
+
+    Parameters
+    ----------
+    seed : uint64
+        The network's noise seed.
+    state : uint32[4, n]
+        Filled in place: the xoshiro128++ state of each neuron.
     """
     x = np.uint64(seed)
     for j in range(state.shape[1]):
@@ -153,6 +160,15 @@ def fill_noise(noise_cur, state, mean, sd):
     window, so the stream does not depend on dt or chunking. The Izhikevich update draws the
     same values itself (fused into its pass); this is the standalone form for the other
     models.
+
+    Parameters
+    ----------
+    noise_cur : float32[n]
+        Written: each neuron's current for the window, mean + sd · variate.
+    state : uint32[4, n]
+        Each neuron's generator, advanced by one draw.
+    mean, sd : float32[n]
+        Per-neuron mean and standard deviation of the current.
     """
     s0 = state[0]
     s1 = state[1]
@@ -324,6 +340,20 @@ def ring_targets(delay_steps, post, n_neurons):
     The kernel expects the offsets of each presynaptic neuron in ascending order (see
     `Network`, which sorts every CSR row by it): a row then splits into one run that does not
     wrap and one that does.
+
+    Parameters
+    ----------
+    delay_steps : int array
+        Each synapse's delay in steps (`connectivity.delay_steps`).
+    post : int array
+        Each synapse's postsynaptic neuron.
+    n_neurons : int
+        Neurons in the network (the ring's row length).
+
+    Returns
+    -------
+    int32 or int64 array
+        delay·n_neurons + post of each synapse.
     """
     n_slots = int(delay_steps.max()) + 1 if delay_steps.size else 2
     dtype = np.int32 if n_slots * n_neurons < 2**31 else np.int64
@@ -345,7 +375,20 @@ def _row_order(indptr, key, order):
 
 
 def row_order(indptr, key):
-    """Permutation that sorts every CSR row by `key` (stable), or None if already sorted."""
+    """The permutation that sorts every CSR row by a key.
+
+    Parameters
+    ----------
+    indptr : int64[n + 1]
+        Row pointers.
+    key : array
+        One key per entry.
+
+    Returns
+    -------
+    int64 array or None
+        A stable within-row sort, or None when every row is already in order.
+    """
     order = np.empty(key.size, dtype=np.int64)
     return order if _row_order(indptr, key, order) else None
 

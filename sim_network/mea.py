@@ -19,7 +19,17 @@ from sim_network.layout import Layout
 
 @dataclass(frozen=True)
 class Mea:
-    """Electrode positions and the two neuron↔electrode maps in CSR form."""
+    """Electrode positions and the two neuron↔electrode maps in CSR form.
+
+    Attributes
+    ----------
+    x_um, y_um : float32[e]
+        Electrode positions (µm).
+    rec_indptr, rec_electrode : int64[n + 1], uint32
+        Electrodes that record neuron i: ``rec_electrode[rec_indptr[i]:rec_indptr[i + 1]]``.
+    stim_indptr, stim_neuron : int64[e + 1], int64
+        Neurons that electrode j stimulates: ``stim_neuron[stim_indptr[j]:stim_indptr[j + 1]]``.
+    """
 
     x_um: np.ndarray  # float32[e]
     y_um: np.ndarray  # float32[e]
@@ -64,7 +74,20 @@ def _csr(owner: np.ndarray, member: np.ndarray, n_owner: int):
 
 
 def build_mea(cfg: MeaConfig, layout: Layout) -> Mea:
-    """Place the electrodes on the culture centre and map neurons within the radii."""
+    """Place the electrodes on the culture's centre and map the neurons within their radii.
+
+    Parameters
+    ----------
+    cfg : MeaConfig
+        Grid, pitch, recording and stimulation radii.
+    layout : Layout
+        The neurons.
+
+    Returns
+    -------
+    Mea
+        Electrodes in the order of `electrode_positions`.
+    """
     ex, ey = electrode_positions(cfg, layout.width_um / 2.0, layout.height_um / 2.0)
     dx = layout.x_um[:, None].astype(np.float64) - ex[None, :]
     dy = layout.y_um[:, None].astype(np.float64) - ey[None, :]

@@ -161,7 +161,13 @@ class Network:
         return self._neuron_spikes
 
     def potentials(self) -> np.ndarray:
-        """Membrane potential snapshot (mV), float32[n_neurons]."""
+        """A snapshot of the membrane potentials.
+
+        Returns
+        -------
+        float32[n_neurons]
+            Each neuron's membrane potential (mV) now, a copy.
+        """
         return self.v.astype(np.float32)
 
     # ------------------------------------------------------------------ running
@@ -274,7 +280,14 @@ class Network:
 
     # ------------------------------------------------------------------ state
     def get_state(self) -> dict[str, np.ndarray]:
-        """Everything that evolves during `run()`, as copies of plain arrays."""
+        """Everything that evolves during `run()`, as copies of plain arrays.
+
+        Returns
+        -------
+        dict of str to numpy.ndarray
+            ``step``, the neuron state (``v``, ``aux``), the delay ring, noise, depression and
+            STDP state, the current weights and the pending pulses; `set_state` takes it back.
+        """
         return {
             "step": np.array(self.step, dtype=np.int64),
             "v": self.v.copy(),
@@ -294,7 +307,14 @@ class Network:
         }
 
     def set_state(self, state: dict[str, np.ndarray]) -> None:
-        """Restore what `get_state` returned (of a network with the same config and seed)."""
+        """Restore what `get_state` returned.
+
+        Parameters
+        ----------
+        state : dict of str to numpy.ndarray
+            From `get_state` of a network with the same config and seed; every array must
+            have the shape of the current one (copied in, converted to its dtype).
+        """
         for key in (
             "v",
             "aux",
@@ -321,7 +341,13 @@ class Network:
         )
 
     def save(self, path: str | Path) -> None:
-        """Write config, seed, connectivity and state to one `.npz`-format file at `path`."""
+        """Write config, seed, connectivity and state to one file.
+
+        Parameters
+        ----------
+        path : str or Path
+            Written exactly there, in ``.npz`` format (no suffix added); `load` reads it.
+        """
         syn = self.synapses
         meta = {"version": _STATE_VERSION, "seed": self.seed, "config": config_to_dict(self.cfg)}
         with open(path, "wb") as fh:  # exactly this path (np.savez would add .npz)
@@ -340,7 +366,24 @@ class Network:
 
     @classmethod
     def load(cls, path: str | Path) -> Network:
-        """Rebuild a network saved by `save`; running on gives the spikes it would have given."""
+        """Rebuild a network saved by `save`.
+
+        Parameters
+        ----------
+        path : str or Path
+            A file written by `save` (state version 2).
+
+        Returns
+        -------
+        Network
+            At the saved step; running on gives the spikes the saved network would have given.
+
+        Raises
+        ------
+        ValueError
+            The file holds another state version (version 1 used a noise generator this
+            version no longer has).
+        """
         with np.load(path, allow_pickle=False) as data:
             meta = json.loads(str(data["meta"]))
             version = meta.get("version")

@@ -93,12 +93,36 @@ class Body:
             )
 
     def replace(self, **changes) -> Body:
-        """A copy with some fields changed (validated again)."""
+        """A copy with some fields changed.
+
+        Parameters
+        ----------
+        **changes
+            Field values, by name.
+
+        Returns
+        -------
+        Body
+            Validated again.
+        """
         return dataclasses.replace(self, **changes)
 
 
 def rim_offsets(radius_m: float, angles_rad: np.ndarray) -> np.ndarray:
-    """Sensor positions on the rim of a disc, each facing outward along its angle."""
+    """Sensor positions on the rim of a disc, each facing outward along its angle.
+
+    Parameters
+    ----------
+    radius_m : float
+        The disc.
+    angles_rad : float array[k]
+        Facing of each sensor, counter-clockwise from forward.
+
+    Returns
+    -------
+    float64[k, 2]
+        (x, y) of each sensor in the body frame (m).
+    """
     a = np.asarray(angles_rad, dtype=np.float64)
     return np.stack([radius_m * np.cos(a), radius_m * np.sin(a)], axis=1)
 
@@ -113,7 +137,31 @@ def custom_body(
     ir_model: str | None = None,
     name: str = "custom",
 ) -> Body:
-    """A body with range finders at user-chosen directions (on the rim unless placed)."""
+    """A body with range finders at user-chosen directions.
+
+    Parameters
+    ----------
+    sensor_angles_deg : array_like of float
+        Facing of each range finder (deg, counter-clockwise from forward).
+    max_range_m : float
+        Range reported when nothing is hit.
+    radius_m, wheel_base_m : float
+        The disc and the distance between the wheels (default a Khepera II's,
+        ``devices.khepera``).
+    max_wheel_mps : float
+        Wheel speed limit.
+    sensor_offsets_m : array_like, shape (k, 2), optional
+        Sensor positions in the body frame; default on the rim (`rim_offsets`).
+    ir_model : str, optional
+        A key of ``sim_robot.ir.IR_MODELS`` for ``Arena.read_ir``.
+    name : str
+        Shown in messages.
+
+    Returns
+    -------
+    Body
+        Validated (`WorldError` names a bad field).
+    """
     angles = np.deg2rad(np.asarray(sensor_angles_deg, dtype=np.float64).reshape(-1))
     offsets = rim_offsets(radius_m, angles) if sensor_offsets_m is None else sensor_offsets_m
     return Body(
@@ -160,7 +208,23 @@ PRESETS = {"khepera2": _khepera2, "khepera4": _khepera4, "paper7": _paper7}
 
 
 def preset(name: str) -> Body:
-    """A ready body by name: one of ``PRESETS``."""
+    """A ready body by name.
+
+    Parameters
+    ----------
+    name : str
+        One of ``PRESETS``: ``"khepera2"``, ``"khepera4"``, ``"paper7"``.
+
+    Returns
+    -------
+    Body
+        A new body.
+
+    Raises
+    ------
+    WorldError
+        For an unknown name.
+    """
     try:
         return PRESETS[name]()
     except KeyError:

@@ -29,6 +29,11 @@ def ir_value(range_m: np.ndarray, model: str = "khepera2") -> np.ndarray:
         Distances from the sensor, metres (any shape).
     model : str
         Name of a table in ``IR_MODELS``.
+
+    Returns
+    -------
+    float32 array
+        Of the shape of ``range_m``: values interpolated in distance, 0 beyond the table.
     """
     try:
         table = IR_MODELS[model]
