@@ -86,7 +86,28 @@ def plot_raster(
     t_stop_ms: float | None = None,
     formats=FORMATS,
 ) -> list[Path]:
-    """Raster plot: excitatory spikes red, inhibitory blue, network bursts shaded."""
+    """Raster plot: excitatory spikes red, inhibitory blue, network bursts shaded.
+
+    Parameters
+    ----------
+    channel, t_ms : array_like[k]
+        The spikes (sorted by time).
+    out : matplotlib Axes or path
+        Where to draw (see the module docstring).
+    cell_type : uint8[n_channels], optional
+        Colours by type; without it every spike is drawn alike.
+    network_bursts : NetworkBursts, optional
+        Shaded.
+    t_start_ms, t_stop_ms : float, optional
+        The span shown; default the spikes' span.
+    formats : tuple of str
+        File formats with a path ``out``.
+
+    Returns
+    -------
+    list of Path
+        The files written (``[]`` when drawing into an Axes).
+    """
     ch, t = check_spikes(channel, t_ms)
     lo = t_start_ms if t_start_ms is not None else (t[0] if t.size else 0.0)
     hi = t_stop_ms if t_stop_ms is not None else (t[-1] if t.size else 1.0)
@@ -351,8 +372,34 @@ def plot_all(
 
     Writes into ``out_dir``: ``raster`` (the first ``raster_span_ms``), ``raster_nb`` (1 s around
     the first network burst), ``rate`` (all/exc/inh), ``isi``, ``ibi``, and when available
-    ``psth``, ``cat_single``, ``cats_all``, ``cats_evoked``, ``cats_spontaneous``. Returns every
-    path written, in that order.
+    ``psth``, ``cat_single``, ``cats_all``, ``cats_evoked``, ``cats_spontaneous``.
+
+    Parameters
+    ----------
+    out_dir : str or Path
+        The folder written into.
+    channel, t_ms : array_like[k]
+        The analysed spikes (channel indices, sorted times).
+    result : AnalysisResult
+        From `metrics.analyze` of those spikes.
+    t_start_ms, t_stop_ms : float
+        The analysed span.
+    cell_type : uint8[n_channels], optional
+    x_um, y_um : float[n_channels], optional
+        Channel positions (the CAT figures).
+    stim_channels : int array, optional
+        Channels marked as stimulated in the CAT figures.
+    raster_span_ms : float
+        Length of the ``raster`` figure.
+    rate_bin_ms : float
+        Bin of the ``rate`` figure.
+    formats : tuple of str
+        File formats.
+
+    Returns
+    -------
+    list of Path
+        Every file written, in the order above.
     """
     out = Path(out_dir)
     ch, t = check_spikes(channel, t_ms)
