@@ -16,6 +16,8 @@ import json
 import logging
 from pathlib import Path
 
+import numpy as np
+
 from hub.analysis.figures import plot_raster
 from hub.protocol import Stimulation
 from hub.record import read_run
@@ -62,6 +64,8 @@ def summarize_run(run_dir: str | Path) -> dict:
             summary["figures"].append(path.name)
     channel, t_ms = rec.spikes()
     if channel.size:
+        order = np.argsort(t_ms, kind="stable")  # late batches may arrive out of order
+        channel, t_ms = channel[order], t_ms[order]
         culture = rec.descriptions().get("culture")
         cell_type = culture.cell_type if culture is not None else None
         paths = plot_raster(channel, t_ms, run_dir / "raster", cell_type=cell_type)
