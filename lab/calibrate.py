@@ -28,7 +28,19 @@ from sim_network.records import PeriodicStimulus, Spikes
 
 
 def with_overrides(cfg: NetworkConfig, overrides: list[str]) -> NetworkConfig:
-    """Apply `dotted.key=toml_value` overrides to a config."""
+    """Apply overrides to a culture config.
+
+    Parameters
+    ----------
+    cfg : NetworkConfig
+    overrides : list of str
+        ``dotted.key=toml_value`` items.
+
+    Returns
+    -------
+    NetworkConfig
+        Validated again.
+    """
     data = config_to_dict(cfg)
     for item in overrides:
         key, _, value = item.partition("=")
@@ -44,9 +56,26 @@ def with_overrides(cfg: NetworkConfig, overrides: list[str]) -> NetworkConfig:
 def record(
     net: Network, seconds: float, chunk_ms: float = 1000.0, stim=None, on_chunk=None
 ) -> Spikes:
-    """Run `seconds` of simulated time in chunks; return the neuron-level spikes.
+    """Run a network for a while in chunks and collect its neuron-level spikes.
 
-    `on_chunk(step_ms)` is called after each chunk (progress reports)."""
+    Parameters
+    ----------
+    net : Network
+        Advanced in place from its current time.
+    seconds : float
+        Simulated time.
+    chunk_ms : float
+        Length of each `Network.run` call.
+    stim : PeriodicStimulus, optional
+        Its pulses are given to the calls they start in.
+    on_chunk : callable, optional
+        ``on_chunk(step_ms)`` after each chunk (progress reports).
+
+    Returns
+    -------
+    Spikes
+        Neuron-level spikes (absolute times) of the whole time.
+    """
     parts = []
     t_end = net.t_ms + seconds * 1000.0
     while net.t_ms < t_end - 1e-9:
@@ -60,7 +89,17 @@ def record(
 
 
 def central_excitatory_neuron(net: Network) -> int:
-    """The excitatory neuron nearest the culture centre."""
+    """The excitatory neuron nearest the culture centre.
+
+    Parameters
+    ----------
+    net : Network
+
+    Returns
+    -------
+    int
+        Its index.
+    """
     lay = net.layout
     d = np.hypot(lay.x_um - lay.width_um / 2, lay.y_um - lay.height_um / 2)
     d[lay.cell_type != 0] = np.inf

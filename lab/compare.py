@@ -58,7 +58,27 @@ def compare(
     jobs: int | None = None,
     overrides: list[str] = (),
 ) -> dict:
-    """Run every config × seed, then tabulate and draw; returns the comparison."""
+    """Run every config × seed, then tabulate and draw.
+
+    Parameters
+    ----------
+    configs : list of str
+        Experiment files, one per condition (distinct ``experiment.name`` values).
+    seeds : int
+        Seeds 1..seeds for each condition.
+    out_dir : Path, optional
+        Default a new folder under ``runs/``.
+    jobs : int, optional
+        Runs at once; default the number of CPUs.
+    overrides : list of str
+        ``--set`` items applied to every run.
+
+    Returns
+    -------
+    dict
+        ``conditions``, ``stats`` (per condition and metric: mean, s.d., n), ``runs``,
+        ``figures`` and ``out_dir``; also written as ``compare.json``.
+    """
     names = [load_config(c, list(overrides)).experiment.name for c in configs]
     if len(set(names)) != len(names):
         raise SystemExit(f"conditions need distinct experiment.name values, got {names}")
@@ -154,7 +174,20 @@ def _stats(values: list[float]) -> dict:
 
 
 def format_table(result: dict, names: list[str]) -> str:
-    """The mean ± s.d. table, one row per metric, one column per condition."""
+    """The mean ± s.d. table, one row per metric, one column per condition.
+
+    Parameters
+    ----------
+    result : dict
+        From `compare` (its ``stats``).
+    names : list of str
+        The conditions, in column order.
+
+    Returns
+    -------
+    str
+        A Markdown table; a metric no run has shows "—".
+    """
     head = "| metric | " + " | ".join(names) + " |"
     lines = [head, "|---" * (len(names) + 1) + "|"]
     for key, label, fmt in METRICS:

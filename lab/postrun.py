@@ -30,14 +30,40 @@ SUMMARY_FILE = "summary.json"
 
 
 def after_run(result, cfg) -> dict:
-    """Summarise a finished run into its folder (nothing to do without one)."""
+    """Summarise a finished run into its folder.
+
+    Parameters
+    ----------
+    result : hub.loop.RunResult
+        Its ``run_dir`` (None: nothing was recorded).
+    cfg : hub.config.ExperimentConfig
+        Nothing is written when ``record.enabled`` is off.
+
+    Returns
+    -------
+    dict
+        The summary (`summarize_run`), or ``{}``.
+    """
     if result.run_dir is None or not cfg.record.enabled:
         return {}
     return summarize_run(result.run_dir)
 
 
 def summarize_run(run_dir: str | Path) -> dict:
-    """Write ``summary.json`` and the pictures of a recorded run; return the summary."""
+    """Write ``summary.json`` and the pictures of a recorded run.
+
+    Parameters
+    ----------
+    run_dir : str or Path
+        A run folder (``manifest.json`` + record).
+
+    Returns
+    -------
+    dict
+        What ``summary.json`` holds: name, seed, outcome, steps, simulated time, timing,
+        counts, ``behaviour`` (`lab.behaviour.behaviour_metrics`, when poses were recorded),
+        ``spikes``, ``stimulation_pulses`` and the ``figures`` written.
+    """
     run_dir = Path(run_dir)
     rec = read_run(run_dir)
     m = rec.manifest

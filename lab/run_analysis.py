@@ -37,10 +37,22 @@ REPORT_FILE = "report.html"
 
 
 def stimulus_onsets_ms(stimulations, period_ms: float) -> tuple[np.ndarray, np.ndarray]:
-    """Distinct pulse onsets (absolute ms, sorted) and the stimulated channel ids.
+    """Distinct pulse onsets and the stimulated channel ids of recorded stimulations.
 
-    ``stimulations`` are ``hub.protocol.Stimulation`` messages; a pulse of step k starts at
-    ``k * period_ms + onset_ms``.
+    Parameters
+    ----------
+    stimulations : list of hub.protocol.Stimulation
+        A pulse of step k starts at ``k * period_ms + onset_ms``.
+    period_ms : float
+        The loop's period.
+
+    Returns
+    -------
+    onsets_ms : float64 array
+        Distinct onsets (absolute ms, sorted): pulses into several channels at once count
+        once.
+    channels : uint32 array
+        The distinct stimulated channel ids.
     """
     onsets = [m.step * period_ms + m.onset_ms.astype(np.float64) for m in stimulations]
     chans = [m.channel for m in stimulations]

@@ -74,9 +74,17 @@ class NetworkBurstParams:
 
 @dataclass(frozen=True)
 class NetworkBursts:
-    """Network bursts of a record, sorted by core start; ``channels[i]`` are the participants of
-    i. ``start_ms``/``end_ms`` are the extents, ``core_start_ms``/``core_end_ms`` the time at or
-    above the threshold (see the module docstring); the core defaults to the extent."""
+    """Network bursts of a record, sorted by core start.
+
+    Attributes
+    ----------
+    start_ms, end_ms : float64[k]
+        Extents: the earliest start and latest end of the participants' bursts.
+    channels : list of uint32 arrays
+        ``channels[i]``: the participants of network burst i.
+    core_start_ms, core_end_ms : float64[k]
+        The time at or above the threshold (see the module docstring); default the extent.
+    """
 
     start_ms: np.ndarray
     end_ms: np.ndarray

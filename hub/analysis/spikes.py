@@ -196,9 +196,18 @@ def interval_histogram(intervals_ms, bin_ms: float, max_ms: float):
 class Psth:
     """Post-stimulus time histogram.
 
-    ``counts[i]`` spikes fell in ``[edges_ms[i], edges_ms[i+1])`` after a stimulus, summed over
-    all stimuli and all channels counted; ``rate_hz`` is that per stimulus, per channel and per
-    second (the mean firing rate of a channel in that bin).
+    Attributes
+    ----------
+    edges_ms : float64[n_bins + 1]
+        Bin edges relative to the stimulus.
+    counts : int64[n_bins]
+        ``counts[i]`` spikes fell in ``[edges_ms[i], edges_ms[i+1])`` after a stimulus, summed
+        over all stimuli and all channels counted.
+    rate_hz : float64[n_bins]
+        That per stimulus, per channel and per second (the mean firing rate of a channel in
+        that bin).
+    n_stimuli, n_channels : int
+        Stimuli and channels counted.
     """
 
     edges_ms: np.ndarray
@@ -241,13 +250,25 @@ def psth(
     bin_ms: float = 5.0,
     channels=None,
 ) -> Psth:
-    """PSTH of spikes around stimulus times ``stim_ms`` (absolute ms).
+    """PSTH of spikes around stimulus times.
 
     Parameters
     ----------
-    window_ms : (before, after) limits relative to each stimulus, e.g. ``(-50, 200)``.
-    bin_ms : bin width.
-    channels : optional channel ids to count (default all ``n_channels``).
+    channel, t_ms : array_like[k]
+        The spikes (`check_spikes`).
+    stim_ms : float array_like
+        Stimulus times (absolute ms).
+    n_channels : int
+    window_ms : (float, float)
+        Limits relative to each stimulus, e.g. ``(-50, 200)``.
+    bin_ms : float
+        Bin width.
+    channels : int array_like, optional
+        Channel ids to count (default all ``n_channels``).
+
+    Returns
+    -------
+    Psth
     """
     ch, t = check_spikes(channel, t_ms, n_channels)
     stim = np.sort(np.asarray(stim_ms, dtype=np.float64).ravel())
@@ -291,11 +312,28 @@ def instantaneous_rate(
     cell_type=None,
     per_channel: bool = False,
 ):
-    """Spiking rate of a population in consecutive bins of ``bin_ms``.
+    """Spiking rate of a population in consecutive bins.
 
-    ``population`` is ``"all"``, ``"exc"`` or ``"inh"`` (the last two need ``cell_type``).
-    Returns ``(centers_ms, rate_hz)``: the population's total spikes per second in each bin, or,
-    with ``per_channel=True``, that divided by the number of channels in the population.
+    Parameters
+    ----------
+    channel, t_ms : array_like[k]
+        The spikes (`check_spikes`).
+    n_channels : int
+    t_start_ms, t_stop_ms : float
+        The span, cut into bins of ``bin_ms``.
+    bin_ms : float
+    population : str
+        ``"all"``, ``"exc"`` or ``"inh"`` (the last two need ``cell_type``).
+    cell_type : uint8[n_channels], optional
+    per_channel : bool
+        Divide by the number of channels in the population.
+
+    Returns
+    -------
+    centers_ms : float64[n_bins]
+    rate_hz : float64[n_bins]
+        The population's total spikes per second in each bin (per channel with
+        ``per_channel=True``).
     """
     ch, t = check_spikes(channel, t_ms, n_channels)
     check_span(t_start_ms, t_stop_ms)
