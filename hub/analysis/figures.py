@@ -146,8 +146,27 @@ def plot_raster(
 def plot_potentials(
     v_mv, grid_shape: tuple[int, int], out, t_ms=None, vmin_mv=-80.0, vmax_mv=30.0, formats=FORMATS
 ) -> list[Path]:
-    """Membrane-potential snapshots on the grid: ``v_mv`` is ``(n,)`` or ``(k, n)`` snapshots,
-    ``n = rows * cols`` in row-major grid order; ``t_ms`` labels each snapshot."""
+    """Membrane-potential snapshots on the grid.
+
+    Parameters
+    ----------
+    v_mv : float array, shape (n,) or (k, n)
+        One or k snapshots, ``n = rows * cols`` in row-major grid order.
+    grid_shape : (rows, cols)
+    t_ms : float array_like[k], optional
+        Labels each snapshot.
+    vmin_mv, vmax_mv : float
+        The colour scale.
+    out : matplotlib Axes or path
+        Where to draw (see the module docstring).
+    formats : tuple of str
+        File formats with a path ``out``.
+
+    Returns
+    -------
+    list of Path
+        The files written (``[]`` when drawing into an Axes).
+    """
     v = np.atleast_2d(np.asarray(v_mv, dtype=np.float64))
     rows, cols = grid_shape
     if v.ndim != 2 or v.shape[1] != rows * cols:
@@ -245,8 +264,23 @@ def plot_connectivity(
 
 
 def plot_rates(series: dict, out, formats=FORMATS) -> list[Path]:
-    """Instantaneous rate curves: ``series`` maps a label (``"all"``, ``"exc"``, ``"inh"``, …)
-    to ``(centers_ms, rate_hz)`` as returned by ``spikes.instantaneous_rate``."""
+    """Instantaneous rate curves.
+
+    Parameters
+    ----------
+    series : dict
+        Maps a label (``"all"``, ``"exc"``, ``"inh"``, …) to ``(centers_ms, rate_hz)`` as
+        returned by ``spikes.instantaneous_rate``.
+    out : matplotlib Axes or path
+        Where to draw (see the module docstring).
+    formats : tuple of str
+        File formats with a path ``out``.
+
+    Returns
+    -------
+    list of Path
+        The files written (``[]`` when drawing into an Axes).
+    """
     colors = {"all": OTHER_COLOR, "exc": EXC_COLOR, "inh": INH_COLOR}
 
     def draw(ax: Axes) -> None:
@@ -264,7 +298,23 @@ def plot_rates(series: dict, out, formats=FORMATS) -> list[Path]:
 def plot_histogram(
     counts, edges, out, title: str, xlabel: str, ylabel: str = "count", formats=FORMATS
 ) -> list[Path]:
-    """A histogram from ``counts`` and bin ``edges`` (the shared base of ISI/IBI/PSTH)."""
+    """A histogram from counts and bin edges (the shared base of ISI/IBI/PSTH).
+
+    Parameters
+    ----------
+    counts : array_like[n_bins]
+    edges : array_like[n_bins + 1]
+    title, xlabel, ylabel : str
+    out : matplotlib Axes or path
+        Where to draw (see the module docstring).
+    formats : tuple of str
+        File formats with a path ``out``.
+
+    Returns
+    -------
+    list of Path
+        The files written (``[]`` when drawing into an Axes).
+    """
     counts = np.asarray(counts)
     edges = np.asarray(edges, dtype=np.float64)
     if edges.size != counts.size + 1:
@@ -282,13 +332,48 @@ def plot_histogram(
 
 
 def plot_isi_histogram(isi, out, bin_ms=1.0, max_ms=200.0, formats=FORMATS) -> list[Path]:
-    """ISI histogram (intervals from ``spikes.isi_ms``)."""
+    """ISI histogram.
+
+    Parameters
+    ----------
+    isi : float array_like
+        Intervals (ms) from ``spikes.isi_ms``.
+    bin_ms, max_ms : float
+        Bins on ``[0, max_ms]``.
+    out : matplotlib Axes or path
+        Where to draw (see the module docstring).
+    formats : tuple of str
+        File formats with a path ``out``.
+
+    Returns
+    -------
+    list of Path
+        The files written (``[]`` when drawing into an Axes).
+    """
     counts, edges = interval_histogram(isi, bin_ms, max_ms)
     return plot_histogram(counts, edges, out, "Inter-spike intervals", "ISI (ms)", formats=formats)
 
 
 def plot_ibi_histogram(ibi, out, bin_ms=500.0, max_ms=None, formats=FORMATS) -> list[Path]:
-    """IBI histogram (intervals between network-burst starts), in seconds on the axis."""
+    """IBI histogram (intervals between network-burst starts), in seconds on the axis.
+
+    Parameters
+    ----------
+    ibi : float array_like
+        Intervals (ms) from ``network_bursts.inter_burst_intervals_ms``.
+    bin_ms : float
+    max_ms : float, optional
+        Default the longest interval plus one bin.
+    out : matplotlib Axes or path
+        Where to draw (see the module docstring).
+    formats : tuple of str
+        File formats with a path ``out``.
+
+    Returns
+    -------
+    list of Path
+        The files written (``[]`` when drawing into an Axes).
+    """
     ibi = np.asarray(ibi, dtype=np.float64)
     top = max_ms if max_ms is not None else (float(ibi.max()) + bin_ms if ibi.size else bin_ms)
     counts, edges = interval_histogram(ibi, bin_ms, top)
@@ -298,7 +383,22 @@ def plot_ibi_histogram(ibi, out, bin_ms=500.0, max_ms=None, formats=FORMATS) -> 
 
 
 def plot_psth(h: Psth, out, formats=FORMATS) -> list[Path]:
-    """PSTH (``spikes.psth``) as mean rate per channel, with the stimulus at 0 ms."""
+    """PSTH as mean rate per channel, with the stimulus at 0 ms.
+
+    Parameters
+    ----------
+    h : Psth
+        From ``spikes.psth``.
+    out : matplotlib Axes or path
+        Where to draw (see the module docstring).
+    formats : tuple of str
+        File formats with a path ``out``.
+
+    Returns
+    -------
+    list of Path
+        The files written (``[]`` when drawing into an Axes).
+    """
 
     def draw(ax: Axes) -> None:
         ax.stairs(h.rate_hz, h.edges_ms, fill=True, color="tab:red", alpha=0.8)
