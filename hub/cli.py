@@ -159,7 +159,7 @@ def cmd_hub(args, local: bool = False) -> int:
         if code != 0:
             print(f"neuvision: {role} endpoint exited with status {code}", file=sys.stderr)
     if result.outcome != "fault":
-        from hub.postrun import after_run
+        from lab.postrun import after_run
 
         after_run(result, cfg)
     print(_result_line(result), file=sys.stderr)
@@ -248,7 +248,7 @@ class ProgressBar:
 
 
 def cmd_compare(args) -> int:
-    from hub.compare import compare
+    from lab.compare import compare
 
     overrides = list(args.set or [])
     if args.duration_s is not None:
@@ -259,7 +259,7 @@ def cmd_compare(args) -> int:
 
 
 def cmd_analyze(args) -> int:
-    from hub.analysis.run_analysis import analyze_run
+    from lab.run_analysis import analyze_run
 
     metrics = analyze_run(args.run_dir, args.out)
     print(json.dumps(metrics, indent=2, default=str))
@@ -267,8 +267,8 @@ def cmd_analyze(args) -> int:
 
 
 def cmd_reproduce(args) -> int:
-    from hub.analysis.reproduce import reproduce
     from hub.record import new_run_dir
+    from lab.reproduce import reproduce
 
     out = args.out or new_run_dir("runs", "reproduce")
     reproduce(out, quick=args.quick, seed=args.seed)
