@@ -288,3 +288,26 @@ def test_a_large_query_reply_comes_back_whole_in_framed_replies(bus):
     # The queryable is known to the router shortly after it is declared.
     wait_for(lambda: bool(got.extend(get(a, key_expr, b"run?", timeout_s=2.0)) or got))
     assert got == [description] and asked[-1] == b"run?"
+
+
+def test_without_framing_a_1_mb_put_never_arrives_over_low_latency(bus):
+    # Why framing exists: the low-latency transport cannot carry a message larger than
+    # one batch. The 1 MB put is lost (and the link with it, for a moment): small puts
+    # after it arrive once the link is back, and the large one never comes before them.
+    from hub.bus import LOOP_PUBLISH
+    from tests.harness import wait_for
+
+    section, router, (a, b) = bus
+    key_expr = f"{section.keys.root}/culture/0/spikes"
+    sub, received = _subscribe(b, key_expr)
+    publisher = a.declare_publisher(key_expr, **LOOP_PUBLISH)
+    _wait_matching(publisher)
+    publisher.put(bytes(1 << 20))
+
+    def a_marker_arrived():
+        publisher.put(b"marker")
+        return not received.empty()
+
+    wait_for(a_marker_arrived, timeout_s=20)
+    assert received.get()[0].to_bytes() == b"marker"
+    del sub
