@@ -3,9 +3,15 @@
 from __future__ import annotations
 
 import hashlib
+import queue
+import secrets
 
+import numpy as np
 import pytest
+import zenoh
 
+from hub.bus import LOOP_PUBLISH, free_tcp_port, open_session
+from hub.config import BusSection
 from hub.wire import (
     FRAME_MAX_BYTES,
     KEY_BYTES,
@@ -13,9 +19,12 @@ from hub.wire import (
     Outbox,
     WireError,
     frames,
+    get,
     new_key,
+    reply,
     tag,
 )
+from tests.harness import wait_for
 
 
 class FakePublisher:
@@ -192,8 +201,6 @@ def test_frames_of_an_unknown_message_are_frame():
 
 
 def test_zenoh_bytes_are_accepted_as_payload_and_attachment():
-    import zenoh
-
     key = new_key()
     ((payload, att),) = _sent(b"z", key)
     assert Inbox(key).feed(zenoh.ZBytes(payload), zenoh.ZBytes(att)) == b"z"
@@ -206,11 +213,6 @@ def test_zenoh_bytes_are_accepted_as_payload_and_attachment():
 def bus():
     """A router session (as the hub's) and two client sessions (as endpoints'), loopback,
     low-latency transport as configured by default."""
-    import secrets
-
-    from hub.bus import free_tcp_port, open_session
-    from hub.config import BusSection
-
     section = BusSection(
         session=f"test-{secrets.token_hex(4)}",
         listen=(f"tcp/127.0.0.1:{free_tcp_port()}",),
@@ -228,24 +230,16 @@ def bus():
 
 
 def _subscribe(session, key):
-    import queue
-
     inbox: queue.SimpleQueue = queue.SimpleQueue()
     sub = session.declare_subscriber(key, lambda s: inbox.put((s.payload, s.attachment)))
     return sub, inbox
 
 
 def _wait_matching(publisher, timeout_s=10.0):
-    from tests.harness import wait_for
-
     wait_for(lambda: publisher.matching_status.matching, timeout_s)
 
 
 def test_1_mb_and_20_mb_payloads_pass_the_low_latency_transport_framed(bus):
-    import numpy as np
-
-    from hub.bus import LOOP_PUBLISH
-
     section, router, (a, b) = bus
     key_expr = f"{section.keys.root}/culture/0/spikes"
     sub, received = _subscribe(b, key_expr)
@@ -268,10 +262,6 @@ def test_1_mb_and_20_mb_payloads_pass_the_low_latency_transport_framed(bus):
 
 
 def test_a_large_query_reply_comes_back_whole_in_framed_replies(bus):
-    import numpy as np
-
-    from hub.wire import get, reply
-
     section, router, (a, b) = bus
     key_expr = f"{section.keys.root}/culture/0/describe"
     description = np.random.default_rng(1).bytes(100_000)
@@ -282,8 +272,6 @@ def test_a_large_query_reply_comes_back_whole_in_framed_replies(bus):
         reply(query, description)
 
     queryable = b.declare_queryable(key_expr, on_query)  # noqa: F841
-    from tests.harness import wait_for
-
     got = []
     # The queryable is known to the router shortly after it is declared.
     wait_for(lambda: bool(got.extend(get(a, key_expr, b"run?", timeout_s=2.0)) or got))
@@ -294,9 +282,6 @@ def test_without_framing_a_1_mb_put_never_arrives_over_low_latency(bus):
     # Why framing exists: the low-latency transport cannot carry a message larger than
     # one batch. The 1 MB put is lost (and the link with it, for a moment): small puts
     # after it arrive once the link is back, and the large one never comes before them.
-    from hub.bus import LOOP_PUBLISH
-    from tests.harness import wait_for
-
     section, router, (a, b) = bus
     key_expr = f"{section.keys.root}/culture/0/spikes"
     sub, received = _subscribe(b, key_expr)
