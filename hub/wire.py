@@ -178,10 +178,13 @@ class Inbox:
     abandoned : int
         Messages dropped incomplete because the next one started (each a lost message,
         to be counted as ``frame`` by the caller along with the :class:`WireError` raised).
+
+    Not thread-safe: feed one Inbox from one thread at a time (its key's subscriber
+    callback, or the thread that drains what that callback queued).
     """
 
     def __init__(self, key: bytes | None = None, *, max_message_bytes=MAX_MESSAGE_BYTES):
-        self.key = key
+        self._key = key
         self.max_message_bytes = max_message_bytes
         self.abandoned = 0
         self._id = -1  # message being reassembled (-1: none)
@@ -189,6 +192,17 @@ class Inbox:
         self._parts: list[bytes] = []
         self._size = 0
         self._skip_id = -1  # a refused message whose remaining frames are dropped quietly
+
+    @property
+    def key(self) -> bytes | None:
+        """The run key; setting it (a new run) also drops a message being reassembled."""
+        return self._key
+
+    @key.setter
+    def key(self, key: bytes | None) -> None:
+        self._key = key
+        self._reset()
+        self._skip_id = -1
 
     @property
     def pending_bytes(self) -> int:
@@ -223,7 +237,7 @@ class Inbox:
         """
         payload = _as_bytes(payload)
         attachment = _as_bytes(attachment)
-        key = self.key
+        key = self._key
         if attachment is None:
             if key is not None:
                 raise WireError("foreign", "no attachment: not sealed")

@@ -94,6 +94,15 @@ def test_a_new_run_key_is_set_on_both_sides():
     assert _deliver(inbox, pub.puts) == [b"step"]
 
 
+def test_a_new_run_key_drops_a_message_half_reassembled_under_the_old_one():
+    old, new = new_key(), new_key()
+    inbox = Inbox(old)
+    assert inbox.feed(*_sent(bytes(30), old, frame_max_bytes=10)[0]) is None
+    inbox.key = new
+    assert inbox.pending_bytes == 0
+    assert _deliver(inbox, _sent(bytes(30), new, frame_max_bytes=10)) == [bytes(30)]
+
+
 @pytest.mark.parametrize("size", [10, FRAME_MAX_BYTES * 3])
 def test_a_payload_sealed_with_another_key_or_not_at_all_is_foreign(size):
     key = new_key()
