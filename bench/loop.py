@@ -11,9 +11,21 @@ default (``lockstep_os_placement_steps_per_s``). Realtime runs use the default.
 Recording is on, as in a real run. The endpoints are the trivial test fixtures
 of ``tests/endpoints.py`` (they do no work), so the figures are the loop's own.
 
+Large messages, two figures:
+
+- the round trip of a 1 MB payload sealed and framed by ``hub/wire.py`` (router and a
+  client in this process, the far client in another, low-latency transport as in a run):
+  the far end reassembles it, checks its tag and sends it back the same way, as an
+  endpoint would a 1 MB SpikeBatch (median ms; MB/s = 2 MB moved per median round trip);
+- lockstep with the test culture's SpikeBatch padded to 1 MB (:class:`MegabyteCulture`),
+  over the default transport and with ``bus.low_latency = false``. While the hub and the
+  endpoints do not send through ``Outbox``/``Inbox``, the first is "not carried" (the
+  culture's link drops at step 0) and only the second is measured.
+
     python bench/loop.py            # 10,000 steps per figure (about 2 minutes)
     python bench/loop.py --steps 2000
     python bench/loop.py --realtime-priority 0     # realtime under the ordinary scheduler
+    python bench/loop.py --only-large --large-steps 200   # the 1 MB figures alone
 
 The last line printed is one JSON object.
 """
@@ -21,6 +33,7 @@ The last line printed is one JSON object.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import queue
@@ -41,6 +54,10 @@ from hub.bus import LOOP_PUBLISH, free_tcp_port, open_session, payload_bytes  # 
 from hub.config import BusSection, load_config  # noqa: E402
 from hub.launch import start_local_endpoints, stop_local_endpoints  # noqa: E402
 from hub.loop import Hub  # noqa: E402
+from hub.wire import Inbox, Outbox  # noqa: E402
+from tests.endpoints import N_CHANNELS, EchoCulture  # noqa: E402
+
+LARGE_BYTES = 1_000_000
 
 TRIVIAL = [
     'body.kind="tests.endpoints:EchoBody"',
@@ -72,6 +89,49 @@ def run_once(mode: str, period_ms: float, steps: int, *extra: str) -> dict:
     return result.timing
 
 
+class MegabyteCulture(EchoCulture):
+    """The trivial test culture, its every SpikeBatch padded to about 1 MB of valid spikes
+    (125,000 spikes of 8 bytes, over its channels and inside its step)."""
+
+    kind = "bench_megabyte_culture"
+    N_SPIKES = LARGE_BYTES // 8
+
+    def step(self, *args):  # the contract's step arguments, whatever they are
+        batch = super().step(*args)
+        if batch is None:
+            return None
+        n = self.N_SPIKES
+        span_ms = (batch.t1_s - batch.t0_s) * 1e3
+        return dataclasses.replace(
+            batch,
+            channel=np.arange(n, dtype=np.uint32) % N_CHANNELS,
+            t_ms=np.linspace(0.0, span_ms, n, endpoint=False, dtype=np.float32),
+        )
+
+
+def large_step(steps: int) -> dict:
+    """Lockstep with the culture's SpikeBatch padded to 1 MB: the step through the loop,
+    over the default (low-latency) transport and over Zenoh's other one."""
+    out = {}
+    for name, extra in (("", []), ("_no_lowlatency", ["bus.low_latency=false"])):
+        culture = 'culture.kind="bench.loop:MegabyteCulture"'
+        label = f"lockstep, 1 MB SpikeBatches{name.replace('_', ' ')}"
+        try:
+            t = run_once("lockstep", 10.0, steps, culture, *extra)
+        except SystemExit as exc:
+            print(f"{label}: not carried: {exc}")
+            out[f"lockstep_1mb_spikes{name}_step_ms_median"] = None
+            continue
+        print(
+            f"{label}, {steps} steps: {t['steps_per_s']:.0f} steps/s  "
+            f"step median {t['step_ms_median']:.3f} ms  p99 {t['step_ms_p99']:.3f} ms"
+        )
+        out[f"lockstep_1mb_spikes{name}_steps_per_s"] = round(t["steps_per_s"], 1)
+        out[f"lockstep_1mb_spikes{name}_step_ms_median"] = round(t["step_ms_median"], 3)
+        out[f"lockstep_1mb_spikes{name}_step_ms_p99"] = round(t["step_ms_p99"], 3)
+    return out
+
+
 def placement() -> tuple[list[str], str]:
     """Config overrides that give the hub a CPU of its own and the endpoints the others
     (README, "CPU placement"), and their description; none on a single CPU."""
@@ -98,6 +158,76 @@ def echo(port: int) -> None:
     )
     token = session.liveliness().declare_token(f"{bus.keys.root}/alive/echo")  # noqa: F841
     time.sleep(120)
+
+
+def framed_echo(port: int, key_hex: str) -> None:
+    """The far end of :func:`framed_round_trip_ms`: reassemble, check, send back framed."""
+    bus = _bus(port)
+    key = bytes.fromhex(key_hex)
+    session = open_session(bus, listener=False)
+    outbox = Outbox(session.declare_publisher(f"{bus.keys.root}/pong", **LOOP_PUBLISH), key)
+    inbox = Inbox(key)
+    received: queue.SimpleQueue = queue.SimpleQueue()
+    subscriber = session.declare_subscriber(  # noqa: F841
+        f"{bus.keys.root}/ping", lambda s: received.put((s.payload, s.attachment))
+    )
+    token = session.liveliness().declare_token(f"{bus.keys.root}/alive/echo")  # noqa: F841
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline:
+        try:
+            whole = inbox.feed(*received.get(timeout=1.0))
+        except queue.Empty:
+            continue
+        if whole is not None:
+            outbox.put(whole)
+
+
+def framed_round_trip_ms(n: int = 50) -> tuple[float, float]:
+    """Median round trip (ms) of a 1 MB sealed, framed payload between this process (the
+    router, and a client session as the hub's side) and a client in another process;
+    and 2 MB moved per median round trip, in MB/s."""
+    from hub.wire import new_key
+
+    port = free_tcp_port()
+    bus = _bus(port)
+    key = new_key()
+    router = open_session(bus, listener=True)
+    session = open_session(bus, listener=False)
+    received: queue.SimpleQueue = queue.SimpleQueue()
+    alive = threading.Event()
+    declared = [  # noqa: F841
+        session.declare_subscriber(
+            f"{bus.keys.root}/pong", lambda s: received.put((s.payload, s.attachment))
+        ),
+        session.liveliness().declare_subscriber(
+            f"{bus.keys.root}/alive/echo", lambda s: alive.set(), history=True
+        ),
+    ]
+    outbox = Outbox(session.declare_publisher(f"{bus.keys.root}/ping", **LOOP_PUBLISH), key)
+    inbox = Inbox(key)
+    payload = np.random.default_rng(0).bytes(LARGE_BYTES)
+    cmd = [sys.executable, __file__, "--framed-echo", str(port), key.hex()]
+    proc = subprocess.Popen(cmd)
+    try:
+        if not alive.wait(30):
+            raise SystemExit("the echo process did not come up")
+        times = np.empty(n)
+        for i in range(n):
+            t0 = time.perf_counter()
+            outbox.put(payload)
+            whole = None
+            while whole is None:
+                whole = inbox.feed(*received.get(timeout=10))
+            times[i] = time.perf_counter() - t0
+            if whole != payload:
+                raise SystemExit("the 1 MB payload came back changed")
+    finally:
+        proc.kill()
+        proc.wait()
+        session.close()
+        router.close()
+    median_s = float(np.median(times[min(5, n // 10) :]))
+    return median_s * 1e3, 2 * LARGE_BYTES / 1e6 / median_s
 
 
 def zenoh_round_trip_us(n: int = 2000) -> float:
@@ -136,11 +266,31 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--steps", type=int, default=10_000)
     parser.add_argument("--realtime-priority", type=int, help="loop.realtime_priority")
+    parser.add_argument("--large-rounds", type=int, default=50, help="1 MB round trips")
+    parser.add_argument("--large-steps", type=int, default=500, help="lockstep steps at 1 MB")
+    parser.add_argument("--only-large", action="store_true", help="the 1 MB figures alone")
     parser.add_argument("--echo", type=int, help=argparse.SUPPRESS)
+    parser.add_argument("--framed-echo", nargs=2, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.echo:
         return echo(args.echo)
+    if args.framed_echo:
+        return framed_echo(int(args.framed_echo[0]), args.framed_echo[1])
     n = args.steps
+
+    large_ms, large_mb_s = framed_round_trip_ms(args.large_rounds)
+    print(
+        f"1 MB sealed+framed round trip (router+client -> client -> back, low-latency): "
+        f"median {large_ms:.2f} ms, {large_mb_s:.0f} MB/s (2 MB moved per round trip)"
+    )
+    large = {
+        "framed_1mb_round_trip_ms_median": round(large_ms, 3),
+        "framed_1mb_round_trip_mb_per_s": round(large_mb_s, 1),
+    }
+    large.update(large_step(args.large_steps))
+    if args.only_large:
+        print(json.dumps(large))
+        return
 
     rtt_us = zenoh_round_trip_us()
     print(f"bare Zenoh round trip (router -> client -> router, no work): median {rtt_us:.0f} us")
@@ -179,6 +329,7 @@ def main() -> None:
         out[f"{tag}_p99_lateness_ms"] = round(t["lateness_ms_p99"], 4)
         out[f"{tag}_median_lateness_ms"] = round(t["lateness_ms_median"], 4)
         out[f"{tag}_max_lateness_ms"] = round(t["lateness_ms_max"], 3)
+    out.update(large)
     out["steps_per_figure"] = n
     out["cpus"] = os.cpu_count()
     print(json.dumps(out))

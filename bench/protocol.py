@@ -7,10 +7,16 @@ Figures are CPU time (``time.process_time``) per call: each is the median over
 ``--repeat`` rounds of enough calls to last about ``--round-s`` seconds, so another
 process on the machine changes them little.
 
-    .venv/bin/python bench/protocol.py             # about 6 s
+Then the sealing and framing of ``hub/wire.py`` (no bus: the publisher only keeps what
+it is given): the CPU cost per message that :class:`Outbox.put` and :class:`Inbox.feed`
+add to a 300-spike SpikeBatch (sealed: tag made and checked; open: no key), and the
+throughput of a 1 MB payload split into frames and reassembled (MB/s, 1 MB = 1e6 bytes).
+
+    .venv/bin/python bench/protocol.py             # about 8 s
     .venv/bin/python bench/protocol.py --repeat 3  # quicker
 
-The last line printed is one JSON object (keys ``<op>_us_<message>_<size>``).
+The last line printed is one JSON object (keys ``<op>_us_<message>_<size>``, and
+``wire_<op>_us_<message>_<sealed|open>``, ``wire_<op>_mb_per_s_1mb_<sealed|open>``).
 """
 
 from __future__ import annotations
@@ -28,6 +34,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from hub.protocol import MotorCommand, SensorReading, SpikeBatch, Stimulation  # noqa: E402
+from hub.wire import Inbox, Outbox, new_key  # noqa: E402
 
 
 def per_call_us(fn, repeat: int, round_s: float) -> float:
@@ -97,6 +104,61 @@ CASES = [  # (message type, a maker of its fields, size)
 ]
 
 
+class KeepLast:
+    """A publisher that keeps the last put (no bus: the figures are the wire layer's)."""
+
+    def __init__(self):
+        self.puts: list = []
+
+    def put(self, payload, *, attachment=None):
+        self.puts.append((payload, attachment))
+        if len(self.puts) > 64:
+            del self.puts[:-64]
+
+
+def wire_cases(raw_small: bytes, repeat: int, round_s: float) -> dict:
+    """CPU cost of sealing and framing: per small message (us) and for 1 MB (MB/s)."""
+    result = {}
+    big = np.random.default_rng(2).bytes(1_000_000)
+    for sealed in (True, False):
+        key = new_key() if sealed else None
+        label = "sealed" if sealed else "open"
+        pub = KeepLast()
+        out, inbox = Outbox(pub, key), Inbox(key)
+        out.put(raw_small)
+        small = pub.puts[-1]
+        assert inbox.feed(*small) == raw_small
+        put_us = per_call_us(lambda out=out: out.put(raw_small), repeat, round_s)
+        feed_us = per_call_us(lambda i=inbox, m=small: i.feed(*m), repeat, round_s)
+        result[f"wire_put_us_spikebatch_300_{label}"] = round(put_us, 2)
+        result[f"wire_feed_us_spikebatch_300_{label}"] = round(feed_us, 2)
+
+        pub.puts.clear()
+        out.put(big)
+        framed = list(pub.puts)
+
+        def put_big(out=out, pub=pub):
+            out.put(big)
+            pub.puts.clear()
+
+        def feed_big(inbox=inbox, framed=framed):
+            for m in framed:
+                whole = inbox.feed(*m)
+            assert len(whole) == len(big)
+
+        put_mb_s = 1e6 / per_call_us(put_big, repeat, round_s)  # 1 MB per call
+        feed_mb_s = 1e6 / per_call_us(feed_big, repeat, round_s)
+        result[f"wire_put_mb_per_s_1mb_{label}"] = round(put_mb_s, 1)
+        result[f"wire_feed_mb_per_s_1mb_{label}"] = round(feed_mb_s, 1)
+        print(
+            f"wire {label:<6} spikebatch_300 ({len(raw_small)} bytes): put +{put_us:5.2f} us, "
+            f"feed +{feed_us:5.2f} us; 1 MB in {len(framed)} frames: put {put_mb_s:7.1f} MB/s,"
+            f" feed {feed_mb_s:7.1f} MB/s",
+            flush=True,
+        )
+    return result
+
+
 def main(argv=None) -> dict:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--repeat", type=int, default=5, help="rounds per figure (median taken)")
@@ -121,6 +183,8 @@ def main(argv=None) -> dict:
             result[f"{op}_us_{label}"] = round(us, 2)
             line.append(f"{op} {us:6.2f} us")
         print(f"{label:<22} ({len(raw):5d} bytes): " + ", ".join(line), flush=True)
+    raw_300 = SpikeBatch(**spike_batch_fields(300, rng)).encode()
+    result.update(wire_cases(raw_300, args.repeat, args.round_s))
     print(json.dumps(result))
     return result
 

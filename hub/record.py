@@ -9,7 +9,19 @@ first a header map, then one list per message or event::
 
 where direction is ``tx`` (sent), ``rx`` (received and used by the loop),
 ``late`` (valid, but arrived after its deadline: real data the loop did not
-use) or ``drop`` (received and dropped: malformed, stale, duplicate, future).
+use) or ``drop`` (received and dropped: malformed, stale, duplicate, future,
+foreign).
+
+A dropped payload is anyone's to send (a stranger can fill the disk), so it is stored
+capped (format version 2): its payload field is a map, not bytes::
+
+    {"head": first DROP_HEAD_BYTES bytes, "n_bytes": its length,
+     "blake2b": 16-byte BLAKE2b digest of the whole payload}
+
+read back as a :class:`Dropped`, never as a message. What the drops stored take in a run
+is bounded (``drop_budget_bytes``); past it a drop is only counted, and the recorder
+writes a ``drops_not_stored`` event (``n``, ``n_bytes``) at close. Version 1 records
+(drops in full, as bytes) read as before.
 
 The writer flushes at least every ``flush_s`` (≤ 1 s), so a run killed at any
 moment leaves a record readable up to its last flush; the reader returns
@@ -19,6 +31,7 @@ everything up to a truncated or damaged tail without error.
 from __future__ import annotations
 
 import datetime as _dt
+import hashlib
 import json
 import os
 import platform
@@ -44,12 +57,19 @@ from hub.protocol import (
 RECORD_FILE = "record.nvrec"
 MANIFEST_FILE = "manifest.json"
 FORMAT = "neuvision-record"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+READABLE_VERSIONS = (1, 2)
 DIRECTIONS = ("tx", "rx", "late", "drop", "ev")
 # What the analysis reads as the culture's and body's real output.
 DATA_DIRECTIONS = ("rx", "late")
 WRITE_BUFFER_BYTES = 1 << 20
 HELD_FRAMES = 1024  # frames held at most before they are written
+# Dropped payloads: the first bytes kept, and what all drops stored may take per run
+# (head + digest + key + framing, counted per drop).
+DROP_HEAD_BYTES = 64
+DROP_DIGEST_BYTES = 16
+DROP_BUDGET_BYTES = 4 << 20
+_DROP_FRAME_OVERHEAD_BYTES = 40  # time, direction, map keys and msgpack headers
 
 
 def utc_now() -> str:
@@ -108,9 +128,19 @@ class Recorder:
     Frames are held, and packed and written by :meth:`tick` (or once HELD_FRAMES are
     held), so that recording a message costs the loop's critical path one append."""
 
-    def __init__(self, run_dir: str | Path, *, flush_s: float = 0.5):
+    def __init__(
+        self,
+        run_dir: str | Path,
+        *,
+        flush_s: float = 0.5,
+        drop_budget_bytes: int = DROP_BUDGET_BYTES,
+    ):
         self.path = Path(run_dir) / RECORD_FILE
         self.flush_s = flush_s
+        self.drop_budget_bytes = drop_budget_bytes
+        self.drop_bytes_stored = 0  # what the capped drops stored take (estimate)
+        self.drops_not_stored = 0  # drops past the budget: counted only
+        self.drop_bytes_not_stored = 0  # their payloads' total length
         # Written in large blocks (a write call per few messages costs the loop); the
         # flush every ``flush_s`` bounds what a crash can lose.
         self._file = open(self.path, "ab", buffering=WRITE_BUFFER_BYTES)
@@ -133,8 +163,26 @@ class Recorder:
         self._file.write(b"".join(map(self._pack, held)))
 
     def message(self, direction: str, key: str, payload: bytes, t_wall_ns: int | None = None):
-        """Record a message sent or received, with the loop's verdict on it."""
+        """Record a message sent or received, with the loop's verdict on it.
+
+        A ``drop`` is stored capped (head, length, digest) while the run's drop budget
+        lasts, and only counted past it."""
+        if direction == "drop":
+            self._drop(key, payload, t_wall_ns)
+            return
         self._write([t_wall_ns or time.time_ns(), direction, key, payload])
+
+    def _drop(self, key: str, payload: bytes, t_wall_ns: int | None) -> None:
+        head = payload[:DROP_HEAD_BYTES]
+        cost = len(head) + DROP_DIGEST_BYTES + len(key) + _DROP_FRAME_OVERHEAD_BYTES
+        if self.drop_bytes_stored + cost > self.drop_budget_bytes:
+            self.drops_not_stored += 1
+            self.drop_bytes_not_stored += len(payload)
+            return
+        self.drop_bytes_stored += cost
+        digest = hashlib.blake2b(payload, digest_size=DROP_DIGEST_BYTES).digest()
+        capped = {"head": bytes(head), "n_bytes": len(payload), "blake2b": digest}
+        self._write([t_wall_ns or time.time_ns(), "drop", key, capped])
 
     def event(self, name: str, **details) -> None:
         """Record something the hub noticed or did (a death, a policy, a command)."""
@@ -152,6 +200,13 @@ class Recorder:
 
     def close(self) -> None:
         if not self._file.closed:
+            if self.drops_not_stored:
+                self.event(
+                    "drops_not_stored",
+                    n=self.drops_not_stored,
+                    n_bytes=self.drop_bytes_not_stored,
+                    budget_bytes=self.drop_budget_bytes,
+                )
             self._write_held()
             self._file.flush()
             os.fsync(self._file.fileno())
@@ -161,12 +216,35 @@ class Recorder:
 # --------------------------------------------------------------------------- reading
 
 
+@dataclass(frozen=True)
+class Dropped:
+    """A dropped payload as the record keeps it: its first bytes, length and digest."""
+
+    head: bytes
+    n_bytes: int
+    blake2b: bytes  # hashlib.blake2b(payload, digest_size=16).digest()
+
+    def matches(self, payload: bytes) -> bool:
+        """Whether ``payload`` is the one dropped (same length and digest)."""
+        digest = hashlib.blake2b(payload, digest_size=len(self.blake2b)).digest()
+        return len(payload) == self.n_bytes and digest == self.blake2b
+
+
 @dataclass
 class Frame:
     t_wall_ns: int
     direction: str  # one of DIRECTIONS
     key: str
-    payload: Any  # bytes for messages, dict for events
+    payload: Any  # bytes for messages, Dropped for drops (v2), dict for events
+
+
+def _dropped(payload) -> Dropped | None:
+    if not isinstance(payload, dict):
+        return None
+    head, n_bytes, digest = payload.get("head"), payload.get("n_bytes"), payload.get("blake2b")
+    if isinstance(head, bytes) and isinstance(n_bytes, int) and isinstance(digest, bytes):
+        return Dropped(head, n_bytes, digest)
+    return None
 
 
 def iter_frames(path: str | Path) -> Iterator[Frame]:
@@ -179,6 +257,8 @@ def iter_frames(path: str | Path) -> Iterator[Frame]:
             return
         if not isinstance(header, dict) or header.get("format") != FORMAT:
             raise ValueError(f"{path} is not a NeuVision record")
+        if header.get("v") not in READABLE_VERSIONS:
+            raise ValueError(f"{path}: record format version {header.get('v')!r} not readable")
         while True:
             try:
                 item = next(unpacker)
@@ -194,6 +274,8 @@ def iter_frames(path: str | Path) -> Iterator[Frame]:
                 and isinstance(item[2], str)
             ):
                 return
+            if item[1] == "drop":
+                item[3] = _dropped(item[3]) or item[3]
             yield Frame(*item)
 
 
@@ -209,13 +291,18 @@ class RunRecord:
     def events(self) -> list[Frame]:
         return [f for f in self.frames if f.direction == "ev"]
 
+    @property
+    def drops(self) -> list[Frame]:
+        """Dropped payloads (a :class:`Dropped` each; whole bytes in a version 1 record)."""
+        return [f for f in self.frames if f.direction == "drop"]
+
     def decoded(self, kind: type, *directions: str) -> list:
         """Valid messages of type ``kind`` with one of ``directions`` (default: all), in order."""
         suffix = _SUFFIX[kind]
         out = []
         for f in self.frames:
-            if f.direction == "ev" or not f.key.endswith(suffix):
-                continue
+            if not isinstance(f.payload, bytes) or not f.key.endswith(suffix):
+                continue  # events, and drops stored capped
             if directions and f.direction not in directions:
                 continue
             try:

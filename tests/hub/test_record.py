@@ -1,11 +1,22 @@
 """The run record: append-only, readable after a kill, typed views for analysis."""
 
+import hashlib
 import json
 
+import msgpack
 import numpy as np
 
 from hub.protocol import SensorReading, SpikeBatch
-from hub.record import RECORD_FILE, Recorder, iter_frames, new_run_dir, read_run, write_manifest
+from hub.record import (
+    DROP_HEAD_BYTES,
+    RECORD_FILE,
+    Dropped,
+    Recorder,
+    iter_frames,
+    new_run_dir,
+    read_run,
+    write_manifest,
+)
 
 
 def _reading(k):
@@ -71,3 +82,73 @@ def test_run_folders_are_unique_and_manifests_atomic(tmp_path):
     write_manifest(a, {"outcome": "running", "x": np.float32(1.5)})
     assert json.loads((a / "manifest.json").read_text()) == {"outcome": "running", "x": 1.5}
     assert read_run(b).frames == [] and read_run(b).manifest == {}
+
+
+def test_a_dropped_payload_is_stored_as_its_head_length_and_digest_never_as_a_message(tmp_path):
+    rec = Recorder(tmp_path)
+    fake = _reading(7).encode()  # well formed, but dropped (e.g. foreign)
+    rec.message("drop", "nv/s/body/0/sensors", fake)
+    rec.message("rx", "nv/s/body/0/sensors", _reading(1).encode())
+    rec.close()
+    run = read_run(tmp_path)
+    (drop,) = run.drops
+    assert isinstance(drop.payload, Dropped)
+    assert drop.payload.head == fake[:DROP_HEAD_BYTES] and drop.payload.n_bytes == len(fake)
+    assert drop.payload.blake2b == hashlib.blake2b(fake, digest_size=16).digest()
+    assert drop.payload.matches(fake) and not drop.payload.matches(fake + b"x")
+    # Asked for every direction, the typed view still gives only real messages.
+    assert [r.step for r in run.decoded(SensorReading)] == [1]
+
+
+def test_10000_dropped_50_kb_payloads_leave_a_small_record_and_the_messages_intact(tmp_path):
+    rng = np.random.default_rng(0)
+    junk = [rng.bytes(50_000) for _ in range(4)]
+    budget = 256 << 10
+    rec = Recorder(tmp_path, drop_budget_bytes=budget)
+    batches = []
+    for k in range(10_000):
+        rec.message("drop", "nv/s/culture/0/spikes", junk[k % 4])
+        if k % 1000 == 0:
+            batch = SpikeBatch(
+                step=k, t0_s=k * 0.01, t1_s=(k + 1) * 0.01, channel=[k % 7], t_ms=[1.5]
+            )
+            batches.append(batch)
+            rec.message("rx", "nv/s/culture/0/spikes", batch.encode())
+        if k % 100 == 0:
+            rec.tick()
+    rec.close()
+    size = (tmp_path / RECORD_FILE).stat().st_size
+    assert size < budget + (64 << 10)  # 500 MB of drops: the record holds a quarter MB
+    run = read_run(tmp_path)
+    assert run.decoded(SpikeBatch, "rx") == batches
+    stored = [f.payload for f in run.drops]
+    assert 0 < len(stored) < 10_000
+    assert all(d.n_bytes == 50_000 and d.matches(junk[i % 4]) for i, d in enumerate(stored))
+    # The drops past the budget are counted, at the end of the record.
+    (event,) = [e for e in run.events if e.key == "drops_not_stored"]
+    assert event.payload["n"] == 10_000 - len(stored)
+    assert event.payload["n_bytes"] == 50_000 * (10_000 - len(stored))
+
+
+def test_a_version_1_record_with_drops_in_full_still_reads(tmp_path):
+    pack = msgpack.Packer(use_bin_type=True).pack
+    frames = [
+        {"format": "neuvision-record", "v": 1, "t0_wall_ns": 0, "host": {}},
+        [1, "rx", "nv/s/body/0/sensors", _reading(0).encode()],
+        [2, "drop", "nv/s/body/0/sensors", _reading(5).encode()],
+    ]
+    (tmp_path / RECORD_FILE).write_bytes(b"".join(map(pack, frames)))
+    run = read_run(tmp_path)
+    assert [r.step for r in run.decoded(SensorReading, "rx")] == [0]
+    assert run.drops[0].payload == _reading(5).encode()
+
+
+def test_with_the_default_budget_10000_drops_are_all_stored_in_under_2_mb(tmp_path):
+    junk = np.random.default_rng(1).bytes(50_000)
+    rec = Recorder(tmp_path)
+    for _ in range(10_000):
+        rec.message("drop", "nv/s/culture/0/spikes", junk)
+    rec.close()
+    assert (tmp_path / RECORD_FILE).stat().st_size < 2 << 20
+    run = read_run(tmp_path)
+    assert len(run.drops) == 10_000 and not [e for e in run.events if e.key == "drops_not_stored"]
