@@ -1,23 +1,23 @@
 """Serves a simulated culture on the bus: stimulation in, spikes out.
 
 A thin shell around :class:`sim_network.Network`; the model lives in the library.
-Parameters (``[culture.params]``): ``config`` (network file, default the
-calibrated 1024-neuron culture), ``seed`` (default the experiment's seed) and
-``potentials_hz`` (rate of membrane snapshots on ``culture/<id>/potentials``;
-0, the default, for none).
+Parameters (``[culture.params]``): ``config`` (a culture file, relative to the experiment
+file; default: the default culture, ``sim_network.config``'s defaults), any key of a
+culture file overriding the file's (``noise.sd``, ``layout.rows``...), ``seed`` (default
+the experiment's seed) and ``potentials_hz`` (rate of membrane snapshots on
+``culture/<id>/potentials``; 0, the default, for none).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from hub.config import ConfigError, EndpointSection, ExperimentConfig
+import settings
+from hub.config import ConfigError, EndpointSection, ExperimentConfig, check_value
 from hub.endpoint import Endpoint
 from hub.protocol import Description, Potentials, SpikeBatch, Stimulation
-from sim_network import ConfigError as NetworkConfigError
-from sim_network import Network, PulseError, Pulses, load_config
-
-DEFAULT_CULTURE = "configs/culture_1024.toml"
+from sim_network import Network, PulseError, Pulses
+from sim_network.config import config_from_dict, config_to_dict, read_config_data
 
 
 class NetworkEndpoint(Endpoint):
@@ -32,23 +32,51 @@ class NetworkEndpoint(Endpoint):
         self.potentials_every = round(1e3 / (potentials_hz * period_ms)) if potentials_hz else 0
 
     @classmethod
-    def from_config(cls, section: EndpointSection, cfg: ExperimentConfig) -> NetworkEndpoint:
+    def check_config(cls, section: EndpointSection, cfg: ExperimentConfig) -> dict:
+        """Check ``[culture.params]`` without building the network; return them resolved.
+
+        Returns
+        -------
+        dict
+            ``seed``, ``potentials_hz``, ``config`` (if given) and every key of the culture
+            (the file's contents with the experiment's overrides in place): what the run
+            uses, as the manifest records it.
+
+        Raises
+        ------
+        ConfigError
+            Naming ``culture.params.<key>`` (``culture.params.noise.sd must be >= 0``).
+        """
         params = dict(section.params)
-        path = params.pop("config", DEFAULT_CULTURE)
-        seed = params.pop("seed", cfg.experiment.seed)
-        potentials_hz = params.pop("potentials_hz", 0.0)
-        if params:
-            raise ConfigError(f"culture.params.{sorted(params)[0]} is not a sim_network parameter")
-        if not isinstance(potentials_hz, (int, float)) or not 0 <= potentials_hz <= 100:
+        path = params.pop("config", None)
+        seed = check_value(
+            "culture.params.seed", int, params.pop("seed", cfg.experiment.seed), ge=0
+        )
+        potentials_hz = check_value(
+            "culture.params.potentials_hz", float, params.pop("potentials_hz", 0.0), ge=0, le=100
+        )
+        data = {}
+        if path is not None:
+            try:
+                data = read_config_data(check_value("culture.params.config", str, path))
+            except ConfigError as exc:
+                raise ConfigError(f"culture.params.config: {exc}") from None
+        network = config_from_dict(settings.merge(data, params), prefix="culture.params.")
+        ratio = cfg.loop.period_ms / network.dt_ms
+        if abs(ratio - round(ratio)) > 1e-6 * ratio:
             raise ConfigError(
-                f"culture.params.potentials_hz must be in [0, 100], got {potentials_hz!r}"
+                f"loop.period_ms ({cfg.loop.period_ms}) must be a whole multiple of "
+                f"culture.params.dt_ms ({network.dt_ms})"
             )
-        try:
-            network = Network(load_config(path), seed=seed)
-        except FileNotFoundError:
-            raise ConfigError(f"culture.params.config: no network file {path!r}") from None
-        except NetworkConfigError as exc:
-            raise ConfigError(f"culture.params.config ({path}): {exc}") from None
+        head = {"config": path} if path is not None else {}
+        return {**head, "seed": seed, "potentials_hz": potentials_hz, **config_to_dict(network)}
+
+    @classmethod
+    def from_config(cls, section: EndpointSection, cfg: ExperimentConfig) -> NetworkEndpoint:
+        params = cls.check_config(section, cfg)
+        seed, potentials_hz = params.pop("seed"), params.pop("potentials_hz")
+        params.pop("config", None)
+        network = Network(config_from_dict(params, prefix="culture.params."), seed=seed)
         return cls(network, cfg.loop.period_ms, section.id, potentials_hz)
 
     def describe(self) -> Description:
