@@ -132,7 +132,6 @@ def cmd_endpoint(args) -> int:
 def cmd_hub(args, local: bool = False) -> int:
     from hub.bus import free_tcp_port
     from hub.launch import (
-        resolve_endpoints,
         start_local_endpoints,
         stop_local_endpoints,
         watch_local_endpoints,
@@ -153,7 +152,7 @@ def cmd_hub(args, local: bool = False) -> int:
             check_cpus(f"{role}.cpus", cfg.endpoint(role).cpus)
     # Every endpoint's kind and params are checked here, before a folder or a process
     # exists; the manifest records them resolved (culture and world contents included).
-    cfg = resolve_endpoints(cfg)
+    cfg = cfg.resolved()
     _check_hub_sections(cfg)
     run_dir = new_run_dir(cfg.experiment.runs_dir, cfg.experiment.name)
     print(f"neuvision: run folder {run_dir}", file=sys.stderr)

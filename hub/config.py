@@ -226,8 +226,19 @@ class ExperimentConfig:
         """Steps of the run: ``experiment.duration_s / loop.period_ms``, rounded."""
         return round(self.experiment.duration_s * 1e3 / self.loop.period_ms)
 
+    def resolved(self) -> ExperimentConfig:
+        """This config with each endpoint's params checked and resolved by its kind (the
+        culture's and the world's contents in place): what a run records.
+
+        See :func:`hub.launch.resolve_endpoints`; raises :class:`ConfigError`.
+        """
+        from hub.launch import resolve_endpoints  # the endpoint kinds import this module
+
+        return resolve_endpoints(self)
+
     def to_dict(self) -> dict[str, Any]:
-        """Plain nested dict (TOML/JSON-ready), as recorded in the manifest."""
+        """Plain nested dict (TOML/JSON-ready), as recorded in the manifest (after
+        :meth:`resolved`, with the culture's and the world's contents)."""
         return settings.to_plain(self)
 
 

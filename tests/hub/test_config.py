@@ -169,7 +169,7 @@ def test_the_culture_and_the_world_are_set_from_the_experiment_and_recorded_whol
     cfg = load_config(
         CLOSED_LOOP, ["culture.params.noise.sd=2.0", "body.params.arena.radius_m=0.8"]
     )
-    run = resolve_endpoints(cfg)
+    run = cfg.resolved()
     culture, body = run.culture.params, run.body.params
     assert culture["noise"]["sd"] == 2.0 and culture["layout"]["rows"] == 32
     assert culture["seed"] == cfg.experiment.seed
