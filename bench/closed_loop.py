@@ -19,23 +19,27 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import subprocess
 import sys
 import tempfile
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from bench.host import StealMeter, child_run, end_children_on_signal  # noqa: E402
 
 
-def run(mode: str, seconds: float, runs_dir: Path, *extra: str) -> dict:
+def run(mode: str, seconds: float, runs_dir: Path, *extra: str) -> tuple[dict, float]:
+    """One ``neuvision run``: its manifest and the CPU steal share while it ran."""
     cmd = [sys.executable, "-m", "hub.cli", "run", "configs/closed_loop.toml", "--quiet", *extra]
     cmd += ["--mode", mode, "--duration-s", str(seconds), "--runs-dir", str(runs_dir)]
     cmd += ["--session", f"bench-closed-loop-{mode}"]
-    proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True)
+    with StealMeter() as steal:
+        proc = child_run(cmd, cwd=ROOT)
     if proc.returncode != 0:
         raise SystemExit(f"{mode} run failed:\n{proc.stderr[-2000:]}")
     (run_dir,) = [p for p in runs_dir.iterdir() if p.is_dir()]
-    return json.loads((run_dir / "manifest.json").read_text())
+    return json.loads((run_dir / "manifest.json").read_text()), steal.share
 
 
 def _scheduling(s: dict) -> str:
@@ -50,9 +54,10 @@ def main() -> None:
         "--realtime-priority", type=int, help="loop.realtime_priority of the realtime run"
     )
     args = parser.parse_args()
+    end_children_on_signal()
     out = {}
     with tempfile.TemporaryDirectory() as tmp:
-        m = run("lockstep", args.seconds, Path(tmp) / "lockstep")
+        m, steal = run("lockstep", args.seconds, Path(tmp) / "lockstep")
     t, ep = m["timing"], m["endpoints"]
     wall = t["wall_s"]
     shares = {
@@ -62,8 +67,10 @@ def main() -> None:
     }
     print(
         f"lockstep {args.seconds:g} s simulated in {wall:.2f} s: {t['x_realtime']:.1f}x real time, "
-        f"{t['steps_per_s']:.0f} steps/s, step median {t['step_ms_median']:.3f} ms"
+        f"{t['steps_per_s']:.0f} steps/s, step median {t['step_ms_median']:.3f} ms "
+        f"(CPU steal {steal:.1%})"
     )
+    out["lockstep_steal_share"] = round(steal, 4)
     print(
         "  wall time shares: network {share_network:.1%}, arena {share_arena:.1%}, "
         "hub {share_hub:.1%} (the rest: messages in flight, process wake-ups)".format(**shares)
@@ -88,15 +95,17 @@ def main() -> None:
         extra = []
         if args.realtime_priority is not None:
             extra = ["--set", f"loop.realtime_priority={args.realtime_priority}"]
-        m = run("realtime", args.seconds, Path(tmp) / "realtime", *extra)
+        m, steal = run("realtime", args.seconds, Path(tmp) / "realtime", *extra)
     t = m["timing"]
     sched = t["scheduling"]
     print(
         f"realtime 10 ms ({_scheduling(sched)}), {t['steps']} steps: late steps "
         f"{t['late_steps']}, lateness median "
         f"{t['lateness_ms_median']:.3f} ms, p99 {t['lateness_ms_p99']:.3f} ms, "
-        f"max {t['lateness_ms_max']:.3f} ms; missing {m['counts']['missing']}"
+        f"max {t['lateness_ms_max']:.3f} ms; missing {m['counts']['missing']}; "
+        f"CPU steal {steal:.1%}"
     )
+    out["rt10_steal_share"] = round(steal, 4)
     out["rt10_late_steps"] = t["late_steps"]
     out["rt10_p99_lateness_ms"] = round(t["lateness_ms_p99"], 4)
     out["rt10_median_lateness_ms"] = round(t["lateness_ms_median"], 4)

@@ -16,7 +16,6 @@ import dataclasses
 import json
 import math
 import resource
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -24,6 +23,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from bench.host import child_run, end_children_on_signal  # noqa: E402
 from sim_network import ConnectivityConfig, Network, load_config  # noqa: E402
 
 CONFIG = ROOT / "configs" / "culture_1024.toml"
@@ -113,7 +113,9 @@ def in_subprocess(func: str, *args) -> dict:
         f"import json, sys; sys.path.insert(0, {str(ROOT)!r}); import bench.network as b; "
         f"print(json.dumps(b.{func}(*{args!r})))"
     )
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    out = child_run([sys.executable, "-c", code])
+    if out.returncode:
+        raise SystemExit(f"{func} failed:\n{out.stderr[-2000:]}")
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
@@ -122,6 +124,7 @@ def main() -> None:
     ap.add_argument("--quick", action="store_true", help="skip the 100k network")
     ap.add_argument("--seconds", type=float, default=10.0, help="simulated seconds per figure")
     args = ap.parse_args()
+    end_children_on_signal()
     s = args.seconds
     result: dict[str, float] = {}
     Network(sized(4, 0.1), seed=0).run(1.0)  # compile or load the kernels before timing

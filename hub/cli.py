@@ -174,7 +174,7 @@ def cmd_hub(args, local: bool = False) -> int:
         if code != 0:
             print(f"neuvision: {role} endpoint exited with status {code}", file=sys.stderr)
     if result.outcome != "fault":
-        from hub.postrun import after_run
+        from lab.postrun import after_run
 
         after_run(result, cfg)
     print(_result_line(result), file=sys.stderr)
@@ -301,21 +301,21 @@ class ProgressBar:
 
 
 def cmd_compare(args) -> int:
-    from hub.compare import compare
+    from lab.compare import compare
 
-    for path in args.configs:  # every condition's file is read (and checked) before any run
-        load_config(path, list(args.set or []))
     overrides = list(args.set or [])
     if args.duration_s is not None:
         overrides.append(f"experiment.duration_s={args.duration_s}")
+    for path in args.configs:  # every condition's file is read (and checked) before any run
+        load_config(path, overrides)
     result = compare(args.configs, args.seeds, args.out, args.jobs, overrides)
     failed = [r for r in result["runs"] if not r["ok"]]
     return EXIT_FAULT if failed else EXIT_OK
 
 
 def cmd_analyze(args) -> int:
-    from hub.analysis.run_analysis import analyze_run
     from hub.analysis.spikes import AnalysisInputError
+    from lab.run_analysis import analyze_run
 
     run_dir = _run_folder(args.run_dir)
     try:
@@ -327,8 +327,8 @@ def cmd_analyze(args) -> int:
 
 
 def cmd_reproduce(args) -> int:
-    from hub.analysis.reproduce import reproduce
     from hub.record import new_run_dir
+    from lab.reproduce import reproduce
 
     out = args.out or new_run_dir("runs", "reproduce")
     reproduce(out, quick=args.quick, seed=args.seed)

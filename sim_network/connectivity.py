@@ -19,7 +19,21 @@ UM_PER_MS_PER_M_S = 1000.0  # 1 m/s = 1000 µm/ms
 
 @dataclass
 class Synapses:
-    """Synapses sorted by presynaptic neuron (CSR): those of neuron i are indptr[i]:indptr[i+1]."""
+    """Synapses sorted by presynaptic neuron (CSR): those of neuron i are indptr[i]:indptr[i+1].
+
+    Attributes
+    ----------
+    indptr : int64[n + 1]
+        Row pointers.
+    post : int32[m]
+        Postsynaptic neuron of each synapse.
+    weight_mv : float64[m]
+        Jump of the postsynaptic potential on arrival (mV; negative for inhibitory).
+    delay_ms : float32[m]
+        Synaptic delay + distance / conduction speed.
+    distance_um : float32[m]
+        Distance between the two neurons.
+    """
 
     indptr: np.ndarray  # int64[n + 1]
     post: np.ndarray  # int32[m]
@@ -33,7 +47,19 @@ class Synapses:
         return int(self.post.size)
 
     def permuted(self, order: np.ndarray) -> Synapses:
-        """The same synapses in another order within each row (`order` keeps rows intact)."""
+        """The same synapses in another order within each row.
+
+        Parameters
+        ----------
+        order : int64[m]
+            A permutation that keeps every synapse in its row (e.g. from
+            `kernels.row_order`).
+
+        Returns
+        -------
+        Synapses
+            With ``indptr`` unchanged and every other array reordered.
+        """
         return Synapses(
             indptr=self.indptr,
             post=self.post[order],
@@ -43,13 +69,32 @@ class Synapses:
         )
 
     def pre(self) -> np.ndarray:
-        """Presynaptic neuron of every synapse, int32[m]."""
+        """The presynaptic neuron of every synapse.
+
+        Returns
+        -------
+        int32[m]
+            Row index of each synapse.
+        """
         counts = np.diff(self.indptr)
         return np.repeat(np.arange(counts.size, dtype=np.int32), counts)
 
 
 def connection_probability(distance_um: np.ndarray, cfg: ConnectivityConfig) -> np.ndarray:
-    """P_C(d) of the configured rule, zero beyond the cut-off distance."""
+    """The probability that a neuron connects to another at a distance: the builder's rule.
+
+    Parameters
+    ----------
+    distance_um : array_like
+        Distances between the two neurons (µm).
+    cfg : ConnectivityConfig
+        ``p_c_max``, ``d_pc_um`` and ``cutoff_um``.
+
+    Returns
+    -------
+    float64 array
+        ``p_c_max · exp(-d / d_pc_um)`` for ``d <= cutoff_um``, else 0.
+    """
     d = np.asarray(distance_um, dtype=np.float64)
     p = cfg.p_c_max * np.exp(-d / cfg.d_pc_um)
     return np.where(d <= cfg.cutoff_um, p, 0.0)
@@ -71,13 +116,33 @@ def _offsets(layout: Layout, cfg: ConnectivityConfig) -> tuple[np.ndarray, np.nd
 
 
 def build_synapses(layout: Layout, cfg: ConnectivityConfig, rng: np.random.Generator) -> Synapses:
-    """Draw connections, weights (uniform per pre type) and conduction speeds (uniform)."""
+    """Draw the culture's synapses.
+
+    Every ordered pair of neurons connects with :func:`connection_probability` of its
+    distance (no self-connections unless ``cfg.allow_self``); weights are uniform in the
+    range of the presynaptic neuron's type, conduction speeds uniform in ``speed_m_s``.
+
+    Parameters
+    ----------
+    layout : Layout
+        Grid positions and cell types.
+    cfg : ConnectivityConfig
+        The rule, weights, delays and speeds.
+    rng : numpy.random.Generator
+        The source of every draw (the same generator state gives the same synapses).
+
+    Returns
+    -------
+    Synapses
+        In CSR form by presynaptic neuron, with weights (mV), delays (synaptic delay plus
+        distance / speed, ms) and distances (µm).
+    """
     rows, cols = layout.rows, layout.cols
     pres: list[np.ndarray] = []
     posts: list[np.ndarray] = []
     dists: list[np.ndarray] = []
     for dr, dc, d in zip(*_offsets(layout, cfg), strict=True):
-        p = cfg.p_c_max * np.exp(-d / cfg.d_pc_um)
+        p = connection_probability(d, cfg)
         if p <= 0.0:
             continue
         r = np.arange(max(0, -dr), rows - max(0, dr))
@@ -117,5 +182,18 @@ def build_synapses(layout: Layout, cfg: ConnectivityConfig, rng: np.random.Gener
 
 
 def delay_steps(delay_ms: np.ndarray, dt_ms: float) -> np.ndarray:
-    """Delays in whole steps (rounded, at least one step), int32."""
+    """Delays in whole steps.
+
+    Parameters
+    ----------
+    delay_ms : float array
+        Delays (ms).
+    dt_ms : float
+        The step.
+
+    Returns
+    -------
+    int32 array
+        round(delay / dt), at least 1 (a spike never arrives in the step it was fired).
+    """
     return np.maximum(1, np.rint(delay_ms / dt_ms)).astype(np.int32)

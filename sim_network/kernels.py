@@ -52,11 +52,15 @@ _IH_SHIFT = np.float32((2.0 / 256.0 - 2.0) * math.sqrt(3.0) / math.sqrt(1.0 - 2.
 # fast-math limited to what lets the update loops vectorise with FMA; no reassociation
 _FAST = {"contract", "nnan", "ninf", "nsz"}
 V_FLOOR_MV = -100.0
+#: an Izhikevich neuron spikes when v reaches this peak (then resets to c)
+IZH_V_PEAK_MV = 30.0
+#: a Hodgkin-Huxley neuron spikes when v crosses this upward (once per crossing)
+HH_SPIKE_THRESHOLD_MV = 0.0
 # Neuron state is float32 (halves memory traffic, doubles SIMD width); the Izhikevich update
 # uses float32 constants so that it stays in single precision.
 STATE_DTYPE = np.float32
 _F0 = np.float32(0.0)
-_F_PEAK = np.float32(30.0)
+_F_PEAK = np.float32(IZH_V_PEAK_MV)
 _F_FLOOR = np.float32(V_FLOOR_MV)
 
 
@@ -93,10 +97,17 @@ def splitmix64(x):
 
 @njit(cache=True, nogil=True)
 def seed_noise_state(seed, state):
-    """Fill the per-neuron xoshiro128++ states (4, n) uint32 from a 64-bit seed via SplitMix64.
+    """Seed every neuron's noise generator from one 64-bit seed.
 
     Neuron j's four words are the two halves of the next two SplitMix64 outputs (never all
     zero, the one state xoshiro cannot leave).
+
+    Parameters
+    ----------
+    seed : uint64
+        The network's noise seed.
+    state : uint32[4, n]
+        Filled in place: the xoshiro128++ state of each neuron.
     """
     x = np.uint64(seed)
     for j in range(state.shape[1]):
@@ -149,6 +160,15 @@ def fill_noise(noise_cur, state, mean, sd):
     window, so the stream does not depend on dt or chunking. The Izhikevich update draws the
     same values itself (fused into its pass); this is the standalone form for the other
     models.
+
+    Parameters
+    ----------
+    noise_cur : float32[n]
+        Written: each neuron's current for the window, mean + sd · variate.
+    state : uint32[4, n]
+        Each neuron's generator, advanced by one draw.
+    mean, sd : float32[n]
+        Per-neuron mean and standard deviation of the current.
     """
     s0 = state[0]
     s1 = state[1]
@@ -320,6 +340,20 @@ def ring_targets(delay_steps, post, n_neurons):
     The kernel expects the offsets of each presynaptic neuron in ascending order (see
     `Network`, which sorts every CSR row by it): a row then splits into one run that does not
     wrap and one that does.
+
+    Parameters
+    ----------
+    delay_steps : int array
+        Each synapse's delay in steps (`connectivity.delay_steps`).
+    post : int array
+        Each synapse's postsynaptic neuron.
+    n_neurons : int
+        Neurons in the network (the ring's row length).
+
+    Returns
+    -------
+    int32 or int64 array
+        delay·n_neurons + post of each synapse.
     """
     n_slots = int(delay_steps.max()) + 1 if delay_steps.size else 2
     dtype = np.int32 if n_slots * n_neurons < 2**31 else np.int64
@@ -341,7 +375,20 @@ def _row_order(indptr, key, order):
 
 
 def row_order(indptr, key):
-    """Permutation that sorts every CSR row by `key` (stable), or None if already sorted."""
+    """The permutation that sorts every CSR row by a key.
+
+    Parameters
+    ----------
+    indptr : int64[n + 1]
+        Row pointers.
+    key : array
+        One key per entry.
+
+    Returns
+    -------
+    int64 array or None
+        A stable within-row sort, or None when every row is already in order.
+    """
     order = np.empty(key.size, dtype=np.int64)
     return order if _row_order(indptr, key, order) else None
 
@@ -393,7 +440,8 @@ def _izhikevich_spikes(v, u, c_reset, d_jump, k, out_neuron, out_step, n_out):
 
     Eight neurons at a time are first tested with a branch-free max, so that the usual
     case (no spike among them) costs one branch per eight neurons instead of one per neuron.
-    (A helper function for the record-and-reset body, even inlined, made this 10x slower.)
+    The record-and-reset body is written out twice on purpose: as a helper function, even
+    inlined, it keeps numba from compiling this loop tightly, and the scan runs every step.
     """
     n8 = v.size - v.size % 8
     for lo in range(0, n8, 8):
@@ -420,58 +468,61 @@ def _izhikevich_spikes(v, u, c_reset, d_jump, k, out_neuron, out_step, n_out):
 
 
 @njit(cache=True, nogil=True)
-def advance(
-    model,
-    n_steps,
-    step0,
-    dt,
-    n_sub,
-    v,
-    aux,
-    params,
-    ring,
-    indptr,
-    post,
-    weight,
-    target,
-    dep_u,
-    dep_tau_steps,
-    dep_x,
-    dep_last,
-    noise_mean,
-    noise_sd,
-    noise_steps,
-    noise_state,
-    noise_cur,
-    p_neuron,
-    p_current,
-    p_start,
-    p_end,
-    stim_cur,
-    stdp_on,
-    a_plus,
-    a_minus,
-    decay_plus,
-    decay_minus,
-    w_max,
-    x_pre,
-    y_post,
-    in_indptr,
-    in_syn,
-    syn_pre,
-    is_exc,
-    out_neuron,
-    out_step,
-    n_out,
-):
+def advance(n_steps, step0, neurons, wiring, dep, noise, stim, stdp, out, n_out):
     """Advance the network by up to `n_steps` steps from absolute step `step0`.
 
-    `target` is each synapse's offset in the flattened ring, delay·n + post (see
-    `ring_targets`), ascending within each presynaptic row, so a delivery costs one add
-    (no modulo, no compare).
-    Returns (steps_done, n_out): fewer steps than asked only when the spike output arrays
-    could overflow; call again with the remaining steps after draining them.
+    The state and parameters come in plain tuples, one per part of the model (plain, not
+    named: numba types a plain tuple argument in C, a named one in Python, which would add a
+    few µs to every call of a closed-loop step).
+
+    Parameters
+    ----------
+    n_steps, step0 : int
+        Steps to advance, and the absolute step to start from.
+    neurons : (model, dt, n_sub, v, aux, params)
+        ``model`` 0 Izhikevich, 1 LIF, 2 HH (``neurons.MODEL_IDS``); ``dt`` (ms); ``n_sub``
+        Izhikevich Euler sub-steps per step; ``v`` float32[n] (mV); ``aux`` float32[k, n], the
+        model's other state (Izhikevich: u and scratch; LIF: refractory steps left; HH: m, h,
+        n and the above-threshold flag); ``params`` float32[p, n] (``neurons.build_params``).
+    wiring : (ring, indptr, post, weight, target)
+        ``ring`` float32[n_slots, n], the mV due at each step (slot k mod n_slots); the
+        synapses in CSR form by presynaptic neuron (``indptr`` int64[n + 1], ``post``,
+        ``weight`` float64 mV, changed by STDP); ``target`` each synapse's offset in the
+        flattened ring, delay·n + post (`ring_targets`), ascending within each row, so that a
+        delivery costs one add (no modulo, no compare).
+    dep : (u, tau_steps, x, last)
+        Short-term depression: resources used per spike (0: off), recovery time constant in
+        steps, resources left float64[n] and step of the last spike int64[n].
+    noise : (mean, sd, steps, state, cur)
+        Background current redrawn per neuron every ``steps`` steps: mean and s.d.
+        float32[n], xoshiro128++ states uint32[4, n], this window's current float32[n].
+    stim : (neuron, current, start, end, cur)
+        Pulses in neuron space on absolute steps [start, end) with their model current;
+        ``cur`` float32[n] is scratch for a step's summed stimulation.
+    stdp : (on, a_plus, a_minus, decay_plus, decay_minus, w_max, x_pre, y_post, in_indptr,
+            in_syn, syn_pre, is_exc)
+        Pair-based STDP of excitatory synapses: amplitudes (mV), per-step trace decays, the
+        weight ceiling (mV), the traces float64[n], each neuron's incoming synapses (CSR
+        ``in_indptr``, ``in_syn``), each synapse's presynaptic neuron, excitatory flags.
+    out : (neuron, step)
+        Room for the spikes found (int32 and int64 arrays of the same length), written from
+        index ``n_out`` on; a step needs room for n spikes.
+    n_out : int
+
+    Returns
+    -------
+    steps_done, n_out : int
+        Fewer steps than asked only when the spike output arrays could overflow; call again
+        with the remaining steps after draining them.
     """
+    model, dt, n_sub, v, aux, params = neurons
+    ring, indptr, post, weight, target = wiring
+    dep_u, dep_tau_steps, dep_x, dep_last = dep
+    noise_mean, noise_sd, noise_steps, noise_state, noise_cur = noise
+    p_neuron, p_current, p_start, p_end, stim_cur = stim
+    stdp_on, a_plus, a_minus, decay_plus, decay_minus, w_max = stdp[:6]
+    x_pre, y_post, in_indptr, in_syn, syn_pre, is_exc = stdp[6:]
+    out_neuron, out_step = out
     n = v.size
     n_slots = ring.shape[0]
     ring_size = ring.size
@@ -538,12 +589,12 @@ def advance(
                 aux[0, i] = m
                 aux[1, i] = h
                 aux[2, i] = nn
-                if vi >= 0.0 and aux[3, i] == 0.0:
+                if vi >= HH_SPIKE_THRESHOLD_MV and aux[3, i] == 0.0:
                     aux[3, i] = 1.0
                     out_neuron[n_out] = i
                     out_step[n_out] = k
                     n_out += 1
-                elif vi < 0.0:
+                elif vi < HH_SPIKE_THRESHOLD_MV:
                     aux[3, i] = 0.0
                 v[i] = vi
         if stdp_on:

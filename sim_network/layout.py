@@ -14,7 +14,21 @@ INHIBITORY = 1
 
 @dataclass(frozen=True)
 class Layout:
-    """Grid positions and cell types; neuron index = row · cols + col."""
+    """Grid positions and cell types; neuron index = row · cols + col.
+
+    Attributes
+    ----------
+    rows, cols : int
+        Grid size.
+    spacing_um : float
+        Distance between neighbouring neurons (µm).
+    row, col : int32[n]
+        Grid cell of each neuron.
+    x_um, y_um : float32[n]
+        Position (µm) of each neuron: the centre of its cell.
+    cell_type : uint8[n]
+        `EXCITATORY` (0) or `INHIBITORY` (1).
+    """
 
     rows: int
     cols: int
@@ -42,7 +56,20 @@ class Layout:
 
 
 def build_layout(cfg: LayoutConfig, rng: np.random.Generator) -> Layout:
-    """Place rows × cols neurons; exactly round(n · inhibitory_fraction) inhibitory, at random."""
+    """Place the neurons on the grid and choose which are inhibitory.
+
+    Parameters
+    ----------
+    cfg : LayoutConfig
+        Grid size, spacing and the inhibitory fraction.
+    rng : numpy.random.Generator
+        Chooses the inhibitory neurons.
+
+    Returns
+    -------
+    Layout
+        rows × cols neurons, exactly round(n · inhibitory_fraction) of them inhibitory.
+    """
     n = cfg.rows * cfg.cols
     idx = np.arange(n)
     row = (idx // cfg.cols).astype(np.int32)

@@ -1,9 +1,9 @@
 """Virtual multi-electrode array: electrodes that record and stimulate nearby neurons.
 
-Default: the 60-electrode 8 × 8 grid without its corners, 200 µm pitch, centred on the
-culture. An electrode records every spike of each neuron within `record_radius_um` (a neuron
-near two electrodes appears on both) and a pulse on an electrode is delivered, at full
-amplitude, to every neuron within `stim_radius_um`.
+Default: the Multi Channel Systems 60-electrode layout (``devices.mea``: 8 × 8 grid without
+its corners, 200 µm pitch), centred on the culture. An electrode records every spike of each
+neuron within `record_radius_um` (a neuron near two electrodes appears on both) and a pulse on
+an electrode is delivered, at full amplitude, to every neuron within `stim_radius_um`.
 """
 
 from __future__ import annotations
@@ -12,13 +12,24 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from devices.mea import grid
 from sim_network.config import MeaConfig
 from sim_network.layout import Layout
 
 
 @dataclass(frozen=True)
 class Mea:
-    """Electrode positions and the two neuron↔electrode maps in CSR form."""
+    """Electrode positions and the two neuron↔electrode maps in CSR form.
+
+    Attributes
+    ----------
+    x_um, y_um : float32[e]
+        Electrode positions (µm).
+    rec_indptr, rec_electrode : int64[n + 1], uint32
+        Electrodes that record neuron i: ``rec_electrode[rec_indptr[i]:rec_indptr[i + 1]]``.
+    stim_indptr, stim_neuron : int64[e + 1], int64
+        Neurons that electrode j stimulates: ``stim_neuron[stim_indptr[j]:stim_indptr[j + 1]]``.
+    """
 
     x_um: np.ndarray  # float32[e]
     y_um: np.ndarray  # float32[e]
@@ -34,13 +45,22 @@ class Mea:
 
 
 def electrode_positions(cfg: MeaConfig, centre_x_um: float, centre_y_um: float):
-    """Electrode (x, y) in µm, row-major, corners dropped when configured."""
-    r, c = np.meshgrid(np.arange(cfg.rows), np.arange(cfg.cols), indexing="ij")
-    r = r.ravel()
-    c = c.ravel()
-    if cfg.drop_corners and cfg.rows > 1 and cfg.cols > 1:
-        corner = ((r == 0) | (r == cfg.rows - 1)) & ((c == 0) | (c == cfg.cols - 1))
-        r, c = r[~corner], c[~corner]
+    """Electrode positions of the configured grid, centred on a point.
+
+    Parameters
+    ----------
+    cfg : MeaConfig
+        Grid size, pitch and whether the corners are left out.
+    centre_x_um, centre_y_um : float
+        Centre of the grid (µm).
+
+    Returns
+    -------
+    x_um, y_um : float32[e]
+        Electrode positions, row-major (``devices.mea.grid``): with the default config, the
+        electrodes in the order of ``devices.mea.MCS60_NAMES``.
+    """
+    r, c = grid(cfg.rows, cfg.cols, cfg.drop_corners)
     x = centre_x_um + (c - (cfg.cols - 1) / 2.0) * cfg.pitch_um
     y = centre_y_um + (r - (cfg.rows - 1) / 2.0) * cfg.pitch_um
     return x.astype(np.float32), y.astype(np.float32)
@@ -54,7 +74,20 @@ def _csr(owner: np.ndarray, member: np.ndarray, n_owner: int):
 
 
 def build_mea(cfg: MeaConfig, layout: Layout) -> Mea:
-    """Place the electrodes on the culture centre and map neurons within the radii."""
+    """Place the electrodes on the culture's centre and map the neurons within their radii.
+
+    Parameters
+    ----------
+    cfg : MeaConfig
+        Grid, pitch, recording and stimulation radii.
+    layout : Layout
+        The neurons.
+
+    Returns
+    -------
+    Mea
+        Electrodes in the order of `electrode_positions`.
+    """
     ex, ey = electrode_positions(cfg, layout.width_um / 2.0, layout.height_um / 2.0)
     dx = layout.x_um[:, None].astype(np.float64) - ex[None, :]
     dy = layout.y_um[:, None].astype(np.float64) - ey[None, :]

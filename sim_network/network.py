@@ -86,11 +86,11 @@ class Network:
         st = cfg.stdp
         self._stdp = (
             bool(st.enabled),
-            st.a_plus_mv,
-            st.a_minus_mv,
+            float(st.a_plus_mv),
+            float(st.a_minus_mv),
             math.exp(-self._dt / st.tau_plus_ms),
             math.exp(-self._dt / st.tau_minus_ms),
-            st.w_max_mv,
+            float(st.w_max_mv),
         )
         self._dep_tau_steps = cfg.depression.tau_rec_ms / self._dt
         inh = self.layout.cell_type != EXCITATORY
@@ -161,7 +161,13 @@ class Network:
         return self._neuron_spikes
 
     def potentials(self) -> np.ndarray:
-        """Membrane potential snapshot (mV), float32[n_neurons]."""
+        """A snapshot of the membrane potentials.
+
+        Returns
+        -------
+        float32[n_neurons]
+            Each neuron's membrane potential (mV) now, a copy.
+        """
         return self.v.astype(np.float32)
 
     # ------------------------------------------------------------------ running
@@ -191,24 +197,29 @@ class Network:
         k1 = k0 + n_steps
         self._pending = self._pending.alive_after(k0)
         pend = self._pending
-        st = self._stdp
         n_out = 0
         neurons: list[np.ndarray] = []
         steps: list[np.ndarray] = []
+        groups = (  # the parts of the model, as `kernels.advance` takes them
+            (self._model, self._dt, self._n_sub, self.v, self.aux, self.params),
+            (self.ring, self.synapses.indptr, self.synapses.post, self.weight, self._target),
+            (float(self.cfg.depression.u), self._dep_tau_steps, self.dep_x, self.dep_last),
+            (self._noise_mean, self._noise_sd, self._noise_steps, self.noise_state, self.noise_cur),
+            (pend.neuron, pend.current, pend.start, pend.end, self._stim_cur),
+            (
+                *self._stdp,
+                self.x_pre,
+                self.y_post,
+                self._in_indptr,
+                self._in_syn,
+                self._pre,
+                self._is_exc,
+            ),
+            (self._out_neuron, self._out_step),
+        )
         k = k0
         while k < k1:
-            done, n_out = kernels.advance(
-                self._model, k1 - k, k, self._dt, self._n_sub,
-                self.v, self.aux, self.params, self.ring,
-                self.synapses.indptr, self.synapses.post, self.weight, self._target,
-                self.cfg.depression.u, self._dep_tau_steps, self.dep_x, self.dep_last,
-                self._noise_mean, self._noise_sd, self._noise_steps, self.noise_state,
-                self.noise_cur,
-                pend.neuron, pend.current, pend.start, pend.end, self._stim_cur,
-                st[0], st[1], st[2], st[3], st[4], st[5], self.x_pre, self.y_post,
-                self._in_indptr, self._in_syn, self._pre, self._is_exc,
-                self._out_neuron, self._out_step, 0,
-            )  # fmt: skip
+            done, n_out = kernels.advance(k1 - k, k, *groups, 0)
             k += done
             self.step = k
             neurons.append(self._out_neuron[:n_out].copy())
@@ -269,7 +280,14 @@ class Network:
 
     # ------------------------------------------------------------------ state
     def get_state(self) -> dict[str, np.ndarray]:
-        """Everything that evolves during `run()`, as copies of plain arrays."""
+        """Everything that evolves during `run()`, as copies of plain arrays.
+
+        Returns
+        -------
+        dict of str to numpy.ndarray
+            ``step``, the neuron state (``v``, ``aux``), the delay ring, noise, depression and
+            STDP state, the current weights and the pending pulses; `set_state` takes it back.
+        """
         return {
             "step": np.array(self.step, dtype=np.int64),
             "v": self.v.copy(),
@@ -289,7 +307,14 @@ class Network:
         }
 
     def set_state(self, state: dict[str, np.ndarray]) -> None:
-        """Restore what `get_state` returned (of a network with the same config and seed)."""
+        """Restore what `get_state` returned.
+
+        Parameters
+        ----------
+        state : dict of str to numpy.ndarray
+            From `get_state` of a network with the same config and seed; every array must
+            have the shape of the current one (copied in, converted to its dtype).
+        """
         for key in (
             "v",
             "aux",
@@ -316,7 +341,13 @@ class Network:
         )
 
     def save(self, path: str | Path) -> None:
-        """Write config, seed, connectivity and state to one `.npz`-format file at `path`."""
+        """Write config, seed, connectivity and state to one file.
+
+        Parameters
+        ----------
+        path : str or Path
+            Written exactly there, in ``.npz`` format (no suffix added); `load` reads it.
+        """
         syn = self.synapses
         meta = {"version": _STATE_VERSION, "seed": self.seed, "config": config_to_dict(self.cfg)}
         with open(path, "wb") as fh:  # exactly this path (np.savez would add .npz)
@@ -335,7 +366,24 @@ class Network:
 
     @classmethod
     def load(cls, path: str | Path) -> Network:
-        """Rebuild a network saved by `save`; running on gives the spikes it would have given."""
+        """Rebuild a network saved by `save`.
+
+        Parameters
+        ----------
+        path : str or Path
+            A file written by `save` (state version 2).
+
+        Returns
+        -------
+        Network
+            At the saved step; running on gives the spikes the saved network would have given.
+
+        Raises
+        ------
+        ValueError
+            The file holds another state version (version 1 used a noise generator this
+            version no longer has).
+        """
         with np.load(path, allow_pickle=False) as data:
             meta = json.loads(str(data["meta"]))
             version = meta.get("version")

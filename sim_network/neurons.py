@@ -26,8 +26,6 @@ IZHIKEVICH_TYPES: dict[str, tuple[float, float, float, float]] = {
 }
 
 MODEL_IDS = {"izhikevich": 0, "lif": 1, "hh": 2}
-IZH_V_PEAK_MV = 30.0
-HH_SPIKE_THRESHOLD_MV = 0.0
 HH_V_REST_MV = -65.0
 
 
@@ -39,11 +37,27 @@ def izhikevich_params(
     heterogeneity_inh: float,
     rng: np.random.Generator,
 ) -> np.ndarray:
-    """Per-neuron (a, b, c, d), shape (4, n), with Izhikevich-2003-style spread.
+    """Per-neuron Izhikevich parameters with Izhikevich-2003-style spread.
 
     With r ~ U(0, 1) per neuron: excitatory c += 15·h_exc·r², d -= 6·h_exc·r² (RS drifts
     toward chattering); inhibitory a -= 0.08·h_inh·r (floored at 0.02), b += 0.05·h_inh·r
     (FS drifts toward LTS).
+
+    Parameters
+    ----------
+    cell_type : uint8[n]
+        0 excitatory, 1 inhibitory.
+    exc_name, inh_name : str
+        Keys of `IZHIKEVICH_TYPES` for each population (e.g. ``"RS"``, ``"FS"``).
+    heterogeneity_exc, heterogeneity_inh : float
+        Spread h of each population (0: all neurons alike).
+    rng : numpy.random.Generator
+        Draws r.
+
+    Returns
+    -------
+    float64[4, n]
+        Rows a, b, c (mV), d.
     """
     n = cell_type.size
     params = np.empty((4, n), dtype=np.float64)
@@ -74,7 +88,24 @@ def _hh_rates(v: float) -> tuple[float, float, float, float, float, float]:
 
 
 def build_params(cfg: NetworkConfig, cell_type: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """Parameter array (n_params, n) for the configured model."""
+    """The per-neuron parameters of the configured model, as the kernel reads them.
+
+    Parameters
+    ----------
+    cfg : NetworkConfig
+        ``neurons`` (model and its parameters) and ``dt_ms``.
+    cell_type : uint8[n]
+        0 excitatory, 1 inhibitory.
+    rng : numpy.random.Generator
+        Draws the Izhikevich heterogeneity (unused by the other models).
+
+    Returns
+    -------
+    float64[n_params, n]
+        Izhikevich: a, b, c, d (`izhikevich_params`); LIF: tau_m_ms, v_rest_mv, v_reset_mv,
+        v_threshold_mv, resistance, refractory steps; HH: g_na, g_k, g_leak, e_na_mv,
+        e_k_mv, e_leak_mv, c_m, sub-steps per step.
+    """
     n = cell_type.size
     neu = cfg.neurons
     if neu.model == "izhikevich":
@@ -98,9 +129,21 @@ def build_params(cfg: NetworkConfig, cell_type: np.ndarray, rng: np.random.Gener
 
 
 def initial_state(cfg: NetworkConfig, params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Resting membrane potential v (mV) and auxiliary state aux (4, n).
+    """The state every neuron starts from (at rest).
 
-    aux rows: Izhikevich — u; LIF — refractory steps left; HH — m, h, n, above-threshold flag.
+    Parameters
+    ----------
+    cfg : NetworkConfig
+        Which model.
+    params : float64[n_params, n]
+        From `build_params`.
+
+    Returns
+    -------
+    v : float64[n]
+        Membrane potential (mV).
+    aux : float64[4, n]
+        Izhikevich: u; LIF: refractory steps left; HH: m, h, n, above-threshold flag.
     """
     n = params.shape[1]
     aux = np.zeros((4, n), dtype=np.float64)
@@ -120,5 +163,16 @@ def initial_state(cfg: NetworkConfig, params: np.ndarray) -> tuple[np.ndarray, n
 
 
 def izhikevich_substeps(dt_ms: float) -> int:
-    """Euler sub-steps for v per step: 2 half-steps at 1 ms (Izhikevich 2003), 1 at ≤ 0.5 ms."""
+    """How many Euler sub-steps of v the Izhikevich update takes per step.
+
+    Parameters
+    ----------
+    dt_ms : float
+        The step.
+
+    Returns
+    -------
+    int
+        ceil(dt / 0.5 ms): 1 at dt <= 0.5 ms, 2 half-steps at 1 ms (Izhikevich 2003).
+    """
     return max(1, math.ceil(dt_ms / 0.5 - 1e-9))

@@ -20,7 +20,18 @@ _DTYPES = (np.dtype(np.uint32), np.dtype(np.float32), np.dtype(np.float32), np.d
 class Pulses:
     """Monophasic current pulses in channel space, as parallel arrays of equal length.
 
-    `onset_ms` is relative to the start of the `Network.run` call that receives them.
+    Attributes
+    ----------
+    channel : uint32[k]
+        Channel of each pulse (a neuron, or an electrode of the virtual MEA).
+    amplitude_ua : float32[k]
+        Amplitude (µA; the model current per µA is ``stimulation.model_current_per_ua``).
+    width_ms : float32[k]
+        Duration, >= 0.
+    onset_ms : float32[k]
+        Start, >= 0, relative to the start of the `Network.run` call that receives them.
+
+    Values are converted to these dtypes on construction; malformed ones raise `PulseError`.
     """
 
     channel: np.ndarray  # uint32[k]
@@ -83,14 +94,33 @@ class Pulses:
 
     @classmethod
     def empty(cls) -> Pulses:
-        """No pulses."""
+        """No pulses.
+
+        Returns
+        -------
+        Pulses
+            Of length 0.
+        """
         return cls(np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0))
 
     @classmethod
     def single(
         cls, channels, amplitude_ua: float, width_ms: float, onset_ms: float = 0.0
     ) -> Pulses:
-        """The same pulse into each of `channels` at one onset."""
+        """The same pulse into each of some channels at one onset.
+
+        Parameters
+        ----------
+        channels : int or array_like of int
+            The channels.
+        amplitude_ua, width_ms, onset_ms : float
+            The pulse (onset relative to the start of the receiving `run` call).
+
+        Returns
+        -------
+        Pulses
+            One pulse per channel.
+        """
         ch = np.atleast_1d(np.asarray(channels))
         k = ch.size
         return cls(ch, np.full(k, amplitude_ua), np.full(k, width_ms), np.full(k, onset_ms))
@@ -98,7 +128,15 @@ class Pulses:
 
 @dataclass(frozen=True)
 class Spikes:
-    """Spikes sorted by time: `channel` (uint32) and absolute simulated time `t_ms` (float64)."""
+    """Spikes sorted by time.
+
+    Attributes
+    ----------
+    channel : uint32[k]
+        Channel (neuron index, or electrode) of each spike.
+    t_ms : float64[k]
+        Absolute simulated time of each spike (ms); a spike found in step k is at (k + 1)·dt.
+    """
 
     channel: np.ndarray
     t_ms: np.ndarray
@@ -108,7 +146,18 @@ class Spikes:
 
     @classmethod
     def concat(cls, parts: list[Spikes]) -> Spikes:
-        """Join spike records of consecutive runs."""
+        """Join the spike records of consecutive runs.
+
+        Parameters
+        ----------
+        parts : list of Spikes
+            In time order.
+
+        Returns
+        -------
+        Spikes
+            All of them, one after the other (empty for no parts).
+        """
         if not parts:
             return cls(np.zeros(0, np.uint32), np.zeros(0, np.float64))
         return cls(
@@ -118,7 +167,19 @@ class Spikes:
 
 @dataclass(frozen=True)
 class Channels:
-    """Channel layout: ids, positions (µm), cell type (neurons only), and their kind."""
+    """The channels a network records and stimulates through.
+
+    Attributes
+    ----------
+    channel : uint32[n]
+        Channel ids, 0..n-1.
+    x_um, y_um : float32[n]
+        Positions (µm).
+    cell_type : uint8[n] or None
+        0 excitatory, 1 inhibitory, when the channels are neurons; None for electrodes.
+    kind : str
+        ``"neuron"`` or ``"electrode"``.
+    """
 
     channel: np.ndarray  # uint32[n]
     x_um: np.ndarray  # float32[n]
@@ -135,7 +196,20 @@ class PeriodicStimulus:
     """A pulse train into chosen channels: `count` pulses every `period_ms` from `start_ms`.
 
     The paper's validation protocol is `PeriodicStimulus([n], 100.0, 10.0, 5000.0, start_ms, count)`
-    (10 ms, 100 µA, 0.2 Hz). Times are absolute simulated times.
+    (10 ms, 100 µA, 0.2 Hz).
+
+    Parameters
+    ----------
+    channels : int or sequence of int
+        The channels every pulse goes into (not empty).
+    amplitude_ua, width_ms : float
+        Each pulse (width >= 0).
+    period_ms : float
+        Time between onsets (> 0).
+    start_ms : float
+        Absolute simulated time of the first onset (>= 0).
+    count : int
+        Number of pulses (>= 0).
     """
 
     channels: tuple[int, ...]
@@ -159,11 +233,29 @@ class PeriodicStimulus:
             raise PulseError(f"PeriodicStimulus.start_ms must be >= 0, got {self.start_ms}")
 
     def onsets_ms(self) -> np.ndarray:
-        """Absolute onset time of every pulse of the train."""
+        """The onsets of the train.
+
+        Returns
+        -------
+        float64[count]
+            Absolute simulated time of every pulse's onset (ms).
+        """
         return self.start_ms + self.period_ms * np.arange(self.count, dtype=np.float64)
 
     def pulses_between(self, t0_ms: float, t1_ms: float) -> Pulses:
-        """Pulses with onset in [t0_ms, t1_ms), onsets relative to t0_ms (for `run` at t0_ms)."""
+        """The pulses of the train that start in a window, for a `Network.run` call.
+
+        Parameters
+        ----------
+        t0_ms, t1_ms : float
+            The window [t0_ms, t1_ms) in absolute simulated time; t0_ms is where the `run`
+            call starts.
+
+        Returns
+        -------
+        Pulses
+            One pulse per channel per onset in the window, onsets relative to ``t0_ms``.
+        """
         on = self.onsets_ms()
         on = on[(on >= t0_ms - 1e-9) & (on < t1_ms - 1e-9)]
         k = len(self.channels)

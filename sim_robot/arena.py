@@ -83,15 +83,38 @@ class Arena:
 
     @classmethod
     def from_toml(cls, path: str | Path, seed: int | None = 0) -> Arena:
-        """Load a world file and place the robot at its start pose."""
+        """Load a world file and place the robot at its start pose.
+
+        Parameters
+        ----------
+        path : str or Path
+            A TOML world file (``docs/sim_robot.md``).
+        seed : int or None
+            Seeds the range-finder noise.
+
+        Returns
+        -------
+        Arena
+            At time 0.
+
+        Raises
+        ------
+        WorldError
+            The file is not a valid world (the message names the key).
+        """
         return cls(load_world(path), seed=seed)
 
     # ------------------------------------------------------------ state
 
     def reset(self, pose: tuple[float, float, float] | None = None) -> None:
-        """Back to time 0 with zeroed counters, at ``pose`` or the world's start pose.
+        """Back to time 0 with zeroed counters.
 
         The noise generator is re-seeded, so a reset run repeats its noise exactly.
+
+        Parameters
+        ----------
+        pose : (x_m, y_m, heading_rad), optional
+            Where the robot starts; default the world's start pose.
         """
         x, y, th = self.world.start_pose if pose is None else pose
         self._x, self._y, self._th = float(x), float(y), wrap_angle(float(th))
@@ -141,6 +164,14 @@ class Arena:
         Speeds saturate at ``±body.max_wheel_mps``. The pose follows the exact arc; with solid
         obstacles or walls the move is split into substeps of at most
         ``SOLID_SUBSTEP_FRACTION`` x radius, each followed by a push-out (the robot slides).
+        ``stats`` counts the step (distance, entries, exits, contacts, times).
+
+        Parameters
+        ----------
+        left_mps, right_mps : float
+            Wheel speeds (m/s, finite).
+        dt_s : float
+            Duration (s, finite, > 0).
         """
         if not (dt_s > 0 and math.isfinite(dt_s)):
             raise ValueError(f"dt_s must be a finite number > 0, got {dt_s!r}")
@@ -185,10 +216,16 @@ class Arena:
     # ------------------------------------------------------------ sensing
 
     def read_sensors(self) -> np.ndarray:
-        """Range of each range finder (float32 metres, in ``[0, max_range_m]``).
+        """What the range finders see from the current pose.
 
-        Exactly ``max_range_m`` when nothing is within range; Gaussian noise of
-        ``world.noise_sd_m`` (seeded) is added and clipped when the world asks for it.
+        Gaussian noise of ``world.noise_sd_m`` (seeded) is added and clipped when the world
+        asks for it.
+
+        Returns
+        -------
+        float32[n_sensors]
+            Range (m) of each range finder, in the body's sensor order, in
+            ``[0, max_range_m]``; exactly ``max_range_m`` when nothing is within range.
         """
         cast_rays(
             self._x,
@@ -208,9 +245,14 @@ class Arena:
         return out
 
     def read_ir(self) -> np.ndarray:
-        """Range finders as Khepera-like IR values (float32, 0–1023, higher = nearer).
+        """The range finders as Khepera-like IR values.
 
         Uses ``body.ir_model``, or the Khepera II response when the body names none.
+
+        Returns
+        -------
+        float32[n_sensors]
+            IR proximity values, 0–1023, higher = nearer (`ir_value` of `read_sensors`).
         """
         ranges = self.read_sensors().astype(np.float64)
         # "nothing hit" is max_range_m exactly, not its float32 rounding

@@ -5,12 +5,12 @@ the order the sensors are listed (that order is the order of ``read_sensors()``)
 
 Presets (``PRESETS``):
 
-* ``khepera2`` — 70 mm disc, wheel base 53 mm, 8 IR sensors at the real positions and facings
-  (``shared/reference/devices.md``), max wheel speed 127 units x 8 mm/s = 1.016 m/s, range
-  finders capped at the IR fade distance (0.12 m) with the Khepera II IR response.
-* ``khepera4`` — radius 70.4 mm, wheel base 105.4 mm, 8 IR sensors evenly spaced from forward
-  counter-clockwise on the rim; max range 0.25 m and max wheel speed 0.81 m/s are our
-  assumptions (not in the reference notes).
+* ``khepera2`` — the real robot's disc, wheel base, 8 IR sensors at their positions and
+  facings and max wheel speed (``devices.khepera``: 70 mm, 53 mm, 1.016 m/s), range finders
+  capped at the IR fade distance (0.12 m) with the Khepera II IR response.
+* ``khepera4`` — the real robot's radius, wheel base and 8 IR facings (``devices.khepera``:
+  70.4 mm, 105.4 mm, evenly spaced on the rim); max range 0.25 m and max wheel speed 0.81 m/s
+  are our assumptions (not in the reference notes).
 * ``paper7`` — the paper's Figure 7 robot: a Khepera II-sized disc with 7 range finders on the
   rim at -90°..+90° every 30° (right to left), max range 0.25 m, wheels capped at 0.2 m/s.
 """
@@ -23,6 +23,8 @@ import numbers
 from dataclasses import dataclass
 
 import numpy as np
+
+from devices import khepera
 
 from .errors import WorldError
 from .ir import IR_FADE_M, IR_MODELS
@@ -91,12 +93,36 @@ class Body:
             )
 
     def replace(self, **changes) -> Body:
-        """A copy with some fields changed (validated again)."""
+        """A copy with some fields changed.
+
+        Parameters
+        ----------
+        **changes
+            Field values, by name.
+
+        Returns
+        -------
+        Body
+            Validated again.
+        """
         return dataclasses.replace(self, **changes)
 
 
 def rim_offsets(radius_m: float, angles_rad: np.ndarray) -> np.ndarray:
-    """Sensor positions on the rim of a disc, each facing outward along its angle."""
+    """Sensor positions on the rim of a disc, each facing outward along its angle.
+
+    Parameters
+    ----------
+    radius_m : float
+        The disc.
+    angles_rad : float array[k]
+        Facing of each sensor, counter-clockwise from forward.
+
+    Returns
+    -------
+    float64[k, 2]
+        (x, y) of each sensor in the body frame (m).
+    """
     a = np.asarray(angles_rad, dtype=np.float64)
     return np.stack([radius_m * np.cos(a), radius_m * np.sin(a)], axis=1)
 
@@ -104,14 +130,38 @@ def rim_offsets(radius_m: float, angles_rad: np.ndarray) -> np.ndarray:
 def custom_body(
     sensor_angles_deg,
     max_range_m: float,
-    radius_m: float = 0.035,
-    wheel_base_m: float = 0.053,
+    radius_m: float = khepera.KHEPERA2_RADIUS_M,
+    wheel_base_m: float = khepera.KHEPERA2_WHEEL_BASE_M,
     max_wheel_mps: float = 0.2,
     sensor_offsets_m=None,
     ir_model: str | None = None,
     name: str = "custom",
 ) -> Body:
-    """A body with range finders at user-chosen directions (on the rim unless placed)."""
+    """A body with range finders at user-chosen directions.
+
+    Parameters
+    ----------
+    sensor_angles_deg : array_like of float
+        Facing of each range finder (deg, counter-clockwise from forward).
+    max_range_m : float
+        Range reported when nothing is hit.
+    radius_m, wheel_base_m : float
+        The disc and the distance between the wheels (default a Khepera II's,
+        ``devices.khepera``).
+    max_wheel_mps : float
+        Wheel speed limit.
+    sensor_offsets_m : array_like, shape (k, 2), optional
+        Sensor positions in the body frame; default on the rim (`rim_offsets`).
+    ir_model : str, optional
+        A key of ``sim_robot.ir.IR_MODELS`` for ``Arena.read_ir``.
+    name : str
+        Shown in messages.
+
+    Returns
+    -------
+    Body
+        Validated (`WorldError` names a bad field).
+    """
     angles = np.deg2rad(np.asarray(sensor_angles_deg, dtype=np.float64).reshape(-1))
     offsets = rim_offsets(radius_m, angles) if sensor_offsets_m is None else sensor_offsets_m
     return Body(
@@ -127,16 +177,13 @@ def custom_body(
 
 
 def _khepera2() -> Body:
-    mm = 1e-3
-    positions = [(10, 24), (19, 17), (25, 6), (25, -6), (19, -17), (10, -24), (-24, -10), (-24, 10)]
-    facings_deg = [90, 45, 0, 0, -45, -90, 180, 180]
     return custom_body(
-        facings_deg,
+        khepera.KHEPERA2_SENSOR_FACINGS_DEG,
         max_range_m=IR_FADE_M,
-        radius_m=0.035,
-        wheel_base_m=0.053,
-        max_wheel_mps=127 * 0.008,
-        sensor_offsets_m=np.array(positions, dtype=np.float64) * mm,
+        radius_m=khepera.KHEPERA2_RADIUS_M,
+        wheel_base_m=khepera.KHEPERA2_WHEEL_BASE_M,
+        max_wheel_mps=khepera.KHEPERA2_MAX_WHEEL_MPS,
+        sensor_offsets_m=khepera.KHEPERA2_SENSOR_POSITIONS_M,
         ir_model="khepera2",
         name="khepera2",
     )
@@ -144,10 +191,10 @@ def _khepera2() -> Body:
 
 def _khepera4() -> Body:
     return custom_body(
-        np.arange(8) * 45.0,
+        khepera.KHEPERA4_SENSOR_FACINGS_DEG,
         max_range_m=0.25,
-        radius_m=0.0704,
-        wheel_base_m=0.1054,
+        radius_m=khepera.KHEPERA4_RADIUS_M,
+        wheel_base_m=khepera.KHEPERA4_WHEEL_BASE_M,
         max_wheel_mps=0.81,
         name="khepera4",
     )
@@ -161,7 +208,23 @@ PRESETS = {"khepera2": _khepera2, "khepera4": _khepera4, "paper7": _paper7}
 
 
 def preset(name: str) -> Body:
-    """A ready body by name: one of ``PRESETS``."""
+    """A ready body by name.
+
+    Parameters
+    ----------
+    name : str
+        One of ``PRESETS``: ``"khepera2"``, ``"khepera4"``, ``"paper7"``.
+
+    Returns
+    -------
+    Body
+        A new body.
+
+    Raises
+    ------
+    WorldError
+        For an unknown name.
+    """
     try:
         return PRESETS[name]()
     except KeyError:

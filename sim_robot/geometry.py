@@ -201,6 +201,20 @@ def cast_rays(
     sensor_angles[i]``. Its range is the distance to the first obstacle face or wall crossing,
     capped at ``max_range``; 0 when the sensor itself lies inside an obstacle. The wall is a
     curve, not a solid: a sensor outside the arena sees it from outside.
+
+    Parameters
+    ----------
+    x, y, heading : float
+        The robot's pose (m, rad).
+    sensor_offsets : float64[k, 2]
+        Sensor positions in the body frame.
+    sensor_angles : float64[k]
+        Sensor facings (rad, counter-clockwise from forward).
+    max_range : float
+    obs_kind, obs_circle, poly_vertex, obs_start, wall_kind, wall_param : arrays
+        The world's flattened geometry (``World.geometry``).
+    out : float32[k]
+        Written: the range of each sensor (m).
     """
     ch = math.cos(heading)
     sh = math.sin(heading)
@@ -280,8 +294,20 @@ def disc_state(
 ):
     """Where a robot disc of ``radius`` stands, for each centre ``(xs[k], ys[k])``.
 
-    Writes ``overlap[k, j]`` (the disc touches or overlaps obstacle j), ``outside[k]`` (the
-    centre is outside the arena) and ``wall_touch[k]`` (the disc touches or crosses the wall).
+    Parameters
+    ----------
+    xs, ys : float64[n]
+        Centres (m).
+    radius : float
+        The disc (m).
+    obs_kind, obs_circle, poly_vertex, obs_start, wall_kind, wall_param : arrays
+        The world's flattened geometry (``World.geometry``).
+    overlap : bool[n, n_obstacles]
+        Written: the disc touches or overlaps obstacle j.
+    outside : bool[n]
+        Written: the centre is outside the arena.
+    wall_touch : bool[n]
+        Written: the disc touches or crosses the wall.
     """
     n_obs = obs_kind.shape[0]
     for k in range(xs.shape[0]):
@@ -315,18 +341,6 @@ def disc_update(
         any_overlap = any_overlap or now
     m = _wall_margin(px, py, wall_kind, wall_param)
     return entries, any_overlap, m < 0.0, abs(m) <= radius + CONTACT_TOLERANCE_M
-
-
-@njit(cache=True, nogil=True)
-def point_in_obstacles(xs, ys, obs_kind, obs_circle, poly_vertex, obs_start, out):
-    """``out[k]`` = index of an obstacle containing point k, or -1."""
-    for k in range(xs.shape[0]):
-        out[k] = -1
-        for j in range(obs_kind.shape[0]):
-            c = _obstacle_clearance(xs[k], ys[k], j, obs_kind, obs_circle, poly_vertex, obs_start)
-            if c == 0.0:
-                out[k] = j
-                break
 
 
 # ---------------------------------------------------------------- plain-Python helpers

@@ -1,6 +1,6 @@
 """Khepera-like infra-red response: distance (m) to a 0–1023 proximity value.
 
-The table is the published Khepera II calibration (``shared/reference/devices.md``): higher
+The table is the published Khepera II calibration (``devices.khepera.KHEPERA2_IR_TABLE``): higher
 values mean nearer. Beyond its last point (80 at 100 mm) we assume a linear fall to 0 at
 ``IR_FADE_M`` (120 mm), so "nothing seen" reads 0 and not the 10–100 count noise floor of a
 real sensor. Between points the value is linearly interpolated in distance.
@@ -10,24 +10,10 @@ from __future__ import annotations
 
 import numpy as np
 
-#: (distance_m, value) points, nearest first
-KHEPERA2_IR_TABLE = np.array(
-    [
-        (0.000, 1023.0),
-        (0.008, 1023.0),
-        (0.010, 1000.0),
-        (0.020, 450.0),
-        (0.030, 275.0),
-        (0.040, 190.0),
-        (0.050, 150.0),
-        (0.060, 125.0),
-        (0.070, 110.0),
-        (0.080, 100.0),
-        (0.090, 90.0),
-        (0.100, 80.0),
-        (0.120, 0.0),
-    ]
-)
+from devices import khepera
+
+#: (distance_m, value) points, nearest first: the published table and the assumed fade to 0
+KHEPERA2_IR_TABLE = np.concatenate([khepera.KHEPERA2_IR_TABLE, [(0.120, 0.0)]])
 #: distance at which the modelled IR value reaches 0 (m)
 IR_FADE_M = float(KHEPERA2_IR_TABLE[-1, 0])
 
@@ -43,6 +29,11 @@ def ir_value(range_m: np.ndarray, model: str = "khepera2") -> np.ndarray:
         Distances from the sensor, metres (any shape).
     model : str
         Name of a table in ``IR_MODELS``.
+
+    Returns
+    -------
+    float32 array
+        Of the shape of ``range_m``: values interpolated in distance, 0 beyond the table.
     """
     try:
         table = IR_MODELS[model]

@@ -15,7 +15,11 @@ COVERAGE_CELL_M = 0.05
 
 
 def trajectory_metrics(
-    world: World, t_s: np.ndarray, poses: np.ndarray, cell_m: float = COVERAGE_CELL_M
+    world: World,
+    t_s: np.ndarray,
+    poses: np.ndarray,
+    cell_m: float = COVERAGE_CELL_M,
+    radius_m: float | None = None,
 ) -> dict:
     """Summarise a trajectory.
 
@@ -29,6 +33,9 @@ def trajectory_metrics(
         ``(x_m, y_m, heading_rad)`` at each time.
     cell_m : float
         Coverage grid cell side (default ``COVERAGE_CELL_M`` = 0.05 m).
+    radius_m : float, optional
+        The robot's disc (default the world's robot): a recorded body may be another robot
+        than the one the world file describes.
 
     Returns
     -------
@@ -53,11 +60,13 @@ def trajectory_metrics(
         raise ValueError(f"t_s and poses must have the same length >= 1, got {t.size}, {len(p)}")
     if np.any(np.diff(t) < 0) or not np.all(np.isfinite(t)) or not np.all(np.isfinite(p)):
         raise ValueError("t_s must be finite and non-decreasing, poses finite")
+    if radius_m is not None and not radius_m > 0:
+        raise ValueError(f"radius_m must be > 0, got {radius_m!r}")
     if not cell_m > 0:
         raise ValueError(f"cell_m must be > 0, got {cell_m!r}")
     x = np.ascontiguousarray(p[:, 0])
     y = np.ascontiguousarray(p[:, 1])
-    overlap, outside, touch = disc_flags(world, x, y)
+    overlap, outside, touch = disc_flags(world, x, y, radius_m)
     dt = np.diff(t)
     duration = float(t[-1] - t[0])
     distance = float(np.hypot(np.diff(x), np.diff(y)).sum())

@@ -28,7 +28,18 @@ MAX_PUSHES = 16
 
 
 def build_space(world: World) -> pymunk.Space:
-    """A static pymunk space holding the world's obstacles (and rectangular walls)."""
+    """A static pymunk space holding the world's obstacles.
+
+    Parameters
+    ----------
+    world : World
+
+    Returns
+    -------
+    pymunk.Space
+        Convex obstacles as one ``Poly`` each, non-convex ones decomposed, circles as
+        ``Circle``, a rectangular arena's walls as ``Segment`` (a circular wall has no shape).
+    """
     space = pymunk.Space()
     static = space.static_body
     for j, ob in enumerate(world.obstacles):
@@ -124,6 +135,18 @@ def pymunk_ranges(
 
     Same conventions as ``Arena.read_sensors`` (noise-free): metres, ``max_range_m`` when
     nothing is hit, 0 when the sensor starts inside an obstacle.
+
+    Parameters
+    ----------
+    space : pymunk.Space
+        From `build_space` of ``world``.
+    world : World
+    pose : (x_m, y_m, heading_rad)
+
+    Returns
+    -------
+    float64[n_sensors]
+        Range of each range finder (m).
     """
     body = world.body
     x, y, th = pose

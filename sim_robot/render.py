@@ -92,7 +92,23 @@ def _draw_robot(world: World, ax, pose, ranges) -> None:
 
 
 def trajectory_figure(world: World, t_s, poses, title: str | None = None) -> Figure:
-    """A figure of the world with the path coloured by time and the final robot pose."""
+    """A figure of the world with the path coloured by time and the final robot pose.
+
+    Parameters
+    ----------
+    world : World
+        Arena, obstacles and the robot drawn at the last pose.
+    t_s : float[N]
+        Sample times (s), for the colours.
+    poses : float[N, 3]
+        ``(x_m, y_m, heading_rad)`` at each time.
+    title : str, optional
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        Not attached to pyplot (no display needed).
+    """
     t = np.asarray(t_s, dtype=np.float64).reshape(-1)
     p = np.asarray(poses, dtype=np.float64)
     fig = Figure(figsize=(6, 5.2))
@@ -116,7 +132,20 @@ def trajectory_figure(world: World, t_s, poses, title: str | None = None) -> Fig
 
 
 def save_trajectory(world: World, t_s, poses, path, title: str | None = None) -> Path:
-    """Save the trajectory picture; the format follows the suffix (``.png`` or ``.svg``)."""
+    """Save the trajectory picture (`trajectory_figure`).
+
+    Parameters
+    ----------
+    world, t_s, poses, title
+        As for `trajectory_figure`.
+    path : str or Path
+        Ends in ``.png`` or ``.svg``; the format follows the suffix.
+
+    Returns
+    -------
+    Path
+        ``path``.
+    """
     path = Path(path)
     if path.suffix.lower() not in (".png", ".svg"):
         raise ValueError(f"path must end in .png or .svg, got {path.name!r}")

@@ -61,11 +61,6 @@ class ArenaShape:
             return -r, r, -r, r
         return -self.width_m / 2, self.width_m / 2, -self.height_m / 2, self.height_m / 2
 
-    def area_m2(self) -> float:
-        if self.shape == "circle":
-            return math.pi * self.radius_m**2
-        return self.width_m * self.height_m
-
 
 @dataclass(frozen=True, eq=False)
 class Obstacle:

@@ -32,7 +32,17 @@ BURST_DTYPE = np.dtype(
 
 @dataclass(frozen=True)
 class BurstParams:
-    """Thresholds of the burst definition (defaults: the paper's 3 spikes within 20 ms)."""
+    """Thresholds of the burst definition (defaults: the paper's 3 spikes within 20 ms).
+
+    Attributes
+    ----------
+    min_spikes : int
+        Spikes (>= 2) that must fall within ``window_ms`` on one channel to start a burst.
+    window_ms : float
+        That window (> 0).
+    max_isi_ms : float or None
+        The interval above which a burst ends; None: ``window_ms``.
+    """
 
     min_spikes: int = 3
     window_ms: float = 20.0
@@ -55,14 +65,35 @@ class BurstParams:
 
 
 def empty_bursts() -> np.ndarray:
+    """No bursts.
+
+    Returns
+    -------
+    BURST_DTYPE array
+        Of length 0.
+    """
     return np.zeros(0, dtype=BURST_DTYPE)
 
 
 def detect_bursts(channel, t_ms, params: BurstParams | None = None) -> np.ndarray:
     """Detect bursts on every channel.
 
-    Returns a structured array of ``BURST_DTYPE`` (channel, start_ms, end_ms, n_spikes), sorted
-    by ``start_ms`` then ``channel``. Vectorised: one sort plus a few passes over the spikes.
+    Vectorised: one sort plus a few passes over the spikes.
+
+    Parameters
+    ----------
+    channel : int array[k]
+        Channel of each spike.
+    t_ms : float array[k]
+        Time of each spike (ms); any order.
+    params : BurstParams, optional
+        Default the paper's.
+
+    Returns
+    -------
+    BURST_DTYPE array
+        (channel, start_ms, end_ms, n_spikes) of each burst, sorted by ``start_ms`` then
+        ``channel``.
     """
     p = params or BurstParams()
     ch, t = check_spikes(channel, t_ms)
@@ -102,12 +133,35 @@ def detect_bursts(channel, t_ms, params: BurstParams | None = None) -> np.ndarra
 
 
 def sort_bursts(bursts: np.ndarray) -> np.ndarray:
-    """Bursts ordered by start time, then channel (the order every function here returns)."""
+    """Bursts in the order every function here returns them.
+
+    Parameters
+    ----------
+    bursts : BURST_DTYPE array
+
+    Returns
+    -------
+    BURST_DTYPE array
+        Sorted by start time, then channel.
+    """
     return bursts[np.lexsort((bursts["channel"], bursts["start_ms"]))]
 
 
 def bursting_rate_per_min(bursts: np.ndarray, n_channels: int, duration_ms: float) -> np.ndarray:
-    """Bursts per minute of every channel (length ``n_channels``; MBR is its mean)."""
+    """Bursts per minute of every channel (MBR is its mean).
+
+    Parameters
+    ----------
+    bursts : BURST_DTYPE array
+    n_channels : int
+        Channels recorded (those without bursts count as 0).
+    duration_ms : float
+        The recorded span (> 0).
+
+    Returns
+    -------
+    float64[n_channels]
+    """
     if duration_ms <= 0:
         raise AnalysisInputError(f"duration_ms must be > 0, got {duration_ms}")
     counts = np.bincount(bursts["channel"].astype(np.int64), minlength=n_channels)

@@ -28,7 +28,15 @@ from hub.analysis.spikes import AnalysisInputError, check_spikes
 
 @dataclass(frozen=True)
 class Cat:
-    """One Center of Activity Trajectory: times (window centres) and CA positions (µm)."""
+    """One Center of Activity Trajectory.
+
+    Attributes
+    ----------
+    t_ms : float64[k]
+        Window centres (ms).
+    x_um, y_um : float64[k]
+        The centre of activity in each window (µm).
+    """
 
     t_ms: np.ndarray
     x_um: np.ndarray
@@ -53,10 +61,29 @@ def _positions(x_um, y_um, n_needed: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def center_of_activity(channel, t_ms, x_um, y_um, window_start_ms, dt_ms: float):
-    """CA of the windows ``(window_start_ms[i], window_start_ms[i] + dt_ms]``.
+    """The centre of activity (mean position of the spiking channels) in time windows.
 
-    Returns ``(x_um, y_um, n_spikes)`` arrays, one entry per window; empty windows give NaN.
     Vectorised with cumulative sums over the (time-sorted) spikes.
+
+    Parameters
+    ----------
+    channel : int array[k]
+        Channel of each spike.
+    t_ms : float array[k]
+        Spike times, sorted.
+    x_um, y_um : float array
+        Position of every channel id.
+    window_start_ms : float array[w]
+        Each window is ``(window_start_ms[i], window_start_ms[i] + dt_ms]``.
+    dt_ms : float
+        Window length (> 0).
+
+    Returns
+    -------
+    x_um, y_um : float64[w]
+        The centre of activity of each window; NaN for an empty window.
+    n_spikes : int64[w]
+        Spikes in each window.
     """
     ch, t = check_spikes(channel, t_ms)
     if not dt_ms > 0:
@@ -83,7 +110,27 @@ def center_of_activity_trajectories(
     time_scale_ms: float = 50.0,
     step_ms: float = 5.0,
 ) -> list[Cat]:
-    """One CAT per network burst (see the module docstring for the exact construction)."""
+    """One CAT per network burst (see the module docstring for the exact construction).
+
+    Parameters
+    ----------
+    channel : int array[k]
+        Channel of each spike.
+    t_ms : float array[k]
+        Spike times, sorted.
+    x_um, y_um : float array
+        Position of every channel id.
+    network_bursts : NetworkBursts
+    time_scale_ms : float
+        Window over which each centre of activity is computed (> 0).
+    step_ms : float
+        Step between window centres (> 0).
+
+    Returns
+    -------
+    list of Cat
+        In the order of ``network_bursts``; empty windows are left out of each CAT.
+    """
     ch, t = check_spikes(channel, t_ms)
     if not time_scale_ms > 0:
         raise AnalysisInputError(f"time_scale_ms must be > 0, got {time_scale_ms}")
@@ -104,7 +151,18 @@ def center_of_activity_trajectories(
 
 
 def resample_cat(cat: Cat, n_points: int) -> np.ndarray:
-    """A CAT as ``(n_points, 2)`` positions, linear in its normalised time (NaN if empty)."""
+    """A CAT resampled at evenly spaced points of its normalised time.
+
+    Parameters
+    ----------
+    cat : Cat
+    n_points : int
+
+    Returns
+    -------
+    float64[n_points, 2]
+        Positions, linearly interpolated; all NaN for an empty CAT.
+    """
     if len(cat) == 0:
         return np.full((n_points, 2), np.nan)
     if len(cat) == 1:
@@ -115,9 +173,22 @@ def resample_cat(cat: Cat, n_points: int) -> np.ndarray:
 
 
 def cat_spread(cats: list[Cat], n_points: int = 20, max_cats: int | None = 1000) -> float:
-    """CAT regularity: mean pairwise distance between CATs after resampling (µm; lower = more
-    regular). Empty CATs are ignored; fewer than two CATs give NaN. With more than ``max_cats``
-    CATs, an evenly spaced subset of ``max_cats`` is used (keeps the cost bounded).
+    """CAT regularity: the mean pairwise distance between CATs after resampling.
+
+    Parameters
+    ----------
+    cats : list of Cat
+        Empty ones are ignored.
+    n_points : int
+        Points each CAT is resampled to (>= 2, `resample_cat`).
+    max_cats : int or None
+        With more usable CATs, an evenly spaced subset of this many is used (keeps the cost
+        bounded).
+
+    Returns
+    -------
+    float
+        Mean distance (µm; lower = more regular); NaN for fewer than two CATs.
     """
     if n_points < 2:
         raise AnalysisInputError(f"n_points must be >= 2, got {n_points}")

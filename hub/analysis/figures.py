@@ -86,7 +86,28 @@ def plot_raster(
     t_stop_ms: float | None = None,
     formats=FORMATS,
 ) -> list[Path]:
-    """Raster plot: excitatory spikes red, inhibitory blue, network bursts shaded."""
+    """Raster plot: excitatory spikes red, inhibitory blue, network bursts shaded.
+
+    Parameters
+    ----------
+    channel, t_ms : array_like[k]
+        The spikes (sorted by time).
+    out : matplotlib Axes or path
+        Where to draw (see the module docstring).
+    cell_type : uint8[n_channels], optional
+        Colours by type; without it every spike is drawn alike.
+    network_bursts : NetworkBursts, optional
+        Shaded.
+    t_start_ms, t_stop_ms : float, optional
+        The span shown; default the spikes' span.
+    formats : tuple of str
+        File formats with a path ``out``.
+
+    Returns
+    -------
+    list of Path
+        The files written (``[]`` when drawing into an Axes).
+    """
     ch, t = check_spikes(channel, t_ms)
     lo = t_start_ms if t_start_ms is not None else (t[0] if t.size else 0.0)
     hi = t_stop_ms if t_stop_ms is not None else (t[-1] if t.size else 1.0)
@@ -125,8 +146,27 @@ def plot_raster(
 def plot_potentials(
     v_mv, grid_shape: tuple[int, int], out, t_ms=None, vmin_mv=-80.0, vmax_mv=30.0, formats=FORMATS
 ) -> list[Path]:
-    """Membrane-potential snapshots on the grid: ``v_mv`` is ``(n,)`` or ``(k, n)`` snapshots,
-    ``n = rows * cols`` in row-major grid order; ``t_ms`` labels each snapshot."""
+    """Membrane-potential snapshots on the grid.
+
+    Parameters
+    ----------
+    v_mv : float array, shape (n,) or (k, n)
+        One or k snapshots, ``n = rows * cols`` in row-major grid order.
+    grid_shape : (rows, cols)
+    t_ms : float array_like[k], optional
+        Labels each snapshot.
+    vmin_mv, vmax_mv : float
+        The colour scale.
+    out : matplotlib Axes or path
+        Where to draw (see the module docstring).
+    formats : tuple of str
+        File formats with a path ``out``.
+
+    Returns
+    -------
+    list of Path
+        The files written (``[]`` when drawing into an Axes).
+    """
     v = np.atleast_2d(np.asarray(v_mv, dtype=np.float64))
     rows, cols = grid_shape
     if v.ndim != 2 or v.shape[1] != rows * cols:
@@ -224,8 +264,23 @@ def plot_connectivity(
 
 
 def plot_rates(series: dict, out, formats=FORMATS) -> list[Path]:
-    """Instantaneous rate curves: ``series`` maps a label (``"all"``, ``"exc"``, ``"inh"``, …)
-    to ``(centers_ms, rate_hz)`` as returned by ``spikes.instantaneous_rate``."""
+    """Instantaneous rate curves.
+
+    Parameters
+    ----------
+    series : dict
+        Maps a label (``"all"``, ``"exc"``, ``"inh"``, …) to ``(centers_ms, rate_hz)`` as
+        returned by ``spikes.instantaneous_rate``.
+    out : matplotlib Axes or path
+        Where to draw (see the module docstring).
+    formats : tuple of str
+        File formats with a path ``out``.
+
+    Returns
+    -------
+    list of Path
+        The files written (``[]`` when drawing into an Axes).
+    """
     colors = {"all": OTHER_COLOR, "exc": EXC_COLOR, "inh": INH_COLOR}
 
     def draw(ax: Axes) -> None:
@@ -243,7 +298,23 @@ def plot_rates(series: dict, out, formats=FORMATS) -> list[Path]:
 def plot_histogram(
     counts, edges, out, title: str, xlabel: str, ylabel: str = "count", formats=FORMATS
 ) -> list[Path]:
-    """A histogram from ``counts`` and bin ``edges`` (the shared base of ISI/IBI/PSTH)."""
+    """A histogram from counts and bin edges (the shared base of ISI/IBI/PSTH).
+
+    Parameters
+    ----------
+    counts : array_like[n_bins]
+    edges : array_like[n_bins + 1]
+    title, xlabel, ylabel : str
+    out : matplotlib Axes or path
+        Where to draw (see the module docstring).
+    formats : tuple of str
+        File formats with a path ``out``.
+
+    Returns
+    -------
+    list of Path
+        The files written (``[]`` when drawing into an Axes).
+    """
     counts = np.asarray(counts)
     edges = np.asarray(edges, dtype=np.float64)
     if edges.size != counts.size + 1:
@@ -261,13 +332,48 @@ def plot_histogram(
 
 
 def plot_isi_histogram(isi, out, bin_ms=1.0, max_ms=200.0, formats=FORMATS) -> list[Path]:
-    """ISI histogram (intervals from ``spikes.isi_ms``)."""
+    """ISI histogram.
+
+    Parameters
+    ----------
+    isi : float array_like
+        Intervals (ms) from ``spikes.isi_ms``.
+    bin_ms, max_ms : float
+        Bins on ``[0, max_ms]``.
+    out : matplotlib Axes or path
+        Where to draw (see the module docstring).
+    formats : tuple of str
+        File formats with a path ``out``.
+
+    Returns
+    -------
+    list of Path
+        The files written (``[]`` when drawing into an Axes).
+    """
     counts, edges = interval_histogram(isi, bin_ms, max_ms)
     return plot_histogram(counts, edges, out, "Inter-spike intervals", "ISI (ms)", formats=formats)
 
 
 def plot_ibi_histogram(ibi, out, bin_ms=500.0, max_ms=None, formats=FORMATS) -> list[Path]:
-    """IBI histogram (intervals between network-burst starts), in seconds on the axis."""
+    """IBI histogram (intervals between network-burst starts), in seconds on the axis.
+
+    Parameters
+    ----------
+    ibi : float array_like
+        Intervals (ms) from ``network_bursts.inter_burst_intervals_ms``.
+    bin_ms : float
+    max_ms : float, optional
+        Default the longest interval plus one bin.
+    out : matplotlib Axes or path
+        Where to draw (see the module docstring).
+    formats : tuple of str
+        File formats with a path ``out``.
+
+    Returns
+    -------
+    list of Path
+        The files written (``[]`` when drawing into an Axes).
+    """
     ibi = np.asarray(ibi, dtype=np.float64)
     top = max_ms if max_ms is not None else (float(ibi.max()) + bin_ms if ibi.size else bin_ms)
     counts, edges = interval_histogram(ibi, bin_ms, top)
@@ -277,7 +383,22 @@ def plot_ibi_histogram(ibi, out, bin_ms=500.0, max_ms=None, formats=FORMATS) -> 
 
 
 def plot_psth(h: Psth, out, formats=FORMATS) -> list[Path]:
-    """PSTH (``spikes.psth``) as mean rate per channel, with the stimulus at 0 ms."""
+    """PSTH as mean rate per channel, with the stimulus at 0 ms.
+
+    Parameters
+    ----------
+    h : Psth
+        From ``spikes.psth``.
+    out : matplotlib Axes or path
+        Where to draw (see the module docstring).
+    formats : tuple of str
+        File formats with a path ``out``.
+
+    Returns
+    -------
+    list of Path
+        The files written (``[]`` when drawing into an Axes).
+    """
 
     def draw(ax: Axes) -> None:
         ax.stairs(h.rate_hz, h.edges_ms, fill=True, color="tab:red", alpha=0.8)
@@ -351,8 +472,34 @@ def plot_all(
 
     Writes into ``out_dir``: ``raster`` (the first ``raster_span_ms``), ``raster_nb`` (1 s around
     the first network burst), ``rate`` (all/exc/inh), ``isi``, ``ibi``, and when available
-    ``psth``, ``cat_single``, ``cats_all``, ``cats_evoked``, ``cats_spontaneous``. Returns every
-    path written, in that order.
+    ``psth``, ``cat_single``, ``cats_all``, ``cats_evoked``, ``cats_spontaneous``.
+
+    Parameters
+    ----------
+    out_dir : str or Path
+        The folder written into.
+    channel, t_ms : array_like[k]
+        The analysed spikes (channel indices, sorted times).
+    result : AnalysisResult
+        From `metrics.analyze` of those spikes.
+    t_start_ms, t_stop_ms : float
+        The analysed span.
+    cell_type : uint8[n_channels], optional
+    x_um, y_um : float[n_channels], optional
+        Channel positions (the CAT figures).
+    stim_channels : int array, optional
+        Channels marked as stimulated in the CAT figures.
+    raster_span_ms : float
+        Length of the ``raster`` figure.
+    rate_bin_ms : float
+        Bin of the ``rate`` figure.
+    formats : tuple of str
+        File formats.
+
+    Returns
+    -------
+    list of Path
+        Every file written, in the order above.
     """
     out = Path(out_dir)
     ch, t = check_spikes(channel, t_ms)

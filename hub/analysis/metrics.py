@@ -65,7 +65,29 @@ from hub.analysis.spikes import (
 
 @dataclass(frozen=True)
 class AnalysisParams:
-    """Every analysis parameter in one place (defaults follow the paper)."""
+    """Every analysis parameter in one place (defaults follow the paper).
+
+    Attributes
+    ----------
+    bursts : BurstParams
+        The single-channel burst definition.
+    network_bursts : NetworkBurstParams
+        The network-burst definition.
+    psth_window_ms : (float, float)
+        PSTH window after each stimulus.
+    psth_bin_ms : float
+        PSTH bin width.
+    psth_min_latency_ms : float
+        The PSTH peak is looked for from this latency on (skips a direct response).
+    evoked_max_latency_ms : float
+        A network burst starting within this time after a stimulus is evoked.
+    cat_time_scale_ms, cat_step_ms : float
+        Window and step of the centre-of-activity trajectories.
+    cat_n_points : int
+        Points each CAT is resampled to for the spread.
+    rate_bin_ms : float
+        Bin of the population-rate figure.
+    """
 
     bursts: BurstParams = field(default_factory=BurstParams)
     network_bursts: NetworkBurstParams = field(default_factory=NetworkBurstParams)
@@ -82,8 +104,21 @@ class AnalysisParams:
     def from_dict(cls, d: dict | None) -> AnalysisParams:
         """Build from a config mapping such as a TOML ``[analysis]`` table.
 
-        Nested tables ``bursts`` and ``network_bursts`` hold the fields of ``BurstParams`` and
-        ``NetworkBurstParams``; unknown keys raise ``AnalysisInputError`` naming the key.
+        Parameters
+        ----------
+        d : dict or None
+            Field values by name; nested tables ``bursts`` and ``network_bursts`` hold the
+            fields of ``BurstParams`` and ``NetworkBurstParams``. None or missing keys: the
+            defaults.
+
+        Returns
+        -------
+        AnalysisParams
+
+        Raises
+        ------
+        AnalysisInputError
+            For an unknown key (named) or a bad value.
         """
         d = dict(d or {})
         kw = {}
@@ -105,12 +140,35 @@ class AnalysisParams:
         return cls(**kw)
 
     def to_dict(self) -> dict:
+        """The parameters as nested plain dicts (what `from_dict` takes back).
+
+        Returns
+        -------
+        dict
+        """
         return dataclasses.asdict(self)
 
 
 @dataclass
 class AnalysisResult:
-    """Everything ``analyze`` computed: the metrics dict and the pieces that figures need."""
+    """Everything ``analyze`` computed: the metrics dict and the pieces that figures need.
+
+    Attributes
+    ----------
+    metrics : dict
+        JSON-ready metrics (NaN as None; keys in the module docstring).
+    rates_hz : float64[n_channels]
+        Firing rate of each channel.
+    bursts : BURST_DTYPE array
+        Single-channel bursts.
+    network_bursts : NetworkBursts
+    cats : list of Cat or None
+        Centre-of-activity trajectories of the network bursts, with positions.
+    psth : Psth or None
+        With stimulus times.
+    evoked : bool[n_network_bursts] or None
+        Which network bursts are evoked, with stimulus times.
+    """
 
     metrics: dict
     rates_hz: np.ndarray
@@ -160,9 +218,34 @@ def analyze(
 ) -> AnalysisResult:
     """Run the full offline analysis of spikes in ``[t_start_ms, t_stop_ms)``.
 
-    Spikes outside the span are ignored. ``cell_type`` (0 exc, 1 inh per channel), positions
-    ``x_um``/``y_um`` (per channel) and stimulus times ``stim_ms`` are optional and enable the
-    metrics that need them.
+    Parameters
+    ----------
+    channel : int array[k]
+        Channel index (0..n_channels-1) of each spike.
+    t_ms : float array[k]
+        Time of each spike (ms); spikes outside the span are ignored.
+    n_channels : int
+        Channels recorded (silent ones count in the means).
+    t_start_ms, t_stop_ms : float
+        The analysed span.
+    cell_type : uint8[n_channels], optional
+        0 excitatory, 1 inhibitory: adds the per-population rates and the excitatory share
+        of network-burst spikes.
+    x_um, y_um : float[n_channels], optional
+        Channel positions: add the centre-of-activity trajectories and their spread.
+    stim_ms : float array, optional
+        Stimulus times: add the PSTH and the evoked / spontaneous split.
+    params : AnalysisParams, optional
+        Default the paper's.
+
+    Returns
+    -------
+    AnalysisResult
+
+    Raises
+    ------
+    AnalysisInputError
+        Malformed spikes, span or per-channel arrays (the message names the argument).
     """
     p = params or AnalysisParams()
     ch, t = check_spikes(channel, t_ms, n_channels)
@@ -244,7 +327,18 @@ def compute_metrics(
     stim_ms=None,
     params: AnalysisParams | None = None,
 ) -> dict:
-    """The metrics dict of ``analyze`` (JSON-ready; see the module docstring for the keys)."""
+    """The metrics dict of ``analyze``.
+
+    Parameters
+    ----------
+    channel, t_ms, n_channels, t_start_ms, t_stop_ms, cell_type, x_um, y_um, stim_ms, params
+        As for `analyze`.
+
+    Returns
+    -------
+    dict
+        JSON-ready (see the module docstring for the keys).
+    """
     return analyze(
         channel, t_ms, n_channels, t_start_ms, t_stop_ms, cell_type, x_um, y_um, stim_ms, params
     ).metrics

@@ -31,7 +31,15 @@ from hub.analysis.spikes import AnalysisInputError
 
 @dataclass(frozen=True)
 class NetworkBurstParams:
-    """Thresholds of the network-burst definition."""
+    """Thresholds of the network-burst definition.
+
+    Attributes
+    ----------
+    min_fraction : float
+        Share of the channels, in (0, 1], that must burst at once.
+    merge_gap_ms : float
+        Segments above the threshold separated by at most this gap are one network burst.
+    """
 
     min_fraction: float = 0.30
     merge_gap_ms: float = 10.0
@@ -47,7 +55,18 @@ class NetworkBurstParams:
             )
 
     def min_channels(self, n_channels: int) -> int:
-        """Number of simultaneously bursting channels that makes a network burst."""
+        """Number of simultaneously bursting channels that makes a network burst.
+
+        Parameters
+        ----------
+        n_channels : int
+            Channels recorded (>= 1).
+
+        Returns
+        -------
+        int
+            ceil(min_fraction · n_channels), at least 1.
+        """
         if n_channels < 1:
             raise AnalysisInputError(f"n_channels must be >= 1, got {n_channels}")
         return max(1, math.ceil(self.min_fraction * n_channels - 1e-9))
@@ -55,9 +74,17 @@ class NetworkBurstParams:
 
 @dataclass(frozen=True)
 class NetworkBursts:
-    """Network bursts of a record, sorted by core start; ``channels[i]`` are the participants of
-    i. ``start_ms``/``end_ms`` are the extents, ``core_start_ms``/``core_end_ms`` the time at or
-    above the threshold (see the module docstring); the core defaults to the extent."""
+    """Network bursts of a record, sorted by core start.
+
+    Attributes
+    ----------
+    start_ms, end_ms : float64[k]
+        Extents: the earliest start and latest end of the participants' bursts.
+    channels : list of uint32 arrays
+        ``channels[i]``: the participants of network burst i.
+    core_start_ms, core_end_ms : float64[k]
+        The time at or above the threshold (see the module docstring); default the extent.
+    """
 
     start_ms: np.ndarray
     end_ms: np.ndarray
@@ -89,7 +116,17 @@ class NetworkBursts:
         return np.array([c.size for c in self.channels], dtype=np.int64)
 
     def select(self, mask) -> NetworkBursts:
-        """The network bursts where boolean ``mask`` is true."""
+        """Some of the network bursts.
+
+        Parameters
+        ----------
+        mask : bool array_like[len(self)]
+
+        Returns
+        -------
+        NetworkBursts
+            Those where ``mask`` is true, in order.
+        """
         idx = np.flatnonzero(np.asarray(mask, dtype=bool))
         return NetworkBursts(
             self.start_ms[idx],
@@ -101,13 +138,35 @@ class NetworkBursts:
 
     @classmethod
     def empty(cls) -> NetworkBursts:
+        """No network bursts.
+
+        Returns
+        -------
+        NetworkBursts
+            Of length 0.
+        """
         return cls(np.empty(0), np.empty(0), [], np.empty(0), np.empty(0))
 
 
 def detect_network_bursts(
     bursts: np.ndarray, n_channels: int, params: NetworkBurstParams | None = None
 ) -> NetworkBursts:
-    """Network bursts from single-channel bursts (a ``BURST_DTYPE`` array)."""
+    """Network bursts from single-channel bursts.
+
+    Parameters
+    ----------
+    bursts : BURST_DTYPE array
+        From `detect_bursts`; channels < ``n_channels``.
+    n_channels : int
+        Channels recorded (sets the threshold, `NetworkBurstParams.min_channels`).
+    params : NetworkBurstParams, optional
+        Default the paper's.
+
+    Returns
+    -------
+    NetworkBursts
+        Sorted by core start.
+    """
     p = params or NetworkBurstParams()
     threshold = p.min_channels(n_channels)
     if bursts.dtype != BURST_DTYPE:
@@ -163,14 +222,39 @@ def _participants(bursts: np.ndarray, start_ms: np.ndarray, end_ms: np.ndarray):
 
 
 def inter_burst_intervals_ms(network_bursts: NetworkBursts) -> np.ndarray:
-    """IBI: intervals between the starts (extent) of consecutive network bursts (ms)."""
+    """IBI: intervals between the starts of consecutive network bursts.
+
+    Parameters
+    ----------
+    network_bursts : NetworkBursts
+
+    Returns
+    -------
+    float64[len - 1]
+        Intervals between the extents' starts (ms).
+    """
     return np.diff(network_bursts.start_ms)
 
 
 def evoked_mask(
     network_bursts: NetworkBursts, stim_ms, max_latency_ms: float = 200.0
 ) -> np.ndarray:
-    """True for network bursts that start within ``[s, s + max_latency_ms]`` of a stimulus s."""
+    """Which network bursts a stimulus evoked.
+
+    Parameters
+    ----------
+    network_bursts : NetworkBursts
+    stim_ms : float array_like
+        Stimulus times (ms), any order.
+    max_latency_ms : float
+        The longest latency of an evoked network burst.
+
+    Returns
+    -------
+    bool[len(network_bursts)]
+        True where the burst starts within ``[s, s + max_latency_ms]`` of the latest
+        stimulus s before it.
+    """
     stim = np.sort(np.asarray(stim_ms, dtype=np.float64).ravel())
     if stim.size == 0 or len(network_bursts) == 0:
         return np.zeros(len(network_bursts), dtype=bool)

@@ -38,7 +38,15 @@ from hub.analysis.spikes import AnalysisInputError, check_spikes
 
 @dataclass(frozen=True)
 class Burst:
-    """One complete single-channel burst."""
+    """One complete single-channel burst.
+
+    Attributes
+    ----------
+    channel : int
+    start_ms, end_ms : float
+        Its first and last spike (absolute ms).
+    n_spikes : int
+    """
 
     channel: int
     start_ms: float
@@ -48,10 +56,17 @@ class Burst:
 
 @dataclass(frozen=True)
 class NetworkBurst:
-    """One complete network burst and its participating channels (sorted).
+    """One complete network burst and its participating channels.
 
-    ``start_ms``/``end_ms`` are its extent, ``core_*`` the time at or above the threshold (as
-    in ``network_bursts``)."""
+    Attributes
+    ----------
+    start_ms, end_ms : float
+        Its extent: the earliest start and latest end of its channels' bursts.
+    channels : tuple of int
+        The participating channels, sorted.
+    core_start_ms, core_end_ms : float
+        The time at or above the threshold (as in ``network_bursts``).
+    """
 
     start_ms: float
     end_ms: float
@@ -68,7 +83,20 @@ QUEUE_START = 16  # spikes a channel's buffer holds at first (doubled when full)
 
 
 class OnlineBurstDetector:
-    """Incremental burst and network-burst detector; see the module docstring."""
+    """Incremental burst and network-burst detector; see the module docstring.
+
+    Finds, window by window, the same bursts and network bursts as `detect_bursts` and
+    `detect_network_bursts` on the whole record.
+
+    Parameters
+    ----------
+    n_channels : int
+        Channels of the stream (>= 1); spikes carry channel indices below it.
+    burst_params : BurstParams, optional
+        Default the paper's.
+    network_params : NetworkBurstParams, optional
+        Default the paper's.
+    """
 
     def __init__(
         self,
@@ -120,9 +148,20 @@ class OnlineBurstDetector:
     def feed(self, channel, t_ms, until_ms: float | None = None) -> list:
         """Add one window of spikes (absolute ms, sorted by time) and return completed events.
 
-        ``until_ms`` is the end of the window: the caller promises that every spike before it has
-        now been fed. Without it, the latest spike time fed is used. Returns ``Burst`` and
-        ``NetworkBurst`` records in order of completion.
+        Parameters
+        ----------
+        channel : int array[k]
+            Channel index of each spike.
+        t_ms : float array[k]
+            Absolute spike times, sorted, none before the last spike fed.
+        until_ms : float, optional
+            The end of the window: the caller promises that every spike before it has now
+            been fed. Default the latest spike time fed.
+
+        Returns
+        -------
+        list of Burst and NetworkBurst
+            The events completed, in order of completion.
         """
         t = self.add(channel, t_ms)
         # The last spike not yet behind the watermark (added now or by earlier adds).
@@ -135,10 +174,23 @@ class OnlineBurstDetector:
         return out
 
     def add(self, channel, t_ms) -> np.ndarray:
-        """Add spikes (absolute ms, sorted, none before the last spike added) without
-        completing anything; the next :meth:`feed`, :meth:`advance` or :meth:`flush`
-        reports what they complete. Several adds and one advance cost less than as many
-        feeds, and find the same events. Returns the spike times as checked."""
+        """Add spikes without completing anything.
+
+        The next :meth:`feed`, :meth:`advance` or :meth:`flush` reports what they complete.
+        Several adds and one advance cost less than as many feeds, and find the same events.
+
+        Parameters
+        ----------
+        channel : int array[k]
+            Channel index of each spike.
+        t_ms : float array[k]
+            Absolute spike times, sorted, none before the last spike added.
+
+        Returns
+        -------
+        float64[k]
+            The spike times as checked.
+        """
         ch, t = check_spikes(channel, t_ms, self.n_channels)
         if t.size and t[0] < self._latest:
             raise AnalysisInputError(
@@ -154,11 +206,28 @@ class OnlineBurstDetector:
         return t
 
     def advance(self, until_ms: float) -> list:
-        """Tell the detector that no spike before ``until_ms`` is still to come (no new spikes)."""
+        """Tell the detector that no spike before a time is still to come.
+
+        Parameters
+        ----------
+        until_ms : float
+            Absolute time (ms).
+
+        Returns
+        -------
+        list of Burst and NetworkBurst
+            The events this completes, in order of completion.
+        """
         return self.feed(np.empty(0, np.uint32), np.empty(0), until_ms)
 
     def flush(self) -> list:
-        """End of stream: complete everything still open and return it."""
+        """End of stream: complete everything still open.
+
+        Returns
+        -------
+        list of Burst and NetworkBurst
+            The events completed, in order of completion.
+        """
         out: list = []
         self._advance(np.inf, out)
         return out

@@ -1,7 +1,7 @@
 """The paper's reported figures (``../shared/reference/paper-targets.md``) and the ±30 % check.
 
-One place for these numbers: the calibration script (``sim_network.calibrate``) and the
-reproduction (``hub.analysis.reproduce``) both read them from here. Keys match the metrics dict
+One place for these numbers: the calibration script (``lab.calibrate``) and the
+reproduction (``lab.reproduce``) both read them from here. Keys match the metrics dict
 of ``hub.analysis.metrics``.
 """
 
@@ -29,13 +29,39 @@ PSTH_PEAK_RANGE_MS = (30.0, 100.0)
 
 
 def relative_error(value, target: float) -> float:
-    """``value / target - 1`` (NaN when value is missing)."""
+    """The relative error of a figure against the paper's.
+
+    Parameters
+    ----------
+    value : float or None
+        Our figure (None or NaN: missing).
+    target : float
+        The paper's.
+
+    Returns
+    -------
+    float
+        ``value / target - 1``; NaN when the value is missing.
+    """
     if value is None or (isinstance(value, float) and math.isnan(value)):
         return math.nan
     return float(value) / target - 1.0
 
 
 def within(value, target: float, tolerance: float = TOLERANCE) -> bool:
-    """True when ``value`` lies within ``±tolerance`` (relative) of ``target``."""
+    """Whether a figure matches the paper's.
+
+    Parameters
+    ----------
+    value : float or None
+    target : float
+    tolerance : float
+        Relative (default ``TOLERANCE``).
+
+    Returns
+    -------
+    bool
+        ``value`` lies within ``±tolerance`` of ``target`` (False when missing).
+    """
     err = relative_error(value, target)
     return not math.isnan(err) and abs(err) <= tolerance

@@ -22,10 +22,27 @@ class AnalysisInputError(ValueError):
 
 
 def check_spikes(channel, t_ms, n_channels: int | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Validate spike arrays and return them as (int64 channel, float64 t_ms).
+    """Validate spike arrays.
 
-    Raises ``AnalysisInputError`` when the arrays differ in length, are not 1-D, hold
-    non-finite times, negative channels, channels ``>= n_channels`` or times not sorted.
+    Parameters
+    ----------
+    channel : int array_like[k]
+        Channel of each spike (>= 0, and < ``n_channels`` when given).
+    t_ms : float array_like[k]
+        Spike times, finite and sorted.
+    n_channels : int, optional
+        Channels recorded (>= 1).
+
+    Returns
+    -------
+    channel : int64[k]
+    t_ms : float64[k]
+
+    Raises
+    ------
+    AnalysisInputError
+        When the arrays differ in length, are not 1-D, hold non-finite times, negative
+        channels, channels ``>= n_channels`` or times not sorted.
     """
     ch = np.asarray(channel)
     t = np.asarray(t_ms, dtype=np.float64)
@@ -55,7 +72,18 @@ def check_spikes(channel, t_ms, n_channels: int | None = None) -> tuple[np.ndarr
 
 
 def check_span(t_start_ms: float, t_stop_ms: float) -> float:
-    """Return the record duration in ms, checking that ``t_stop_ms > t_start_ms``."""
+    """Check an analysed span.
+
+    Parameters
+    ----------
+    t_start_ms, t_stop_ms : float
+        Finite, ``t_stop_ms > t_start_ms``.
+
+    Returns
+    -------
+    float
+        The duration (ms).
+    """
     if not (np.isfinite(t_start_ms) and np.isfinite(t_stop_ms)):
         raise AnalysisInputError(
             f"t_start_ms and t_stop_ms must be finite, got {t_start_ms}, {t_stop_ms}"
@@ -66,7 +94,20 @@ def check_span(t_start_ms: float, t_stop_ms: float) -> float:
 
 
 def population_mask(cell_type, n_channels: int, population: str) -> np.ndarray:
-    """Boolean mask over channels for ``population`` in ``("all", "exc", "inh")``."""
+    """The channels of a population.
+
+    Parameters
+    ----------
+    cell_type : uint8[n_channels] or None
+        0 excitatory, 1 inhibitory; needed for ``"exc"`` and ``"inh"``.
+    n_channels : int
+    population : str
+        ``"all"``, ``"exc"`` or ``"inh"``.
+
+    Returns
+    -------
+    bool[n_channels]
+    """
     if population not in POPULATIONS:
         raise AnalysisInputError(f"population must be one of {POPULATIONS}, got {population!r}")
     if population == "all":
@@ -82,9 +123,20 @@ def population_mask(cell_type, n_channels: int, population: str) -> np.ndarray:
 
 
 def firing_rates_hz(channel, t_ms, n_channels: int, t_start_ms: float, t_stop_ms: float):
-    """Mean firing rate of every channel over ``[t_start_ms, t_stop_ms)``, in spikes/s.
+    """Mean firing rate of every channel over ``[t_start_ms, t_stop_ms)``.
 
-    Returns a float64 array of length ``n_channels`` (silent channels give 0).
+    Parameters
+    ----------
+    channel, t_ms : array_like[k]
+        The spikes (`check_spikes`).
+    n_channels : int
+    t_start_ms, t_stop_ms : float
+        The span; spikes outside it are not counted.
+
+    Returns
+    -------
+    float64[n_channels]
+        Spikes per second (silent channels give 0).
     """
     ch, t = check_spikes(channel, t_ms, n_channels)
     duration_s = check_span(t_start_ms, t_stop_ms) / 1000.0
@@ -94,7 +146,18 @@ def firing_rates_hz(channel, t_ms, n_channels: int, t_start_ms: float, t_stop_ms
 
 
 def isi_ms(channel, t_ms) -> np.ndarray:
-    """All inter-spike intervals within each channel, concatenated (ms, channel by channel)."""
+    """All inter-spike intervals within each channel.
+
+    Parameters
+    ----------
+    channel, t_ms : array_like[k]
+        The spikes (`check_spikes`).
+
+    Returns
+    -------
+    float64 array
+        The intervals (ms), channel by channel, concatenated.
+    """
     ch, t = check_spikes(channel, t_ms)
     if t.size < 2:
         return np.empty(0)
@@ -105,9 +168,19 @@ def isi_ms(channel, t_ms) -> np.ndarray:
 
 
 def interval_histogram(intervals_ms, bin_ms: float, max_ms: float):
-    """Histogram of intervals on ``[0, max_ms]`` with bins of ``bin_ms``.
+    """Histogram of intervals on ``[0, max_ms]``.
 
-    Returns ``(counts, edges_ms)``; intervals beyond ``max_ms`` are left out.
+    Parameters
+    ----------
+    intervals_ms : float array_like
+    bin_ms, max_ms : float
+        Bin width and upper end (> 0).
+
+    Returns
+    -------
+    counts : int64[n_bins]
+    edges_ms : float64[n_bins + 1]
+        Intervals beyond ``max_ms`` are left out.
     """
     if bin_ms <= 0:
         raise AnalysisInputError(f"bin_ms must be > 0, got {bin_ms}")
@@ -123,9 +196,18 @@ def interval_histogram(intervals_ms, bin_ms: float, max_ms: float):
 class Psth:
     """Post-stimulus time histogram.
 
-    ``counts[i]`` spikes fell in ``[edges_ms[i], edges_ms[i+1])`` after a stimulus, summed over
-    all stimuli and all channels counted; ``rate_hz`` is that per stimulus, per channel and per
-    second (the mean firing rate of a channel in that bin).
+    Attributes
+    ----------
+    edges_ms : float64[n_bins + 1]
+        Bin edges relative to the stimulus.
+    counts : int64[n_bins]
+        ``counts[i]`` spikes fell in ``[edges_ms[i], edges_ms[i+1])`` after a stimulus, summed
+        over all stimuli and all channels counted.
+    rate_hz : float64[n_bins]
+        That per stimulus, per channel and per second (the mean firing rate of a channel in
+        that bin).
+    n_stimuli, n_channels : int
+        Stimuli and channels counted.
     """
 
     edges_ms: np.ndarray
@@ -139,9 +221,18 @@ class Psth:
         return 0.5 * (self.edges_ms[1:] + self.edges_ms[:-1])
 
     def peak_latency_ms(self, min_latency_ms: float = 0.0) -> float:
-        """Centre of the fullest bin that starts at or after ``min_latency_ms`` (NaN if empty).
+        """The latency of the PSTH's peak.
 
-        ``min_latency_ms`` lets the caller skip the direct response during the pulse itself.
+        Parameters
+        ----------
+        min_latency_ms : float
+            Only bins that start at or after it count (skips the direct response during the
+            pulse itself).
+
+        Returns
+        -------
+        float
+            Centre of the fullest such bin (ms); NaN when they hold no spikes.
         """
         usable = self.edges_ms[:-1] >= min_latency_ms
         if not usable.any() or self.counts[usable].sum() == 0:
@@ -159,13 +250,25 @@ def psth(
     bin_ms: float = 5.0,
     channels=None,
 ) -> Psth:
-    """PSTH of spikes around stimulus times ``stim_ms`` (absolute ms).
+    """PSTH of spikes around stimulus times.
 
     Parameters
     ----------
-    window_ms : (before, after) limits relative to each stimulus, e.g. ``(-50, 200)``.
-    bin_ms : bin width.
-    channels : optional channel ids to count (default all ``n_channels``).
+    channel, t_ms : array_like[k]
+        The spikes (`check_spikes`).
+    stim_ms : float array_like
+        Stimulus times (absolute ms).
+    n_channels : int
+    window_ms : (float, float)
+        Limits relative to each stimulus, e.g. ``(-50, 200)``.
+    bin_ms : float
+        Bin width.
+    channels : int array_like, optional
+        Channel ids to count (default all ``n_channels``).
+
+    Returns
+    -------
+    Psth
     """
     ch, t = check_spikes(channel, t_ms, n_channels)
     stim = np.sort(np.asarray(stim_ms, dtype=np.float64).ravel())
@@ -209,11 +312,28 @@ def instantaneous_rate(
     cell_type=None,
     per_channel: bool = False,
 ):
-    """Spiking rate of a population in consecutive bins of ``bin_ms``.
+    """Spiking rate of a population in consecutive bins.
 
-    ``population`` is ``"all"``, ``"exc"`` or ``"inh"`` (the last two need ``cell_type``).
-    Returns ``(centers_ms, rate_hz)``: the population's total spikes per second in each bin, or,
-    with ``per_channel=True``, that divided by the number of channels in the population.
+    Parameters
+    ----------
+    channel, t_ms : array_like[k]
+        The spikes (`check_spikes`).
+    n_channels : int
+    t_start_ms, t_stop_ms : float
+        The span, cut into bins of ``bin_ms``.
+    bin_ms : float
+    population : str
+        ``"all"``, ``"exc"`` or ``"inh"`` (the last two need ``cell_type``).
+    cell_type : uint8[n_channels], optional
+    per_channel : bool
+        Divide by the number of channels in the population.
+
+    Returns
+    -------
+    centers_ms : float64[n_bins]
+    rate_hz : float64[n_bins]
+        The population's total spikes per second in each bin (per channel with
+        ``per_channel=True``).
     """
     ch, t = check_spikes(channel, t_ms, n_channels)
     check_span(t_start_ms, t_stop_ms)

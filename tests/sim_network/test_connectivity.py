@@ -24,9 +24,16 @@ def test_measured_probability_matches_formula_at_each_distance():
     for d in (25.0, 25.0 * np.sqrt(2), 100.0, 200.0, 300.0):
         pairs = np.isclose(d_all, d).sum()
         made = np.isclose(np.hypot(x[pre] - x[syn.post], y[pre] - y[syn.post]), d).sum()
-        p = connection_probability(np.array([d]), CON)[0]
+        p = CON.p_c_max * np.exp(-d / CON.d_pc_um)
         sd = np.sqrt(pairs * p * (1 - p))
         assert abs(made - pairs * p) < 4 * sd, (d, made, pairs * p)
+
+
+def test_the_connection_probability_is_the_rule_up_to_the_cutoff_and_zero_beyond():
+    d = np.array([0.0, 100.0, 400.0, 400.1, 1e4])
+    p = connection_probability(d, CON)
+    np.testing.assert_allclose(p[:3], 0.6 * np.exp(-d[:3] / 100.0))
+    assert p[3] == 0.0 and p[4] == 0.0
 
 
 def test_no_connections_beyond_cutoff_and_no_self_connections():

@@ -5,8 +5,8 @@ fault, and usable on any run folder (:func:`summarize_run`). Everything is
 computed from the record, so a summary always describes what was recorded:
 
 - the loop's timing figures and counts (always);
-- the behaviour metrics and ``trajectory.png``/``.svg`` when the body was a
-  simulated robot whose world file is known (``body.params.world``);
+- the behaviour metrics of any body that recorded its poses (``lab.behaviour``), with the
+  arena metrics and ``trajectory.png``/``.svg`` when its world is known;
 - ``raster.png``/``.svg`` of the culture's activity when spikes were recorded.
 """
 
@@ -16,7 +16,13 @@ import json
 import logging
 from pathlib import Path
 
+import numpy as np
+
+from hub.analysis.figures import plot_raster
+from hub.protocol import Stimulation
 from hub.record import read_run
+from lab.behaviour import behaviour_metrics, world_of
+from sim_robot.render import save_trajectory
 
 log = logging.getLogger(__name__)
 
@@ -24,24 +30,40 @@ SUMMARY_FILE = "summary.json"
 
 
 def after_run(result, cfg) -> dict:
-    """Summarise a finished run into its folder (nothing to do without one)."""
+    """Summarise a finished run into its folder.
+
+    Parameters
+    ----------
+    result : hub.loop.RunResult
+        Its ``run_dir`` (None: nothing was recorded).
+    cfg : hub.config.ExperimentConfig
+        Nothing is written when ``record.enabled`` is off.
+
+    Returns
+    -------
+    dict
+        The summary (`summarize_run`), or ``{}``.
+    """
     if result.run_dir is None or not cfg.record.enabled:
         return {}
     return summarize_run(result.run_dir)
 
 
-def world_of(config: dict) -> str | None:
-    """The world file of a run's simulated body, from its recorded config."""
-    body = config.get("body", {})
-    if body.get("kind") != "sim_robot":
-        return None
-    from sim_robot.endpoint import DEFAULT_WORLD
-
-    return body.get("params", {}).get("world", DEFAULT_WORLD)
-
-
 def summarize_run(run_dir: str | Path) -> dict:
-    """Write ``summary.json`` and the pictures of a recorded run; return the summary."""
+    """Write ``summary.json`` and the pictures of a recorded run.
+
+    Parameters
+    ----------
+    run_dir : str or Path
+        A run folder (``manifest.json`` + record).
+
+    Returns
+    -------
+    dict
+        What ``summary.json`` holds: name, seed, outcome, steps, simulated time, timing,
+        counts, ``behaviour`` (`lab.behaviour.behaviour_metrics`, when poses were recorded),
+        ``spikes``, ``stimulation_pulses`` and the ``figures`` written.
+    """
     run_dir = Path(run_dir)
     rec = read_run(run_dir)
     m = rec.manifest
@@ -58,22 +80,18 @@ def summarize_run(run_dir: str | Path) -> dict:
         "figures": [],
     }
     t_s, poses = rec.trajectory()
-    world_path = world_of(config)
-    if world_path and len(t_s) > 1:
-        from sim_robot import load_world
-        from sim_robot.metrics import trajectory_metrics
-        from sim_robot.render import save_trajectory
-
-        world = load_world(world_path)
-        summary["behaviour"] = trajectory_metrics(world, t_s, poses)
+    if len(t_s) > 1:
+        world = world_of(config)
+        body = rec.descriptions().get("body")
+        summary["behaviour"] = behaviour_metrics(t_s, poses, world, body)
         title = f"{m.get('name')} (seed {m.get('seed')})"
-        for suffix in (".png", ".svg"):
+        for suffix in (".png", ".svg") if world is not None else ():
             path = save_trajectory(world, t_s, poses, run_dir / f"trajectory{suffix}", title=title)
             summary["figures"].append(path.name)
     channel, t_ms = rec.spikes()
     if channel.size:
-        from hub.analysis.figures import plot_raster
-
+        order = np.argsort(t_ms, kind="stable")  # late batches may arrive out of order
+        channel, t_ms = channel[order], t_ms[order]
         culture = rec.descriptions().get("culture")
         cell_type = culture.cell_type if culture is not None else None
         paths = plot_raster(channel, t_ms, run_dir / "raster", cell_type=cell_type)
@@ -85,6 +103,4 @@ def summarize_run(run_dir: str | Path) -> dict:
 
 
 def _pulse_count(rec) -> int:
-    from hub.protocol import Stimulation
-
     return sum(s.n_pulses for s in rec.decoded(Stimulation, "tx"))

@@ -1,12 +1,12 @@
 """Calibration run: simulate the culture and print the paper's activity figures.
 
-    python -m sim_network.calibrate --config configs/culture_1024.toml --seconds 60 \
+    python -m lab.calibrate --config configs/culture_1024.toml --seconds 60 \
         --set connectivity.weight_exc_mv=[0,6] --set noise.sd=3.5 [--evoked]
 
 Spontaneous mode prints MFR, MBR, MNBR, network-burst duration and the excitatory share of
 network-burst spikes against the paper's values; `--evoked` stimulates one excitatory neuron
 near the centre with the paper's 10 ms, 100 µA, 0.2 Hz pulses and prints the PSTH peak.
-The figures are computed by `hub.analysis` (through `sim_network.activity`), the project's
+The figures are computed by `hub.analysis` (through `lab.activity`), the project's
 one definition of bursts and network bursts. The last line is a JSON object with the figures.
 """
 
@@ -21,14 +21,26 @@ import numpy as np
 
 from hub.analysis.metrics import AnalysisParams
 from hub.analysis.paper import PAPER_TARGETS, relative_error
-from sim_network.activity import analyze_culture
+from lab.activity import analyze_culture
 from sim_network.config import NetworkConfig, config_from_dict, config_to_dict, load_config
 from sim_network.network import Network
 from sim_network.records import PeriodicStimulus, Spikes
 
 
 def with_overrides(cfg: NetworkConfig, overrides: list[str]) -> NetworkConfig:
-    """Apply `dotted.key=toml_value` overrides to a config."""
+    """Apply overrides to a culture config.
+
+    Parameters
+    ----------
+    cfg : NetworkConfig
+    overrides : list of str
+        ``dotted.key=toml_value`` items.
+
+    Returns
+    -------
+    NetworkConfig
+        Validated again.
+    """
     data = config_to_dict(cfg)
     for item in overrides:
         key, _, value = item.partition("=")
@@ -44,9 +56,26 @@ def with_overrides(cfg: NetworkConfig, overrides: list[str]) -> NetworkConfig:
 def record(
     net: Network, seconds: float, chunk_ms: float = 1000.0, stim=None, on_chunk=None
 ) -> Spikes:
-    """Run `seconds` of simulated time in chunks; return the neuron-level spikes.
+    """Run a network for a while in chunks and collect its neuron-level spikes.
 
-    `on_chunk(step_ms)` is called after each chunk (progress reports)."""
+    Parameters
+    ----------
+    net : Network
+        Advanced in place from its current time.
+    seconds : float
+        Simulated time.
+    chunk_ms : float
+        Length of each `Network.run` call.
+    stim : PeriodicStimulus, optional
+        Its pulses are given to the calls they start in.
+    on_chunk : callable, optional
+        ``on_chunk(step_ms)`` after each chunk (progress reports).
+
+    Returns
+    -------
+    Spikes
+        Neuron-level spikes (absolute times) of the whole time.
+    """
     parts = []
     t_end = net.t_ms + seconds * 1000.0
     while net.t_ms < t_end - 1e-9:
@@ -60,7 +89,17 @@ def record(
 
 
 def central_excitatory_neuron(net: Network) -> int:
-    """The excitatory neuron nearest the culture centre."""
+    """The excitatory neuron nearest the culture centre.
+
+    Parameters
+    ----------
+    net : Network
+
+    Returns
+    -------
+    int
+        Its index.
+    """
     lay = net.layout
     d = np.hypot(lay.x_um - lay.width_um / 2, lay.y_um - lay.height_um / 2)
     d[lay.cell_type != 0] = np.inf

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from hub.analysis.metrics import compute_metrics
+from lab.activity import analyze_culture, summarize
 from sim_network import Spikes, load_config
-from sim_network.activity import analyze_culture, summarize
 from sim_network.layout import build_layout
 
 

@@ -10,8 +10,8 @@ It reads the record with ``hub.record.read_run`` and uses, from it:
 - the sent ``Stimulation`` messages: each distinct pulse onset
   ``step * loop.period_ms + onset_ms`` is one stimulus of the PSTH (pulses into several
   channels at the same time count once);
-- the body's poses and, when the config names a ``sim_robot`` world, the trajectory picture
-  and behaviour metrics of ``sim_robot``;
+- the body's poses: the behaviour metrics of ``lab.behaviour`` (``body_*``; arena metrics
+  and the trajectory picture when the run's world is known);
 - the manifest's config and timing, shown in the report.
 """
 
@@ -26,6 +26,10 @@ from hub.analysis.figures import FORMATS, plot_all
 from hub.analysis.metrics import AnalysisParams, analyze
 from hub.analysis.report import write_report
 from hub.analysis.spikes import AnalysisInputError
+from hub.protocol import SpikeBatch, Stimulation
+from hub.record import DATA_DIRECTIONS, read_run
+from lab.behaviour import behaviour_metrics, world_of
+from sim_robot.render import save_trajectory
 
 ANALYSIS_DIR = "analysis"
 METRICS_FILE = "metrics.json"
@@ -33,10 +37,22 @@ REPORT_FILE = "report.html"
 
 
 def stimulus_onsets_ms(stimulations, period_ms: float) -> tuple[np.ndarray, np.ndarray]:
-    """Distinct pulse onsets (absolute ms, sorted) and the stimulated channel ids.
+    """Distinct pulse onsets and the stimulated channel ids of recorded stimulations.
 
-    ``stimulations`` are ``hub.protocol.Stimulation`` messages; a pulse of step k starts at
-    ``k * period_ms + onset_ms``.
+    Parameters
+    ----------
+    stimulations : list of hub.protocol.Stimulation
+        A pulse of step k starts at ``k * period_ms + onset_ms``.
+    period_ms : float
+        The loop's period.
+
+    Returns
+    -------
+    onsets_ms : float64 array
+        Distinct onsets (absolute ms, sorted): pulses into several channels at once count
+        once.
+    channels : uint32 array
+        The distinct stimulated channel ids.
     """
     onsets = [m.step * period_ms + m.onset_ms.astype(np.float64) for m in stimulations]
     chans = [m.channel for m in stimulations]
@@ -75,21 +91,17 @@ def _span_ms(batches, manifest: dict, period_ms: float | None) -> tuple[float, f
 
 
 def _trajectory(rec, config: dict, out: Path, title: str, metrics: dict) -> list[Path]:
-    """The body's trajectory picture (and behaviour metrics) when a sim_robot world is named."""
-    from hub.postrun import world_of  # the one rule for "the world of a run"
-
+    """Add the body's behaviour metrics; draw its trajectory when the run's world is known."""
     t_s, poses = rec.trajectory()
-    world_path = world_of(config)
-    if world_path is None or len(t_s) < 2:
+    if len(t_s) < 2:
         return []
-    from sim_robot import load_world
-    from sim_robot.metrics import trajectory_metrics
-    from sim_robot.render import save_trajectory
-
-    world = load_world(world_path)
-    for key, value in trajectory_metrics(world, t_s, poses).items():
+    world = world_of(config)
+    body = rec.descriptions().get("body")
+    for key, value in behaviour_metrics(t_s, poses, world, body).items():
         if isinstance(value, (int, float, bool)):
             metrics[f"body_{key}"] = value
+    if world is None:
+        return []
     return [
         save_trajectory(world, t_s, poses, out / f"trajectory.{fmt}", title=title)
         for fmt in FORMATS
@@ -111,9 +123,6 @@ def analyze_run(run_dir, out_dir=None, params: AnalysisParams | None = None) -> 
     dict with ``metrics`` (the dict written to ``metrics.json``), ``out_dir``, ``metrics_path``,
     ``report_path`` and ``figures`` (paths written).
     """
-    from hub.protocol import SpikeBatch, Stimulation
-    from hub.record import DATA_DIRECTIONS, read_run
-
     run_dir = Path(run_dir)
     if not run_dir.is_dir():
         raise AnalysisInputError(f"run_dir {run_dir} is not a folder")

@@ -1,9 +1,10 @@
 """Activity figures of a simulated culture, computed by ``hub.analysis`` (the project's one
 definition of bursts, network bursts and their statistics; see ``docs/analysis.md``).
 
-This is the adapter that calibration and reproduction scripts use to hand neuron-level spikes
-and the grid layout to ``hub.analysis``. Only such scripts import it: the simulator itself
-(``network``, ``kernels``, ...) never imports ``hub``.
+This is the adapter that calibration and reproduction (``lab.calibrate``, ``lab.reproduce``)
+use to hand neuron-level spikes and the grid layout to ``hub.analysis``. It lives in the lab
+layer because it joins the two: the simulator never imports ``hub``, and ``hub`` never imports
+the simulator.
 """
 
 from __future__ import annotations
@@ -23,8 +24,21 @@ def analyze_culture(
 ) -> AnalysisResult:
     """Full ``hub.analysis.analyze`` of neuron-level spikes in ``[t0_ms, t1_ms)``.
 
-    Channels are neuron indices; cell types and positions come from ``layout``; ``stim_ms``
-    (pulse onsets, absolute ms) enables the PSTH and the evoked / spontaneous split.
+    Parameters
+    ----------
+    spikes : sim_network.Spikes
+        Neuron-level (``Network.neuron_spikes``): channels are neuron indices.
+    layout : sim_network.layout.Layout
+        Cell types and positions of the neurons.
+    t0_ms, t1_ms : float
+        The analysed span.
+    stim_ms : float array, optional
+        Pulse onsets (absolute ms): enables the PSTH and the evoked / spontaneous split.
+    params : AnalysisParams, optional
+
+    Returns
+    -------
+    AnalysisResult
     """
     return analyze(
         spikes.channel,
@@ -41,5 +55,16 @@ def analyze_culture(
 
 
 def summarize(spikes: Spikes, layout: Layout, t0_ms: float, t1_ms: float, stim_ms=None) -> dict:
-    """The metrics dict (``hub.analysis.metrics`` keys) of ``analyze_culture``."""
+    """The metrics dict of `analyze_culture`.
+
+    Parameters
+    ----------
+    spikes, layout, t0_ms, t1_ms, stim_ms
+        As for `analyze_culture`.
+
+    Returns
+    -------
+    dict
+        ``hub.analysis.metrics`` keys.
+    """
     return analyze_culture(spikes, layout, t0_ms, t1_ms, stim_ms).metrics

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from hub.analysis.paper import PAPER_TARGETS
-from hub.analysis.reproduce import PROTOCOLS, reproduce, stimulation_targets
+from lab.reproduce import PROTOCOLS, reproduce, stimulation_targets
 from sim_network import load_config
 from sim_network.layout import build_layout
 

@@ -5,10 +5,10 @@ import json
 import numpy as np
 import pytest
 
-from hub.analysis.run_analysis import analyze_run, stimulus_onsets_ms
 from hub.analysis.spikes import AnalysisInputError
 from hub.protocol import Description, SensorReading, SpikeBatch, Stimulation
 from hub.record import Recorder, write_manifest
+from lab.run_analysis import analyze_run, stimulus_onsets_ms
 
 PERIOD_MS = 10.0
 N_CHANNELS = 20
@@ -121,7 +121,7 @@ def test_a_recorded_run_gives_metrics_figures_and_a_report(tmp_path):
     assert "wall_s" in html and "period_ms" in html and "handmade" in html
 
 
-def test_the_output_folder_can_be_chosen_and_a_run_without_world_has_no_trajectory(tmp_path):
+def test_a_run_without_a_known_world_has_path_metrics_and_no_trajectory(tmp_path):
     run_dir = tmp_path / "run"
     run_dir.mkdir()
     _write_run(run_dir, n_steps=200, world=None)
@@ -129,7 +129,10 @@ def test_the_output_folder_can_be_chosen_and_a_run_without_world_has_no_trajecto
     assert (tmp_path / "elsewhere" / "metrics.json").is_file()
     assert (tmp_path / "elsewhere" / "report.html").is_file()
     assert not any(p.name.startswith("trajectory") for p in out["figures"])
-    assert "body_distance_m" not in out["metrics"]
+    # the body's path is measured from its poses alone; arena figures need the world
+    assert out["metrics"]["body_distance_m"] > 1.5
+    assert out["metrics"]["body_duration_s"] == pytest.approx(1.99)
+    assert "body_obstacle_entries" not in out["metrics"]
 
 
 def test_a_run_without_spikes_or_steps_is_refused_with_a_clear_error(tmp_path):

@@ -40,6 +40,10 @@ from hub.analysis.paper import (
     within,
 )
 from hub.analysis.report import write_report
+from hub.record import new_run_dir
+from lab.activity import analyze_culture
+from lab.calibrate import record
+from sim_network import Network, PeriodicStimulus, config_to_dict, load_config
 
 DEFAULT_CULTURE = Path(__file__).resolve().parents[2] / "configs" / "culture_1024.toml"
 RESULT_JSON = "reproduction.json"
@@ -141,8 +145,6 @@ class _Clock:
 
 def _simulate(net, seconds: float, clock: _Clock, phase: str, stim=None):
     """Run ``seconds`` in 1 s chunks, reporting progress; return the neuron-level spikes."""
-    from sim_network.calibrate import record
-
     spikes = record(
         net, seconds, CHUNK_MS, stim, on_chunk=lambda step_ms: clock.add(step_ms / 1000.0, phase)
     )
@@ -247,13 +249,8 @@ def reproduce(
     ``mnbr_per_min``, ``nb_duration_ms``, ``nb_duration_sd_ms``, ``psth_peak_ms``,
     ``cat_spread_evoked``, ``cat_spread_spontaneous``, per-protocol figures, verdicts and paths).
     """
-    from sim_network import Network, PeriodicStimulus, config_to_dict, load_config
-    from sim_network.activity import analyze_culture
-
     wall0 = time.perf_counter()
     if out_dir is None:
-        from hub.record import new_run_dir
-
         out_dir = new_run_dir("runs", "reproduce")
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

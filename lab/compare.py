@@ -20,10 +20,13 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from matplotlib.figure import Figure
 
 from hub.config import load_config
-from hub.postrun import SUMMARY_FILE, world_of
 from hub.record import new_run_dir, read_run
+from lab.behaviour import world_of
+from lab.postrun import SUMMARY_FILE
+from sim_robot.render import draw_world
 
 # Behaviour metrics shown in the table, in order, with how to print them.
 METRICS = (
@@ -55,7 +58,27 @@ def compare(
     jobs: int | None = None,
     overrides: list[str] = (),
 ) -> dict:
-    """Run every config × seed, then tabulate and draw; returns the comparison."""
+    """Run every config × seed, then tabulate and draw.
+
+    Parameters
+    ----------
+    configs : list of str
+        Experiment files, one per condition (distinct ``experiment.name`` values).
+    seeds : int
+        Seeds 1..seeds for each condition.
+    out_dir : Path, optional
+        Default a new folder under ``runs/``.
+    jobs : int, optional
+        Runs at once; default the number of CPUs.
+    overrides : list of str
+        ``--set`` items applied to every run.
+
+    Returns
+    -------
+    dict
+        ``conditions``, ``stats`` (per condition and metric: mean, s.d., n), ``runs``,
+        ``figures`` and ``out_dir``; also written as ``compare.json``.
+    """
     names = [load_config(c, list(overrides)).experiment.name for c in configs]
     if len(set(names)) != len(names):
         raise SystemExit(f"conditions need distinct experiment.name values, got {names}")
@@ -136,19 +159,35 @@ def _tabulate(queue: list[Job], names: list[str]) -> dict:
                 entry["x_realtime"] = summary["timing"].get("x_realtime")
                 rows.append(entry["behaviour"])
             runs.append({"condition": name, **entry})
-        stats[name] = {
-            key: {
-                "mean": float(np.mean([r[key] for r in rows])) if rows else None,
-                "sd": float(np.std([r[key] for r in rows], ddof=1)) if len(rows) > 1 else None,
-                "n": len(rows),
-            }
-            for key, _, _ in METRICS
-        }
+        stats[name] = {key: _stats([r[key] for r in rows if key in r]) for key, _, _ in METRICS}
     return {"conditions": names, "stats": stats, "runs": runs}
 
 
+def _stats(values: list[float]) -> dict:
+    """Mean, s.d. and count of one metric over the runs that have it (a body whose world is
+    unknown has path metrics only)."""
+    return {
+        "mean": float(np.mean(values)) if values else None,
+        "sd": float(np.std(values, ddof=1)) if len(values) > 1 else None,
+        "n": len(values),
+    }
+
+
 def format_table(result: dict, names: list[str]) -> str:
-    """The mean ± s.d. table, one row per metric, one column per condition."""
+    """The mean ± s.d. table, one row per metric, one column per condition.
+
+    Parameters
+    ----------
+    result : dict
+        From `compare` (its ``stats``).
+    names : list of str
+        The conditions, in column order.
+
+    Returns
+    -------
+    str
+        A Markdown table; a metric no run has shows "—".
+    """
     head = "| metric | " + " | ".join(names) + " |"
     lines = [head, "|---" * (len(names) + 1) + "|"]
     for key, label, fmt in METRICS:
@@ -165,11 +204,6 @@ def format_table(result: dict, names: list[str]) -> str:
 
 
 def _draw(queue: list[Job], names: list[str], out_dir: Path) -> list[Path]:
-    from matplotlib.figure import Figure
-
-    from sim_robot import load_world
-    from sim_robot.render import draw_world
-
     seeds = sorted({j.seed for j in queue})
     fig = Figure(figsize=(2.2 * len(seeds), 2.4 * len(names)), layout="constrained")
     axes = fig.subplots(len(names), len(seeds), squeeze=False)
@@ -182,11 +216,11 @@ def _draw(queue: list[Job], names: list[str], out_dir: Path) -> list[Path]:
                 ax.set_title(f"{name} s{seed}: failed", fontsize=7)
                 continue
             rec = read_run(job.run_dir)
-            world_path = world_of(rec.manifest.get("config", {}))
-            if world_path is None:
+            world = world_of(rec.manifest.get("config", {}))
+            if world is None:
                 continue
             t_s, poses = rec.trajectory()
-            draw_world(load_world(world_path), ax)
+            draw_world(world, ax)
             ax.scatter(poses[:, 0], poses[:, 1], c=t_s, s=0.3, cmap="viridis")
             ax.set_title(f"{name} seed {seed}", fontsize=7)
     paths = []
