@@ -2,10 +2,10 @@
 
 A thin shell around :class:`sim_network.Network`; the model lives in the library.
 Parameters (``[culture.params]``): ``config`` (a culture file, relative to the experiment
-file; default: the default culture, ``sim_network.config``'s defaults), any key of a
-culture file overriding the file's (``noise.sd``, ``layout.rows``...), ``seed`` (default
-the experiment's seed) and ``potentials_hz`` (rate of membrane snapshots on
-``culture/<id>/potentials``; 0, the default, for none).
+file, or a culture table; default: the default culture, ``sim_network.config``'s
+defaults), any key of a culture file overriding the culture's (``noise.sd``,
+``layout.rows``...), ``seed`` (default the experiment's seed) and ``potentials_hz`` (rate
+of membrane snapshots on ``culture/<id>/potentials``; 0, the default, for none).
 """
 
 from __future__ import annotations
@@ -35,12 +35,15 @@ class NetworkEndpoint(Endpoint):
     def check_config(cls, section: EndpointSection, cfg: ExperimentConfig) -> dict:
         """Check ``[culture.params]`` without building the network; return them resolved.
 
+        ``config`` is a culture file or a culture table (as resolved params hold it); any
+        other culture key (``noise``, ``layout``, ...) overrides the culture's.
+
         Returns
         -------
         dict
-            ``seed``, ``potentials_hz``, ``config`` (if given) and every key of the culture
-            (the file's contents with the experiment's overrides in place): what the run
-            uses, as the manifest records it.
+            ``config`` (the culture's every value: the file's, or the defaults, with the
+            overrides in place), ``seed`` and ``potentials_hz``: what the run uses, as the
+            manifest records it.
 
         Raises
         ------
@@ -48,36 +51,36 @@ class NetworkEndpoint(Endpoint):
             Naming ``culture.params.<key>`` (``culture.params.noise.sd must be >= 0``).
         """
         params = dict(section.params)
-        path = params.pop("config", None)
+        culture = params.pop("config", {})
         seed = check_value(
             "culture.params.seed", int, params.pop("seed", cfg.experiment.seed), ge=0
         )
         potentials_hz = check_value(
             "culture.params.potentials_hz", float, params.pop("potentials_hz", 0.0), ge=0, le=100
         )
-        data = {}
-        if path is not None:
+        if isinstance(culture, str):
             try:
-                data = read_config_data(check_value("culture.params.config", str, path))
+                culture = read_config_data(culture)
             except ConfigError as exc:
                 raise ConfigError(f"culture.params.config: {exc}") from None
-        network = config_from_dict(settings.merge(data, params), prefix="culture.params.")
+        elif not isinstance(culture, dict):
+            raise ConfigError(
+                f"culture.params.config must be a culture file or table, got {culture!r}"
+            )
+        network = config_from_dict(settings.merge(culture, params), prefix="culture.params.")
         ratio = cfg.loop.period_ms / network.dt_ms
         if abs(ratio - round(ratio)) > 1e-6 * ratio:
             raise ConfigError(
                 f"loop.period_ms ({cfg.loop.period_ms}) must be a whole multiple of "
                 f"culture.params.dt_ms ({network.dt_ms})"
             )
-        head = {"config": path} if path is not None else {}
-        return {**head, "seed": seed, "potentials_hz": potentials_hz, **config_to_dict(network)}
+        return {"config": config_to_dict(network), "seed": seed, "potentials_hz": potentials_hz}
 
     @classmethod
     def from_config(cls, section: EndpointSection, cfg: ExperimentConfig) -> NetworkEndpoint:
         params = cls.check_config(section, cfg)
-        seed, potentials_hz = params.pop("seed"), params.pop("potentials_hz")
-        params.pop("config", None)
-        network = Network(config_from_dict(params, prefix="culture.params."), seed=seed)
-        return cls(network, cfg.loop.period_ms, section.id, potentials_hz)
+        network = Network(config_from_dict(params["config"]), seed=params["seed"])
+        return cls(network, cfg.loop.period_ms, section.id, params["potentials_hz"])
 
     def describe(self) -> Description:
         ch = self.net.channels

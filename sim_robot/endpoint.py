@@ -1,9 +1,10 @@
 """Serves a simulated arena on the bus: motor commands in, sensor readings out.
 
 A thin shell around :class:`sim_robot.Arena`; all physics lives in the library.
-Parameters (``[body.params]``): ``world`` (a world file, relative to the experiment file;
-default the paper's), any key of a world file overriding the file's (``arena.radius_m``,
-``obstacles``...), and ``seed`` (sensor noise; default the experiment's seed).
+Parameters (``[body.params]``): ``world`` (a world file, relative to the experiment file,
+or a world table; default the paper's), any key of a world file overriding the world's
+(``arena.radius_m``, ``obstacles``...), and ``seed`` (sensor noise; default the
+experiment's seed).
 """
 
 from __future__ import annotations
@@ -36,12 +37,14 @@ class ArenaEndpoint(Endpoint):
         """Check ``[body.params]`` (the world is built and validated, nothing else);
         return them resolved.
 
+        ``world`` is a world file or a world table (as resolved params hold it); any other
+        world key (``arena``, ``obstacles``, ...) overrides the world's.
+
         Returns
         -------
         dict
-            ``world`` (the file), ``seed`` and every key of the world (the file's contents
-            with the experiment's overrides in place): what the run uses, as the manifest
-            records it.
+            ``world`` (the world's contents: the file's with the overrides in place) and
+            ``seed``: what the run uses, as the manifest records it.
 
         Raises
         ------
@@ -49,24 +52,26 @@ class ArenaEndpoint(Endpoint):
             Naming ``body.params.<key>`` (``body.params.arena.radius_m must be ...``).
         """
         params = dict(section.params)
-        path = check_value("body.params.world", str, params.pop("world", DEFAULT_WORLD))
+        world = params.pop("world", DEFAULT_WORLD)
         seed = check_value("body.params.seed", int, params.pop("seed", cfg.experiment.seed), ge=0)
+        if isinstance(world, str):
+            try:
+                world = read_world_data(world)
+            except ConfigError as exc:
+                raise ConfigError(f"body.params.world: {exc}") from None
+        elif not isinstance(world, dict):
+            raise ConfigError(f"body.params.world must be a world file or table, got {world!r}")
+        contents = settings.merge(world, params)
         try:
-            data = read_world_data(path)
-        except ConfigError as exc:
-            raise ConfigError(f"body.params.world: {exc}") from None
-        contents = settings.merge(data, params)
-        try:
-            world_from_dict(contents, source=path)
+            world_from_dict(contents)
         except WorldError as exc:
             raise settings.under("body.params.", exc) from None
-        return {"world": path, "seed": seed, **contents}
+        return {"world": contents, "seed": seed}
 
     @classmethod
     def from_config(cls, section: EndpointSection, cfg: ExperimentConfig) -> ArenaEndpoint:
         params = cls.check_config(section, cfg)
-        path, seed = params.pop("world"), params.pop("seed")
-        arena = Arena(world_from_dict(params, source=path), seed=seed)
+        arena = Arena(world_from_dict(params["world"]), seed=params["seed"])
         return cls(arena, cfg.loop.period_ms, section.id)
 
     def describe(self) -> Description:

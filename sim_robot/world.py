@@ -260,18 +260,6 @@ def load_world(path: str | Path, overrides: Sequence[str] = ()) -> World:
     return world_from_dict(data, source=str(path))
 
 
-def recorded_world(params: dict) -> World:
-    """The world of a ``sim_robot`` body from its params as a run's manifest records them.
-
-    Since the manifest records the world's contents (``body.params.arena``, ...), they are
-    used; an older record names only the file (``body.params.world``, default the paper's).
-    """
-    contents = {k: v for k, v in params.items() if k in WORLD_KEYS}
-    if "arena" in contents:
-        return world_from_dict(contents, source=str(params.get("world", "<record>")))
-    return load_world(params.get("world", DEFAULT_WORLD_FILE))
-
-
 def read_world_data(path: str | Path) -> dict:
     """The plain contents of a world file, its ``extends`` applied, not yet validated.
 

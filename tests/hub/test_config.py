@@ -170,15 +170,15 @@ def test_the_culture_and_the_world_are_set_from_the_experiment_and_recorded_whol
         CLOSED_LOOP, ["culture.params.noise.sd=2.0", "body.params.arena.radius_m=0.8"]
     )
     run = cfg.resolved()
-    culture, body = run.culture.params, run.body.params
+    culture, world = run.culture.params["config"], run.body.params["world"]
     assert culture["noise"]["sd"] == 2.0 and culture["layout"]["rows"] == 32
-    assert culture["seed"] == cfg.experiment.seed
-    assert body["arena"] == {"shape": "circle", "radius_m": 0.8}
-    assert len(body["obstacles"]) == 3 and body["robot"]["preset"] == "paper7"
+    assert run.culture.params["seed"] == cfg.experiment.seed
+    assert world["arena"] == {"shape": "circle", "radius_m": 0.8}
+    assert len(world["obstacles"]) == 3 and world["robot"]["preset"] == "paper7"
     # what the manifest records is the contents, enough to run again without the files
     recorded = run.to_dict()
-    assert recorded["culture"]["params"]["noise"]["sd"] == 2.0
-    assert recorded["body"]["params"]["arena"]["radius_m"] == 0.8
+    assert recorded["culture"]["params"]["config"]["noise"]["sd"] == 2.0
+    assert recorded["body"]["params"]["world"]["arena"]["radius_m"] == 0.8
     assert resolve_endpoints(run) == run
 
 
@@ -201,6 +201,7 @@ def test_the_culture_and_the_world_are_set_from_the_experiment_and_recorded_whol
         ('body.params.obstacles=[{shape="blob"}]', r"body.params.obstacles[0].shape must be one"),
         ("body.params.wheels=2", "body.params.wheels is not a known key"),
         ('body.params.world="nope.toml"', "body.params.world: world file"),
+        ("body.params.world=3", "body.params.world must be a world file or table"),
     ],
 )
 def test_culture_and_world_errors_name_the_experiments_key(override, message):
@@ -212,6 +213,23 @@ def test_culture_and_world_errors_name_the_experiments_key(override, message):
 def test_the_default_culture_and_world_need_no_file(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     run = resolve_endpoints(load_config(None, ["culture.params.layout.rows=4"]))
-    assert run.culture.params["layout"]["rows"] == 4
-    assert run.culture.params["noise"]["sd"] == NetworkConfig().noise.sd
-    assert run.body.params["name"] == "paper"
+    assert run.culture.params["config"]["layout"]["rows"] == 4
+    assert run.culture.params["config"]["noise"]["sd"] == NetworkConfig().noise.sd
+    assert run.body.params["world"]["name"] == "paper"
+
+
+def test_a_world_or_culture_table_stands_for_its_file():
+    run = load_config(
+        None,
+        [
+            'body.params.world={name = "w", arena = {radius_m = 1.0}, robot = {preset = "paper7"}}',
+            "culture.params.config={layout = {rows = 2, cols = 3}}",
+        ],
+    ).resolved()
+    assert run.body.params["world"]["arena"]["radius_m"] == 1.0
+    assert run.culture.params["config"]["layout"] == {
+        "rows": 2,
+        "cols": 3,
+        "spacing_um": 50.0,
+        "inhibitory_fraction": 0.2,
+    }

@@ -15,7 +15,6 @@ from sim_robot import (
     preset,
     world_from_dict,
 )
-from sim_robot.world import recorded_world
 
 
 def test_paper_world_is_the_figure_7a_setup(worlds_dir):
@@ -245,11 +244,3 @@ def test_extends_is_relative_to_the_extending_file(tmp_path, worlds_dir, monkeyp
     assert world.name == "bigger" and world.arena.radius_m == 1.1
     assert len(world.obstacles) == 3
 
-
-def test_a_recorded_world_is_read_from_its_contents_or_its_file(worlds_dir):
-    paper = load_world(worlds_dir / "paper.toml")
-    changed = {"world": str(worlds_dir / "paper.toml"), "seed": 1, "name": "x"}
-    changed |= {"arena": {"shape": "circle", "radius_m": 2.0}, "robot": {"preset": "paper7"}}
-    assert recorded_world(changed).arena.radius_m == 2.0
-    assert recorded_world({"world": str(worlds_dir / "paper.toml")}).arena == paper.arena
-    assert recorded_world({}).name == "paper"
