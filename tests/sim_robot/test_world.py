@@ -243,4 +243,3 @@ def test_extends_is_relative_to_the_extending_file(tmp_path, worlds_dir, monkeyp
     world = load_world("mine/bigger.toml", ["arena.radius_m=1.1"])
     assert world.name == "bigger" and world.arena.radius_m == 1.1
     assert len(world.obstacles) == 3
-
