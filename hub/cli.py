@@ -20,6 +20,12 @@ from pathlib import Path
 from hub.config import ConfigError, load_config
 
 EXIT_OK, EXIT_FAULT, EXIT_CONFIG, EXIT_INTERRUPTED = 0, 2, 3, 130
+log = logging.getLogger("neuvision")
+
+
+class InputError(Exception):
+    """A command's input that is not there or not what it must be (a run folder, a file):
+    one line on stderr and exit status 3, like a config error."""
 
 
 def _overrides(args) -> list[str]:
@@ -99,8 +105,15 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return COMMANDS[args.command](args)
     except ConfigError as exc:
-        print(f"neuvision: config error: {exc}", file=sys.stderr)
+        print(f"neuvision: config error: {_one_line(exc)}", file=sys.stderr)
         return EXIT_CONFIG
+    except InputError as exc:
+        print(f"neuvision: {_one_line(exc)}", file=sys.stderr)
+        return EXIT_CONFIG
+
+
+def _one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split())
 
 
 # --------------------------------------------------------------------------- commands
@@ -119,7 +132,6 @@ def cmd_endpoint(args) -> int:
 def cmd_hub(args, local: bool = False) -> int:
     from hub.bus import free_tcp_port
     from hub.launch import (
-        endpoint_class,
         start_local_endpoints,
         stop_local_endpoints,
         watch_local_endpoints,
@@ -135,10 +147,13 @@ def cmd_hub(args, local: bool = False) -> int:
         overrides.append(f'bus.listen=["tcp/127.0.0.1:{free_tcp_port()}"]')
         cfg = load_config(args.config, overrides)
     check_cpus("loop.cpus", cfg.loop.cpus)
-    for role in ("body", "culture"):  # an unknown kind fails here, before anything starts
+    for role in ("body", "culture"):
         if local and cfg.endpoint(role).launch == "local":
-            endpoint_class(role, cfg.endpoint(role).kind)
             check_cpus(f"{role}.cpus", cfg.endpoint(role).cpus)
+    # Every endpoint's kind and params are checked here, before a folder or a process
+    # exists; the manifest records them resolved (culture and world contents included).
+    cfg = cfg.resolved()
+    _check_hub_sections(cfg)
     run_dir = new_run_dir(cfg.experiment.runs_dir, cfg.experiment.name)
     print(f"neuvision: run folder {run_dir}", file=sys.stderr)
     procs = start_local_endpoints(args.config, overrides, cfg, run_dir) if local else []
@@ -169,6 +184,23 @@ def cmd_hub(args, local: bool = False) -> int:
     return EXIT_INTERRUPTED if result.outcome == "interrupted" else EXIT_OK
 
 
+def _check_hub_sections(cfg) -> None:
+    """What the hub can check of its own sections before the endpoints describe
+    themselves: the schemes import, the online detectors' parameters are valid."""
+    from hub.analysis.bursts import BurstParams
+    from hub.analysis.network_bursts import NetworkBurstParams
+    from hub.schemes import load_scheme
+
+    load_scheme(cfg.coding.scheme, "coding")
+    load_scheme(cfg.decoding.scheme, "decoding")
+    if cfg.online.enabled:
+        for name, kind in (("burst", BurstParams), ("network", NetworkBurstParams)):
+            try:
+                kind(**getattr(cfg.online, name))
+            except (TypeError, ValueError) as exc:
+                raise ConfigError(f"online.{name}: {exc}") from None
+
+
 def cmd_run(args) -> int:
     return cmd_hub(args, local=True)
 
@@ -176,9 +208,30 @@ def cmd_run(args) -> int:
 def cmd_record_info(args) -> int:
     from hub.record import read_run
 
-    rec = read_run(args.run_dir)
+    run_dir = _run_folder(args.run_dir)
+    try:
+        rec = read_run(run_dir)
+    except (OSError, ValueError) as exc:
+        log.debug("reading %s", run_dir, exc_info=True)
+        raise InputError(f"cannot read the run in {run_dir}: {exc}") from None
     print(json.dumps(record_summary(rec), indent=2))
     return EXIT_OK
+
+
+def _run_folder(path) -> Path:
+    """``path`` if it is a run folder (it holds a manifest or a record), else InputError."""
+    from hub.record import MANIFEST_FILE, RECORD_FILE
+
+    run_dir = Path(path)
+    if not run_dir.exists():
+        raise InputError(f"run folder {run_dir} not found")
+    if not run_dir.is_dir():
+        raise InputError(f"{run_dir} is not a run folder (not a folder)")
+    if not ((run_dir / MANIFEST_FILE).exists() or (run_dir / RECORD_FILE).exists()):
+        raise InputError(
+            f"{run_dir} is not a run folder (no {MANIFEST_FILE} or {RECORD_FILE} in it)"
+        )
+    return run_dir
 
 
 def record_summary(rec) -> dict:
@@ -253,15 +306,22 @@ def cmd_compare(args) -> int:
     overrides = list(args.set or [])
     if args.duration_s is not None:
         overrides.append(f"experiment.duration_s={args.duration_s}")
+    for path in args.configs:  # every condition's file is read (and checked) before any run
+        load_config(path, overrides)
     result = compare(args.configs, args.seeds, args.out, args.jobs, overrides)
     failed = [r for r in result["runs"] if not r["ok"]]
     return EXIT_FAULT if failed else EXIT_OK
 
 
 def cmd_analyze(args) -> int:
+    from hub.analysis.spikes import AnalysisInputError
     from lab.run_analysis import analyze_run
 
-    metrics = analyze_run(args.run_dir, args.out)
+    run_dir = _run_folder(args.run_dir)
+    try:
+        metrics = analyze_run(run_dir, args.out)
+    except AnalysisInputError as exc:
+        raise InputError(f"cannot analyse {run_dir}: {exc}") from None
     print(json.dumps(metrics, indent=2, default=str))
     return EXIT_OK
 

@@ -2,7 +2,13 @@
 
 An endpoint's ``kind`` in the experiment file is either a registered short name
 (``sim_robot``, ``sim_network``) or ``module:Class``. The class provides
-``from_config(section, cfg) -> Endpoint``.
+``from_config(section, cfg) -> Endpoint`` and may provide
+``check_config(section, cfg) -> dict``: a classmethod that checks the section's ``params``
+without building anything (no network, no device connection), raising
+:class:`~hub.config.ConfigError` naming ``<role>.params.<key>``, and returns the params
+resolved (files read, contents in place) as the run will use them. ``neuvision run``
+calls it for every endpoint before a run folder or a process exists, and records the
+resolved params in the manifest (:func:`resolve_endpoints`).
 
 Local endpoints are started with ``subprocess`` (fork-and-exec, before the hub
 opens its own Zenoh session: a process that has a session must never fork).
@@ -10,6 +16,7 @@ opens its own Zenoh session: a process that has a session must never fork).
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
 import os
 import signal
@@ -20,7 +27,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from hub.config import ConfigError, ExperimentConfig
+from hub.config import ConfigError, EndpointSection, ExperimentConfig
 from hub.endpoint import Endpoint
 
 ENDPOINT_KINDS = {
@@ -43,6 +50,54 @@ def endpoint_class(role: str, kind: str) -> type[Endpoint]:
     if not (isinstance(cls, type) and issubclass(cls, Endpoint)) or cls.role != role:
         raise ConfigError(f"{role}.kind: {spec} is not a {role} endpoint")
     return cls
+
+
+def check_endpoint(cls: type[Endpoint], section: EndpointSection, cfg: ExperimentConfig) -> dict:
+    """The section's params checked by the class's ``check_config`` and resolved.
+
+    A class without ``check_config`` has its params returned as given (its
+    ``from_config`` checks them when the endpoint starts), except that a class keeping the
+    base ``from_config`` takes no parameters at all.
+    """
+    check = getattr(cls, "check_config", None)
+    if check is not None:
+        params = check(section, cfg)
+        return dict(section.params) if params is None else params
+    if cls.from_config.__func__ is Endpoint.from_config.__func__ and section.params:
+        raise ConfigError(
+            f"{cls.role}.params: {cls.__name__} takes no parameters, got {sorted(section.params)}"
+        )
+    return dict(section.params)
+
+
+def resolve_endpoints(cfg: ExperimentConfig, local_only: bool = False) -> ExperimentConfig:
+    """``cfg`` with each endpoint's params checked and resolved by its kind.
+
+    Every ``launch = "local"`` endpoint's kind must load here. An external endpoint's is
+    checked when its class loads on this machine (a device's package may live only where
+    the device is); otherwise its params are kept as given (``local_only`` skips external
+    endpoints altogether).
+
+    Raises
+    ------
+    ConfigError
+        Naming ``<role>.kind`` or ``<role>.params.<key>``: before anything starts.
+    """
+    sections = {}
+    for role in ("body", "culture"):
+        section = cfg.endpoint(role)
+        if section.launch == "local":
+            cls = endpoint_class(role, section.kind)
+        elif local_only:
+            continue
+        else:
+            try:
+                cls = endpoint_class(role, section.kind)
+            except ConfigError:
+                continue
+        params = check_endpoint(cls, section, cfg)
+        sections[role] = dataclasses.replace(section, params=params)
+    return dataclasses.replace(cfg, **sections)
 
 
 def make_endpoint(cfg: ExperimentConfig, role: str) -> Endpoint:

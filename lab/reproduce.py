@@ -45,7 +45,7 @@ from lab.activity import analyze_culture
 from lab.calibrate import record
 from sim_network import Network, PeriodicStimulus, config_to_dict, load_config
 
-DEFAULT_CULTURE = Path(__file__).resolve().parents[2] / "configs" / "culture_1024.toml"
+DEFAULT_CULTURE = Path(__file__).resolve().parents[1] / "configs" / "culture_1024.toml"
 RESULT_JSON = "reproduction.json"
 RESULT_TABLE = "reproduction.md"
 REPORT_FILE = "report.html"

@@ -1,27 +1,26 @@
 """Network configuration: frozen dataclasses holding every default once, and a TOML loader.
 
-`load_config` reads a TOML file whose tables mirror these dataclasses; an unknown key, a value
-of the wrong type or out of range raises `ConfigError` naming the dotted key.
+The defaults are the project's one default culture: the 1024-neuron culture calibrated to
+the paper's spontaneous activity (docs/sim_network.md); ``configs/culture_1024.toml`` lists
+the same values with their reasons, and a test keeps the two equal. A culture file lists
+what differs. `load_config` reads a culture file through :mod:`settings` (the project's one
+loader: TOML only, ``extends``, overrides); an unknown key, a value of the wrong type or out
+of range raises `ConfigError` naming the dotted key.
 """
 
 from __future__ import annotations
 
-import dataclasses
-import tomllib
-import types
-import typing
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import settings
+from settings import ConfigError
 from sim_network.neurons import IZHIKEVICH_TYPES
 
 NEURON_MODELS = ("izhikevich", "lif", "hh")
 CHANNEL_KINDS = ("neurons", "mea")
-
-
-class ConfigError(ValueError):
-    """A configuration value is missing, unknown, of the wrong type or out of range."""
 
 
 @dataclass(frozen=True)
@@ -70,8 +69,10 @@ class NeuronConfig:
     # Izhikevich (2003) heterogeneity, r ~ U(0, 1) per neuron: excitatory c += 15·h·r²,
     # d -= 6·h·r² (RS toward chattering); inhibitory a -= 0.08·h·r, b += 0.05·h·r (FS toward
     # LTS). 0 = identical cells of the named type.
-    heterogeneity_exc: float = 0.0
-    heterogeneity_inh: float = 0.0
+    # Calibrated: RS -> CH spread (intrinsically bursting cells start network bursts) and
+    # FS -> LTS spread (lower rheobase, high-rate inhibitory cells).
+    heterogeneity_exc: float = 0.8
+    heterogeneity_inh: float = 0.5
     lif: LifConfig = field(default_factory=LifConfig)
     hh: HhConfig = field(default_factory=HhConfig)
 
@@ -80,10 +81,10 @@ class NeuronConfig:
 class ConnectivityConfig:
     """Distance-dependent random connectivity, P = p_c_max · exp(-d / d_pc_um), d ≤ cutoff_um."""
 
-    p_c_max: float = 0.5
-    d_pc_um: float = 200.0
+    p_c_max: float = 1.0
+    d_pc_um: float = 100.0
     cutoff_um: float = 1000.0
-    weight_exc_mv: tuple[float, float] = (0.0, 6.0)
+    weight_exc_mv: tuple[float, float] = (0.0, 13.0)
     weight_inh_mv: tuple[float, float] = (-6.0, 0.0)
     synaptic_delay_ms: float = 2.0
     speed_m_s: tuple[float, float] = (0.1, 1.14)
@@ -95,11 +96,12 @@ class DepressionConfig:
     """Short-term synaptic depression per presynaptic neuron (Tsodyks–Markram resources).
 
     Each spike uses a fraction `u` of the neuron's resources x (weights are scaled by x);
-    x recovers to 1 with time constant `tau_rec_ms`. `u = 0` turns depression off.
+    x recovers to 1 with time constant `tau_rec_ms`. `u = 0` turns depression off. Not in
+    the paper; calibrated on: it ends network bursts and spaces them seconds apart.
     """
 
-    u: float = 0.0
-    tau_rec_ms: float = 1000.0
+    u: float = 0.15
+    tau_rec_ms: float = 3300.0
 
 
 @dataclass(frozen=True)
@@ -111,9 +113,10 @@ class NoiseConfig:
     """
 
     mean: float = 0.0
-    sd: float = 3.0
+    sd: float = 2.5
     interval_ms: float = 1.0
-    inhibitory_mean: float | None = None
+    # Calibrated: inhibitory cells get a higher mean drive (the paper's MFR s.d.).
+    inhibitory_mean: float | None = 2.0
     inhibitory_sd: float | None = None
 
     def of_population(self, inhibitory: bool) -> tuple[float, float]:
@@ -293,78 +296,42 @@ def _range_ok(pair: tuple[float, float], key: str, sign: int) -> None:
         _require(hi <= 0, key, "must be <= 0", list(pair))
 
 
-def _coerce(value: Any, typ: Any, key: str) -> Any:
-    """Convert a TOML value to the annotated field type, or raise naming the key."""
-    if isinstance(typ, types.UnionType) and type(None) in typing.get_args(typ):
-        (inner,) = (a for a in typing.get_args(typ) if a is not type(None))
-        return _coerce(value, inner, key)
-    if dataclasses.is_dataclass(typ):
-        if not isinstance(value, dict):
-            raise ConfigError(f"{key} must be a table, got {value!r}")
-        return _build(typ, value, key + ".")
-    origin = typing.get_origin(typ)
-    if origin is tuple:
-        args = typing.get_args(typ)
-        if not isinstance(value, list | tuple) or len(value) != len(args):
-            raise ConfigError(f"{key} must be a list of {len(args)} numbers, got {value!r}")
-        return tuple(
-            _coerce(v, a, f"{key}[{i}]") for i, (v, a) in enumerate(zip(value, args, strict=True))
-        )
-    if typ is bool:
-        if not isinstance(value, bool):
-            raise ConfigError(f"{key} must be true or false, got {value!r}")
-        return value
-    if typ is int:
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise ConfigError(f"{key} must be an integer, got {value!r}")
-        return value
-    if typ is float:
-        if isinstance(value, bool) or not isinstance(value, int | float):
-            raise ConfigError(f"{key} must be a number, got {value!r}")
-        return float(value)
-    if typ is str:
-        if not isinstance(value, str):
-            raise ConfigError(f"{key} must be a string, got {value!r}")
-        return value
-    raise ConfigError(f"{key} has unsupported type {typ!r}")  # pragma: no cover
+def config_from_dict(data: dict, prefix: str = "") -> NetworkConfig:
+    """Build a validated `NetworkConfig` from nested plain values (as read from TOML).
 
-
-def _build(cls: type, data: dict, prefix: str) -> Any:
-    hints = typing.get_type_hints(cls)
-    names = {f.name for f in dataclasses.fields(cls)}
-    for key in data:
-        if key not in names:
-            raise ConfigError(f"{prefix}{key} is not a known key")
-    kwargs = {name: _coerce(value, hints[name], prefix + name) for name, value in data.items()}
-    return cls(**kwargs)
-
-
-def config_from_dict(data: dict) -> NetworkConfig:
-    """Build a validated `NetworkConfig` from nested plain values (as read from TOML)."""
-    return _build(NetworkConfig, data, "")
+    Absent keys keep the defaults; errors name ``<prefix><dotted key>``.
+    """
+    return settings.build(NetworkConfig, data, prefix)
 
 
 def config_to_dict(cfg: NetworkConfig) -> dict:
     """Nested plain values of a config (tuples as lists), the inverse of `config_from_dict`."""
-
-    def plain(obj: Any) -> Any:
-        if dataclasses.is_dataclass(obj):
-            return {
-                f.name: plain(getattr(obj, f.name))
-                for f in dataclasses.fields(obj)
-                if getattr(obj, f.name) is not None  # absent in TOML means None
-            }
-        if isinstance(obj, tuple):
-            return [plain(v) for v in obj]
-        return obj
-
-    return plain(cfg)
+    return settings.to_plain(cfg)
 
 
-def load_config(path: str | Path) -> NetworkConfig:
-    """Read a network TOML file; a top-level `[network]` table is used when present."""
-    with open(path, "rb") as fh:
-        data = tomllib.load(fh)
-    if "network" in data and isinstance(data["network"], dict):
+def read_config_data(path: str | Path) -> dict:
+    """The plain contents of a culture file (its ``extends`` applied; a top-level
+    ``[network]`` table is used when present), not yet validated."""
+    data = settings.load(path, "culture file")
+    if isinstance(data.get("network"), dict):
         data = data["network"]
-    return config_from_dict(data)
+    return data
+
+
+def load_config(path: str | Path | None = None, overrides: Sequence[str] = ()) -> NetworkConfig:
+    """Read a culture file and apply ``dotted.key=value`` overrides (``noise.sd=3.5``).
+
+    Parameters
+    ----------
+    path : path or None
+        A culture TOML file; None: the default culture (this module's defaults).
+    overrides : sequence of str
+        Applied after the file, values typed as TOML.
+
+    Raises
+    ------
+    ConfigError
+        Naming the file or the dotted key.
+    """
+    data = read_config_data(path) if path is not None else {}
+    return config_from_dict(settings.apply_overrides(data, overrides))

@@ -1,23 +1,23 @@
 """Serves a simulated culture on the bus: stimulation in, spikes out.
 
 A thin shell around :class:`sim_network.Network`; the model lives in the library.
-Parameters (``[culture.params]``): ``config`` (network file, default the
-calibrated 1024-neuron culture), ``seed`` (default the experiment's seed) and
-``potentials_hz`` (rate of membrane snapshots on ``culture/<id>/potentials``;
-0, the default, for none).
+Parameters (``[culture.params]``): ``config`` (a culture file, relative to the experiment
+file, or a culture table; default: the default culture, ``sim_network.config``'s
+defaults), any key of a culture file overriding the culture's (``noise.sd``,
+``layout.rows``...), ``seed`` (default the experiment's seed) and ``potentials_hz`` (rate
+of membrane snapshots on ``culture/<id>/potentials``; 0, the default, for none).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from hub.config import ConfigError, EndpointSection, ExperimentConfig
+import settings
+from hub.config import ConfigError, EndpointSection, ExperimentConfig, check_value
 from hub.endpoint import Endpoint
 from hub.protocol import Description, Potentials, SpikeBatch, Stimulation
-from sim_network import ConfigError as NetworkConfigError
-from sim_network import Network, PulseError, Pulses, load_config
-
-DEFAULT_CULTURE = "configs/culture_1024.toml"
+from sim_network import Network, PulseError, Pulses
+from sim_network.config import config_from_dict, config_to_dict, read_config_data
 
 
 class NetworkEndpoint(Endpoint):
@@ -32,24 +32,55 @@ class NetworkEndpoint(Endpoint):
         self.potentials_every = round(1e3 / (potentials_hz * period_ms)) if potentials_hz else 0
 
     @classmethod
-    def from_config(cls, section: EndpointSection, cfg: ExperimentConfig) -> NetworkEndpoint:
+    def check_config(cls, section: EndpointSection, cfg: ExperimentConfig) -> dict:
+        """Check ``[culture.params]`` without building the network; return them resolved.
+
+        ``config`` is a culture file or a culture table (as resolved params hold it); any
+        other culture key (``noise``, ``layout``, ...) overrides the culture's.
+
+        Returns
+        -------
+        dict
+            ``config`` (the culture's every value: the file's, or the defaults, with the
+            overrides in place), ``seed`` and ``potentials_hz``: what the run uses, as the
+            manifest records it.
+
+        Raises
+        ------
+        ConfigError
+            Naming ``culture.params.<key>`` (``culture.params.noise.sd must be >= 0``).
+        """
         params = dict(section.params)
-        path = params.pop("config", DEFAULT_CULTURE)
-        seed = params.pop("seed", cfg.experiment.seed)
-        potentials_hz = params.pop("potentials_hz", 0.0)
-        if params:
-            raise ConfigError(f"culture.params.{sorted(params)[0]} is not a sim_network parameter")
-        if not isinstance(potentials_hz, (int, float)) or not 0 <= potentials_hz <= 100:
+        culture = params.pop("config", {})
+        seed = check_value(
+            "culture.params.seed", int, params.pop("seed", cfg.experiment.seed), ge=0
+        )
+        potentials_hz = check_value(
+            "culture.params.potentials_hz", float, params.pop("potentials_hz", 0.0), ge=0, le=100
+        )
+        if isinstance(culture, str):
+            try:
+                culture = read_config_data(culture)
+            except ConfigError as exc:
+                raise ConfigError(f"culture.params.config: {exc}") from None
+        elif not isinstance(culture, dict):
             raise ConfigError(
-                f"culture.params.potentials_hz must be in [0, 100], got {potentials_hz!r}"
+                f"culture.params.config must be a culture file or table, got {culture!r}"
             )
-        try:
-            network = Network(load_config(path), seed=seed)
-        except FileNotFoundError:
-            raise ConfigError(f"culture.params.config: no network file {path!r}") from None
-        except NetworkConfigError as exc:
-            raise ConfigError(f"culture.params.config ({path}): {exc}") from None
-        return cls(network, cfg.loop.period_ms, section.id, potentials_hz)
+        network = config_from_dict(settings.merge(culture, params), prefix="culture.params.")
+        ratio = cfg.loop.period_ms / network.dt_ms
+        if abs(ratio - round(ratio)) > 1e-6 * ratio:
+            raise ConfigError(
+                f"loop.period_ms ({cfg.loop.period_ms}) must be a whole multiple of "
+                f"culture.params.dt_ms ({network.dt_ms})"
+            )
+        return {"config": config_to_dict(network), "seed": seed, "potentials_hz": potentials_hz}
+
+    @classmethod
+    def from_config(cls, section: EndpointSection, cfg: ExperimentConfig) -> NetworkEndpoint:
+        params = cls.check_config(section, cfg)
+        network = Network(config_from_dict(params["config"]), seed=params["seed"])
+        return cls(network, cfg.loop.period_ms, section.id, params["potentials_hz"])
 
     def describe(self) -> Description:
         ch = self.net.channels

@@ -1,20 +1,24 @@
 """Serves a simulated arena on the bus: motor commands in, sensor readings out.
 
 A thin shell around :class:`sim_robot.Arena`; all physics lives in the library.
-Parameters (``[body.params]``): ``world`` (world file, default the paper's) and
-``seed`` (sensor noise; default the experiment's seed).
+Parameters (``[body.params]``): ``world`` (a world file, relative to the experiment file,
+or a world table; default the paper's), any key of a world file overriding the world's
+(``arena.radius_m``, ``obstacles``...), and ``seed`` (sensor noise; default the
+experiment's seed).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from hub.config import ConfigError, EndpointSection, ExperimentConfig
+import settings
+from hub.config import ConfigError, EndpointSection, ExperimentConfig, check_value
 from hub.endpoint import Endpoint
 from hub.protocol import Description, MotorCommand, SensorReading
 from sim_robot import Arena, WorldError
+from sim_robot.world import DEFAULT_WORLD_FILE, read_world_data, world_from_dict
 
-DEFAULT_WORLD = "configs/worlds/paper.toml"
+DEFAULT_WORLD = str(DEFAULT_WORLD_FILE)
 
 
 class ArenaEndpoint(Endpoint):
@@ -29,18 +33,45 @@ class ArenaEndpoint(Endpoint):
         self.last_wheels_mps = (0.0, 0.0)
 
     @classmethod
-    def from_config(cls, section: EndpointSection, cfg: ExperimentConfig) -> ArenaEndpoint:
+    def check_config(cls, section: EndpointSection, cfg: ExperimentConfig) -> dict:
+        """Check ``[body.params]`` (the world is built and validated, nothing else);
+        return them resolved.
+
+        ``world`` is a world file or a world table (as resolved params hold it); any other
+        world key (``arena``, ``obstacles``, ...) overrides the world's.
+
+        Returns
+        -------
+        dict
+            ``world`` (the world's contents: the file's with the overrides in place) and
+            ``seed``: what the run uses, as the manifest records it.
+
+        Raises
+        ------
+        ConfigError
+            Naming ``body.params.<key>`` (``body.params.arena.radius_m must be ...``).
+        """
         params = dict(section.params)
         world = params.pop("world", DEFAULT_WORLD)
-        seed = params.pop("seed", cfg.experiment.seed)
-        if params:
-            raise ConfigError(f"body.params.{sorted(params)[0]} is not a sim_robot parameter")
+        seed = check_value("body.params.seed", int, params.pop("seed", cfg.experiment.seed), ge=0)
+        if isinstance(world, str):
+            try:
+                world = read_world_data(world)
+            except ConfigError as exc:
+                raise ConfigError(f"body.params.world: {exc}") from None
+        elif not isinstance(world, dict):
+            raise ConfigError(f"body.params.world must be a world file or table, got {world!r}")
+        contents = settings.merge(world, params)
         try:
-            arena = Arena.from_toml(world, seed=seed)
-        except FileNotFoundError:
-            raise ConfigError(f"body.params.world: no world file {world!r}") from None
+            world_from_dict(contents)
         except WorldError as exc:
-            raise ConfigError(f"body.params.world ({world}): {exc}") from None
+            raise settings.under("body.params.", exc) from None
+        return {"world": contents, "seed": seed}
+
+    @classmethod
+    def from_config(cls, section: EndpointSection, cfg: ExperimentConfig) -> ArenaEndpoint:
+        params = cls.check_config(section, cfg)
+        arena = Arena(world_from_dict(params["world"]), seed=params["seed"])
         return cls(arena, cfg.loop.period_ms, section.id)
 
     def describe(self) -> Description:

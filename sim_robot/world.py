@@ -2,19 +2,23 @@
 
 A :class:`World` is plain data (dataclasses and numpy arrays), validated on construction, so
 pictures and trajectory metrics can use it without a simulator. World files are TOML
-(``configs/worlds/``, format in ``docs/sim_robot.md``); :func:`load_world` reads one and
-:func:`world_from_dict` builds from the same structure in Python.
+(``configs/worlds/``, format in ``docs/sim_robot.md``), read through :mod:`settings` (the
+project's one loader: ``extends`` relative to the file, tables merge, arrays such as
+``[[obstacles]]`` replace); :func:`load_world` reads one and :func:`world_from_dict` builds
+from the same structure in Python.
 """
 
 from __future__ import annotations
 
 import math
 import numbers
-import tomllib
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+
+import settings
 
 from . import bodies
 from .bodies import Body
@@ -30,6 +34,11 @@ from .geometry import (
     polygon_signed_area,
 )
 
+# The world of the paper's closed loop: the default world of a simulated body.
+DEFAULT_WORLD_FILE = Path(__file__).resolve().parents[1] / "configs" / "worlds" / "paper.toml"
+
+# The tables and values of a world file.
+WORLD_KEYS = ("name", "description", "arena", "physics", "robot", "sensors", "obstacles")
 PHYSICS_MODES = ("pass", "solid")
 ARENA_SHAPES = ("circle", "rectangle")
 OBSTACLE_SHAPES = ("circle", "square", "rectangle", "triangle", "polygon")
@@ -242,18 +251,36 @@ def _inside_arena(where: str, pts: np.ndarray, a: ArenaShape) -> None:
 # ---------------------------------------------------------------- reading world files
 
 
-def load_world(path: str | Path) -> World:
-    """Read and validate a TOML world file (see ``docs/sim_robot.md``)."""
-    return world_from_dict(_read_toml(Path(path), seen=()), source=str(path))
+def load_world(path: str | Path, overrides: Sequence[str] = ()) -> World:
+    """Read and validate a TOML world file (see ``docs/sim_robot.md``).
+
+    ``overrides`` are ``dotted.key=value`` items applied after the file
+    (``arena.radius_m=0.8``)."""
+    data = settings.apply_overrides(read_world_data(path), overrides)
+    return world_from_dict(data, source=str(path))
+
+
+def read_world_data(path: str | Path) -> dict:
+    """The plain contents of a world file, its ``extends`` applied, not yet validated.
+
+    Raises
+    ------
+    WorldError
+        The file is missing, not TOML, empty, or its ``extends`` chain is broken.
+    """
+    try:
+        return settings.load(path, "world file")
+    except WorldError:
+        raise
+    except settings.ConfigError as exc:
+        raise WorldError(str(exc)) from None
 
 
 def world_from_dict(data: dict, source: str = "<dict>") -> World:
     """Build a :class:`World` from the world-file structure (a nested dict)."""
     data = dict(data)
     data.pop("extends", None)
-    _known(
-        "world", data, ("name", "description", "arena", "physics", "robot", "sensors", "obstacles")
-    )
+    _known("", data, WORLD_KEYS)
     arena = _arena(_table(data, "arena"))
     physics = _table(data, "physics", required=False)
     _known("physics", physics, ("obstacles", "walls"))
@@ -282,36 +309,6 @@ def world_from_dict(data: dict, source: str = "<dict>") -> World:
     )
 
 
-def _read_toml(path: Path, seen: tuple) -> dict:
-    """Read a world file, applying ``extends = "other.toml"`` (relative to this file):
-    tables merge key by key, anything else (including [[obstacles]]) is replaced whole."""
-    path = path.resolve()
-    if path in seen:
-        raise WorldError(f"extends loops back to {path}")
-    try:
-        with open(path, "rb") as f:
-            data = tomllib.load(f)
-    except FileNotFoundError:
-        raise WorldError(f"world file not found: {path}") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise WorldError(f"world file {path} is not valid TOML: {exc}") from None
-    base_name = data.get("extends")
-    if base_name is None:
-        return data
-    base = _read_toml(path.parent / base_name, seen + (path,))
-    return _merge(base, data)
-
-
-def _merge(base: dict, over: dict) -> dict:
-    out = dict(base)
-    for key, value in over.items():
-        if isinstance(value, dict) and isinstance(out.get(key), dict):
-            out[key] = _merge(out[key], value)
-        else:
-            out[key] = value
-    return out
-
-
 def _table(data: dict, key: str, required: bool = True) -> dict:
     value = data.get(key)
     if value is None:
@@ -326,7 +323,8 @@ def _table(data: dict, key: str, required: bool = True) -> dict:
 def _known(where: str, table: dict, allowed: tuple) -> None:
     for key in table:
         if key not in allowed:
-            raise WorldError(f"{where}.{key} is not a known key (allowed: {', '.join(allowed)})")
+            dotted = f"{where}.{key}" if where else key
+            raise WorldError(f"{dotted} is not a known key (allowed: {', '.join(allowed)})")
 
 
 def _number(key: str, value) -> float:

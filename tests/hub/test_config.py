@@ -1,8 +1,12 @@
 """Experiment files: defaults in one place, every bad key named by its dotted path."""
 
+from pathlib import Path
+
 import pytest
 
 from hub.config import ConfigError, ExperimentConfig, load_config
+from hub.launch import resolve_endpoints
+from sim_network import NetworkConfig
 
 
 def test_no_file_gives_the_documented_defaults():
@@ -31,7 +35,10 @@ def test_a_file_and_overrides_are_merged_over_the_defaults(tmp_path):
 @pytest.mark.parametrize(
     "override, message",
     [
-        ("loop.period_ms=-5", "loop.period_ms must be > 0, got -5.0"),
+        ("loop.period_ms=-5", "loop.period_ms must be >= 0.1, got -5.0"),
+        ("loop.period_ms=1e-6", "loop.period_ms must be >= 0.1, got 1e-06"),
+        ("experiment.duration_s=1e6", "is 100,000,000 steps; a run takes 1 to 10,000,000"),
+        ("experiment.duration_s=0.001", "is 0 steps"),
         ("loop.perod_ms=5", "loop.perod_ms is not a known key (did you mean period_ms?)"),
         ("lop.period_ms=5", "lop is not a known key (did you mean loop?)"),
         ('loop.mode="fast"', "loop.mode must be one of lockstep, realtime"),
@@ -57,7 +64,7 @@ def test_bad_keys_are_named_with_the_reason(override, message):
 
 
 def test_a_missing_or_broken_file_is_a_config_error(tmp_path):
-    with pytest.raises(ConfigError, match="does not exist"):
+    with pytest.raises(ConfigError, match="not found"):
         load_config(tmp_path / "nope.toml")
     bad = tmp_path / "bad.toml"
     bad.write_text("[loop\nperiod_ms = 1")
@@ -91,3 +98,138 @@ def test_an_extends_cycle_is_an_error(tmp_path):
     (tmp_path / "b.toml").write_text('extends = "a.toml"\n')
     with pytest.raises(ConfigError, match="cycle"):
         load_config(tmp_path / "a.toml")
+
+
+@pytest.mark.parametrize(
+    "content, message",
+    [
+        (b"", "is empty"),
+        (b"# only a comment\n", "is empty"),
+        (b"\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR", "is not a text file"),
+        (b"\xff\xfe not utf-8", "is not a text file"),
+        (b"<html><body>hello</body></html>", "is not valid TOML"),
+    ],
+)
+def test_a_file_that_is_not_a_toml_experiment_is_refused_naming_it(tmp_path, content, message):
+    path = tmp_path / "exp.toml"
+    path.write_bytes(content)
+    with pytest.raises(ConfigError, match=message) as err:
+        load_config(path)
+    assert str(path) in str(err.value)
+
+
+def test_a_folder_is_not_a_config_file(tmp_path):
+    with pytest.raises(ConfigError, match="is a folder"):
+        load_config(tmp_path)
+
+
+def test_paths_in_a_file_are_relative_to_that_file(tmp_path, monkeypatch):
+    (tmp_path / "lab" / "worlds").mkdir(parents=True)
+    (tmp_path / "lab" / "base.toml").write_text(
+        '[body]\nparams = { world = "worlds/w.toml" }\n'
+        '[culture]\nparams = { config = "../cultures/c.toml", seed = 3 }\n'
+    )
+    (tmp_path / "exp").mkdir()
+    (tmp_path / "exp" / "exp.toml").write_text(
+        'extends = "../lab/base.toml"\n[experiment]\nruns_dir = "out"\n'
+        "[culture.params]\nnoise = { sd = 2.0 }\n"
+    )
+    monkeypatch.chdir(tmp_path / "exp")
+    cfg = load_config(tmp_path / "exp" / "exp.toml", ['body.params.robot_file="r.toml"'])
+    assert cfg.body.params["world"] == str(tmp_path / "lab" / "worlds" / "w.toml")
+    # the extending file's params merge into the base's (same kind) ...
+    assert cfg.culture.params == {
+        "config": str(tmp_path / "cultures" / "c.toml"),
+        "seed": 3,
+        "noise": {"sd": 2.0},
+    }
+    # ... a path given on the command line is taken from the current folder, and the run
+    # folder (output) too
+    assert cfg.body.params["robot_file"] == str(tmp_path / "exp" / "r.toml")
+    assert cfg.experiment.runs_dir == "out"
+
+
+def test_an_extending_file_naming_another_kind_replaces_its_params(tmp_path):
+    (tmp_path / "base.toml").write_text('[body]\nkind = "sim_robot"\nparams = { seed = 2 }\n')
+    (tmp_path / "child.toml").write_text(
+        'extends = "base.toml"\n[body]\nkind = "my.module:Body"\nparams = { port = 4 }\n'
+    )
+    assert load_config(tmp_path / "child.toml").body.params == {"port": 4}
+
+
+# ------------------------------------------------------- culture and world, from the experiment
+
+CLOSED_LOOP = Path(__file__).resolve().parents[2] / "configs" / "closed_loop.toml"
+
+
+def test_the_culture_and_the_world_are_set_from_the_experiment_and_recorded_whole(
+    tmp_path, monkeypatch
+):
+    monkeypatch.chdir(tmp_path)  # anywhere: the experiment's paths are relative to it
+    cfg = load_config(
+        CLOSED_LOOP, ["culture.params.noise.sd=2.0", "body.params.arena.radius_m=0.8"]
+    )
+    run = cfg.resolved()
+    culture, world = run.culture.params["config"], run.body.params["world"]
+    assert culture["noise"]["sd"] == 2.0 and culture["layout"]["rows"] == 32
+    assert run.culture.params["seed"] == cfg.experiment.seed
+    assert world["arena"] == {"shape": "circle", "radius_m": 0.8}
+    assert len(world["obstacles"]) == 3 and world["robot"]["preset"] == "paper7"
+    # what the manifest records is the contents, enough to run again without the files
+    recorded = run.to_dict()
+    assert recorded["culture"]["params"]["config"]["noise"]["sd"] == 2.0
+    assert recorded["body"]["params"]["world"]["arena"]["radius_m"] == 0.8
+    assert resolve_endpoints(run) == run
+
+
+@pytest.mark.parametrize(
+    "override, message",
+    [
+        ("culture.params.noise.sd=-1", "culture.params.noise.sd must be >= 0, got -1.0"),
+        (
+            "culture.params.nois.sd=1",
+            "culture.params.nois is not a known key (did you mean noise?)",
+        ),
+        ("culture.params.seed=-3", "culture.params.seed must be >= 0"),
+        ("culture.params.potentials_hz=1e3", "culture.params.potentials_hz must be <= 100"),
+        ('culture.params.config="nope.toml"', "culture.params.config: culture file"),
+        (
+            "loop.period_ms=10.05",
+            "loop.period_ms (10.05) must be a whole multiple of culture.params.dt_ms",
+        ),
+        ("body.params.arena.radius_m=0", "body.params.arena.radius_m must be a finite number > 0"),
+        ('body.params.obstacles=[{shape="blob"}]', r"body.params.obstacles[0].shape must be one"),
+        ("body.params.wheels=2", "body.params.wheels is not a known key"),
+        ('body.params.world="nope.toml"', "body.params.world: world file"),
+        ("body.params.world=3", "body.params.world must be a world file or table"),
+    ],
+)
+def test_culture_and_world_errors_name_the_experiments_key(override, message):
+    with pytest.raises(ConfigError) as err:
+        resolve_endpoints(load_config(CLOSED_LOOP, [override]))
+    assert message in str(err.value)
+
+
+def test_the_default_culture_and_world_need_no_file(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    run = resolve_endpoints(load_config(None, ["culture.params.layout.rows=4"]))
+    assert run.culture.params["config"]["layout"]["rows"] == 4
+    assert run.culture.params["config"]["noise"]["sd"] == NetworkConfig().noise.sd
+    assert run.body.params["world"]["name"] == "paper"
+
+
+def test_a_world_or_culture_table_stands_for_its_file():
+    run = load_config(
+        None,
+        [
+            'body.params.world={name = "w", arena = {radius_m = 1.0}, robot = {preset = "paper7"}}',
+            "culture.params.config={layout = {rows = 2, cols = 3}}",
+        ],
+    ).resolved()
+    assert run.body.params["world"]["arena"]["radius_m"] == 1.0
+    assert run.culture.params["config"]["layout"] == {
+        "rows": 2,
+        "cols": 3,
+        "spacing_um": 50.0,
+        "inhibitory_fraction": 0.2,
+    }

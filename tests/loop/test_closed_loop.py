@@ -96,7 +96,8 @@ def test_lockstep_runs_with_the_same_seed_are_identical(tmp_path, bus_overrides)
 @pytest.mark.parametrize(
     "override, message",
     [
-        ("loop.period_ms=-5", "loop.period_ms must be > 0, got -5"),
+        ("loop.period_ms=-5", "loop.period_ms must be >= 0.1, got -5"),
+        ('body.params.world="no/such/world.toml"', "body.params.world: world file"),
         ("culture.cpus=[100000]", "culture.cpus: CPU 100000 is not available to this process"),
     ],
 )
@@ -122,14 +123,17 @@ def test_an_endpoint_that_cannot_start_ends_the_run_at_once_with_its_reason(tmp_
         "run",
         "configs/closed_loop.toml",
         "--set",
-        'body.params.world="no/such/world.toml"',
+        # a kind without check_config: its parameters are checked only when it starts
+        'body.kind="tests.endpoints:EchoBody"',
+        "--set",
+        "body.params.nope=1",
         "--runs-dir",
         str(tmp_path),
         "--quiet",
     )
     assert proc.returncode == 2
     assert "body endpoint exited with status 3" in proc.stderr
-    assert "body.params.world (no/such/world.toml): world file not found" in proc.stderr
+    assert "body.params.nope is not a parameter" in proc.stderr
 
 
 def test_analyze_writes_metrics_figures_and_a_report_for_a_closed_loop_run(tmp_path, bus_overrides):

@@ -4,6 +4,7 @@ import dataclasses
 
 import pytest
 
+from settings import with_overrides
 from sim_network import ConfigError, NetworkConfig, config_from_dict, config_to_dict, load_config
 
 
@@ -61,3 +62,38 @@ def test_network_table_is_accepted(tmp_path):
     path.write_text("[network]\ndt_ms = 0.5\n[network.layout]\nrows = 4\ncols = 5\n")
     cfg = load_config(path)
     assert (cfg.dt_ms, cfg.n_neurons) == (0.5, 20)
+
+
+def test_the_default_culture_is_the_calibrated_culture_file():
+    # one default culture: the file lists the code's defaults, with their reasons
+    assert load_config("configs/culture_1024.toml") == NetworkConfig()
+    assert load_config() == NetworkConfig()
+    assert NetworkConfig().noise.sd == 2.5 and NetworkConfig().connectivity.d_pc_um == 100.0
+
+
+def test_overrides_are_typed_as_toml_and_validated():
+    cfg = load_config(None, ["noise.sd=3.5", "connectivity.weight_exc_mv=[0, 6]"])
+    assert cfg.noise.sd == 3.5 and cfg.connectivity.weight_exc_mv == (0.0, 6.0)
+    assert with_overrides(cfg, ["layout.rows=4"]).n_neurons == 4 * 32
+    with pytest.raises(ConfigError, match=r"noise\.sd must be >= 0"):
+        with_overrides(cfg, ["noise.sd=-1"])
+    with pytest.raises(ConfigError, match=r"noise\.sdd is not a known key \(did you mean sd\?\)"):
+        load_config(None, ["noise.sdd=1"])
+
+
+def test_a_culture_file_can_extend_another(tmp_path):
+    (tmp_path / "small.toml").write_text(
+        'extends = "../' + tmp_path.name + '/base.toml"\n[layout]\nrows = 4\n'
+    )
+    (tmp_path / "base.toml").write_text("[layout]\ncols = 5\n[noise]\nsd = 1.0\n")
+    cfg = load_config(tmp_path / "small.toml")
+    assert (cfg.layout.rows, cfg.layout.cols, cfg.noise.sd) == (4, 5, 1.0)
+    assert cfg.noise.inhibitory_mean == NetworkConfig().noise.inhibitory_mean
+
+
+def test_a_missing_or_empty_culture_file_is_named(tmp_path):
+    with pytest.raises(ConfigError, match="culture file .*nope.toml not found"):
+        load_config(tmp_path / "nope.toml")
+    (tmp_path / "empty.toml").write_text("")
+    with pytest.raises(ConfigError, match="empty"):
+        load_config(tmp_path / "empty.toml")

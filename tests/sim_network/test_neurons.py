@@ -19,9 +19,12 @@ def lone_neuron(model="izhikevich", exc_type="RS", dt_ms=0.1, inhibitory=False):
     cfg = NetworkConfig(
         dt_ms=dt_ms,
         layout=LayoutConfig(rows=1, cols=1, inhibitory_fraction=1.0 if inhibitory else 0.0),
-        neurons=NeuronConfig(model=model, excitatory_type=exc_type),
+        # the named type exactly (the default culture spreads its cells' types)
+        neurons=NeuronConfig(
+            model=model, excitatory_type=exc_type, heterogeneity_exc=0.0, heterogeneity_inh=0.0
+        ),
         connectivity=ConnectivityConfig(p_c_max=0.0),
-        noise=NoiseConfig(sd=0.0),
+        noise=NoiseConfig(sd=0.0, inhibitory_mean=None),
         stimulation=StimulationConfig(model_current_per_ua=1.0),  # pulse amplitude = current
     )
     return Network(cfg, seed=0)

@@ -216,3 +216,30 @@ def test_world_can_be_built_in_python():
         body=preset("paper7"),
     )
     assert Arena(world).read_sensors().shape == (7,)
+
+
+def test_a_world_error_is_a_config_error():
+    from settings import ConfigError
+
+    assert issubclass(WorldError, ConfigError)
+
+
+def test_an_empty_or_binary_world_file_is_named(tmp_path):
+    (tmp_path / "empty.toml").write_text("")
+    with pytest.raises(WorldError, match="world file .*empty.toml is empty"):
+        load_world(tmp_path / "empty.toml")
+    (tmp_path / "w.png").write_bytes(b"\x89PNG\r\n\x1a\n\x00\x00")
+    with pytest.raises(WorldError, match="not a text file"):
+        load_world(tmp_path / "w.png")
+
+
+def test_extends_is_relative_to_the_extending_file(tmp_path, worlds_dir, monkeypatch):
+    (tmp_path / "mine").mkdir()
+    (tmp_path / "mine" / "big.toml").write_text(
+        f'extends = "{worlds_dir.as_posix()}/paper.toml"\n[arena]\nradius_m = 0.9\n'
+    )
+    (tmp_path / "mine" / "bigger.toml").write_text('extends = "big.toml"\nname = "bigger"\n')
+    monkeypatch.chdir(tmp_path)
+    world = load_world("mine/bigger.toml", ["arena.radius_m=1.1"])
+    assert world.name == "bigger" and world.arena.radius_m == 1.1
+    assert len(world.obstacles) == 3

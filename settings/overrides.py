@@ -1,0 +1,49 @@
+"""``dotted.key=value`` overrides: parsing (values typed as TOML) and setting them in a table."""
+
+from __future__ import annotations
+
+import tomllib
+from typing import Any
+
+from settings.errors import ConfigError
+
+
+def parse_value(text: str) -> Any:
+    """A TOML value (``5``, ``2.5``, ``true``, ``[1, 2]``, ``{a = 1}``, ``"x"``); text that
+    is not one (``realtime``) is taken as a plain string."""
+    try:
+        return tomllib.loads(f"x = {text}")["x"]
+    except tomllib.TOMLDecodeError:
+        return text
+
+
+def parse_override(item: str) -> tuple[str, Any]:
+    """``"loop.period_ms=5"`` -> ``("loop.period_ms", 5)``."""
+    key, sep, text = item.partition("=")
+    key = key.strip()
+    parts = key.split(".")
+    if not sep or not key or not all(p.strip() for p in parts):
+        raise ConfigError(f"override {item!r} must look like dotted.key=value")
+    return key, parse_value(text.strip())
+
+
+def set_dotted(data: dict, key: str, value: Any) -> None:
+    """Set ``data[a][b][c] = value`` for ``key = "a.b.c"``, making tables on the way."""
+    parts = key.split(".")
+    node = data
+    for i, part in enumerate(parts[:-1]):
+        node = node.setdefault(part, {})
+        if not isinstance(node, dict):
+            where = ".".join(parts[: i + 1])
+            raise ConfigError(f"override {key}: {where} is not a table")
+    node[parts[-1]] = value
+
+
+def get_dotted(data: dict, key: str, default: Any = None) -> Any:
+    """``data[a][b][c]`` for ``key = "a.b.c"``, or ``default`` where a part is missing."""
+    node: Any = data
+    for part in key.split("."):
+        if not isinstance(node, dict) or part not in node:
+            return default
+        node = node[part]
+    return node

@@ -1,0 +1,135 @@
+"""The command line: any bad input is one line on stderr and exit status 3, before a run
+folder or a process exists."""
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+import hub.launch
+from hub.cli import EXIT_CONFIG, main
+
+CLOSED_LOOP = Path(__file__).resolve().parents[2] / "configs" / "closed_loop.toml"
+PNG = b"\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR\x00\x00\x00\x01\x00\x00\x00\x01\x08\x02"
+
+
+@pytest.fixture
+def no_process(monkeypatch):
+    """Fails the test if the command starts any process."""
+
+    def popen(*args, **kwargs):
+        raise AssertionError(f"a process was started: {args}")
+
+    monkeypatch.setattr(hub.launch.subprocess, "Popen", popen)
+
+
+def refused(capsys, argv: list[str]) -> str:
+    """Run the CLI; check exit status 3 and a one-line message; return the message."""
+    assert main(argv) == EXIT_CONFIG
+    err = capsys.readouterr().err.strip()
+    assert "Traceback" not in err
+    assert len(err.splitlines()) == 1, err
+    return err
+
+
+def refused_run(capsys, tmp_path, config, *overrides) -> str:
+    runs = tmp_path / "runs"
+    argv = ["run", str(config), "--quiet", "--runs-dir", str(runs)]
+    for item in overrides:
+        argv += ["--set", item]
+    err = refused(capsys, argv)
+    assert not runs.exists(), "a run folder was made"
+    return err
+
+
+@pytest.mark.parametrize(
+    "name, content, message",
+    [
+        ("picture.png", PNG, "is not a text file"),
+        ("empty.toml", b"", "is empty"),
+        ("comments.toml", b"# nothing here\n", "is empty"),
+        ("page.html", b"<html><body>experiment</body></html>\n", "is not valid TOML"),
+        ("world.toml", b'[arena]\nshape = "circle"\nradius_m = 1.0\n', "arena is not a known key"),
+    ],
+)
+def test_a_config_file_that_is_not_an_experiment_is_refused(
+    capsys, tmp_path, no_process, name, content, message
+):
+    path = tmp_path / name
+    path.write_bytes(content)
+    err = refused_run(capsys, tmp_path, path)
+    assert message in err and (name in err or "arena" in err)
+
+
+def test_a_folder_or_a_missing_file_as_the_config_is_refused(capsys, tmp_path, no_process):
+    assert "is a folder" in refused_run(capsys, tmp_path, tmp_path)
+    assert "nope.toml not found" in refused_run(capsys, tmp_path, tmp_path / "nope.toml")
+
+
+@pytest.mark.parametrize(
+    "override, message",
+    [
+        ("loop.period_ms=1e-6", "loop.period_ms must be >= 0.1, got 1e-06"),
+        ("experiment.duration_s=1e9", "experiment.duration_s = 1000000000.0 s at loop.period_ms"),
+        ("loop.perod_ms=5", "loop.perod_ms is not a known key (did you mean period_ms?)"),
+        ('body.params.world="nope.toml"', "body.params.world: world file"),
+        ('culture.params.config="nope.toml"', "culture.params.config: culture file"),
+        ("culture.params.noise.sd=-1", "culture.params.noise.sd must be >= 0, got -1.0"),
+        ("culture.params.potentials_hz=-1", "culture.params.potentials_hz must be >= 0"),
+        ("body.params.wheels=2", "body.params.wheels is not a known key"),
+        ("body.params.arena.radius_m=0", "body.params.arena.radius_m must be a finite number > 0"),
+        ('body.kind="no_such_module:Body"', "body.kind: cannot load"),
+        ('coding.scheme="no_such_module:f"', "coding.scheme: cannot import"),
+        ("online.burst={min_spikes=0}", "online.burst"),
+    ],
+)
+def test_a_bad_value_is_named_by_its_key(capsys, tmp_path, no_process, override, message):
+    assert message in refused_run(capsys, tmp_path, CLOSED_LOOP, override)
+
+
+def test_an_external_endpoints_bad_parameter_is_found_before_the_run(capsys, tmp_path, no_process):
+    err = refused_run(
+        capsys, tmp_path, CLOSED_LOOP, 'culture.launch="external"', "culture.params.noise.sd=-1"
+    )
+    assert "culture.params.noise.sd must be >= 0" in err
+
+
+def test_the_hub_alone_checks_the_same(capsys, tmp_path, no_process):
+    runs = tmp_path / "runs"
+    argv = ["hub", str(CLOSED_LOOP), "--quiet", "--runs-dir", str(runs)]
+    err = refused(capsys, argv + ["--set", "body.params.seed=-1"])
+    assert "body.params.seed must be >= 0" in err and not runs.exists()
+
+
+def test_a_missing_run_folder_is_one_line(capsys, tmp_path):
+    assert "run folder" in refused(capsys, ["analyze", str(tmp_path / "nope")])
+    assert "not found" in refused(capsys, ["record-info", str(tmp_path / "nope")])
+    assert "is not a run folder" in refused(capsys, ["record-info", str(tmp_path)])
+    (tmp_path / "file").write_text("x")
+    assert "is not a run folder" in refused(capsys, ["analyze", str(tmp_path / "file")])
+
+
+def test_compare_checks_every_condition_before_running(capsys, tmp_path, no_process):
+    out = tmp_path / "out"
+    err = refused(
+        capsys, ["compare", str(CLOSED_LOOP), str(tmp_path / "nope.toml"), "--out", str(out)]
+    )
+    assert "nope.toml not found" in err and not out.exists()
+
+
+def test_the_installed_command_prints_no_traceback(tmp_path):
+    picture = tmp_path / "picture.png"
+    picture.write_bytes(PNG)
+    proc = subprocess.run(
+        [sys.executable, "-m", "hub.cli", "run", str(picture), "--runs-dir", str(tmp_path / "r")],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert proc.returncode == EXIT_CONFIG
+    assert proc.stderr.strip().splitlines() == [
+        f"neuvision: config error: config file {picture} is not a text file (binary content); "
+        "expected TOML"
+    ]
+    assert not (tmp_path / "r").exists()
