@@ -18,6 +18,7 @@ import time
 from pathlib import Path
 
 from hub.config import ConfigError, load_config
+from hub.logs import install_log_cap
 
 EXIT_OK, EXIT_FAULT, EXIT_CONFIG, EXIT_INTERRUPTED = 0, 2, 3, 130
 log = logging.getLogger("neuvision")
@@ -102,6 +103,7 @@ def main(argv: list[str] | None = None) -> int:
         format="%(asctime)s %(name)s %(levelname)s: %(message)s",
         stream=sys.stderr,
     )
+    install_log_cap()  # a stranger's payload must not make a 500 kB log line
     try:
         return COMMANDS[args.command](args)
     except ConfigError as exc:

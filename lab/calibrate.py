@@ -15,42 +15,16 @@ from __future__ import annotations
 import argparse
 import json
 import time
-import tomllib
 
 import numpy as np
 
 from hub.analysis.metrics import AnalysisParams
 from hub.analysis.paper import PAPER_TARGETS, relative_error
 from lab.activity import analyze_culture
-from sim_network.config import NetworkConfig, config_from_dict, config_to_dict, load_config
+from settings import ConfigError
+from sim_network.config import load_config
 from sim_network.network import Network
 from sim_network.records import PeriodicStimulus, Spikes
-
-
-def with_overrides(cfg: NetworkConfig, overrides: list[str]) -> NetworkConfig:
-    """Apply overrides to a culture config.
-
-    Parameters
-    ----------
-    cfg : NetworkConfig
-    overrides : list of str
-        ``dotted.key=toml_value`` items.
-
-    Returns
-    -------
-    NetworkConfig
-        Validated again.
-    """
-    data = config_to_dict(cfg)
-    for item in overrides:
-        key, _, value = item.partition("=")
-        parsed = tomllib.loads(f"x = {value}")["x"]
-        node = data
-        parts = key.split(".")
-        for part in parts[:-1]:
-            node = node.setdefault(part, {})
-        node[parts[-1]] = parsed
-    return config_from_dict(data)
 
 
 def record(
@@ -109,14 +83,14 @@ def central_excitatory_neuron(net: Network) -> int:
 def main(argv: list[str] | None = None) -> dict:
     """Command-line entry point; returns the printed figures."""
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
-    ap.add_argument("--config", default="configs/culture_1024.toml")
+    ap.add_argument("--config", default=None, help="culture file (default: the calibrated culture)")
     ap.add_argument("--seconds", type=float, default=60.0)
     ap.add_argument("--warmup", type=float, default=5.0, help="seconds discarded first")
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--set", action="append", default=[], help="dotted.key=toml_value")
     ap.add_argument("--evoked", action="store_true")
     args = ap.parse_args(argv)
-    cfg = with_overrides(load_config(args.config), args.set)
+    cfg = load_config(args.config, args.set)  # the one loader: errors name the key
     net = Network(cfg, seed=args.seed)
     record(net, args.warmup)
     t0 = net.t_ms
@@ -161,4 +135,7 @@ def main(argv: list[str] | None = None) -> dict:
 
 
 if __name__ == "__main__":
-    main()
+    try:
+        main()
+    except ConfigError as exc:
+        raise SystemExit(f"calibrate: config error: {exc}") from None
