@@ -2,7 +2,8 @@
 
 Each public function here is a scheme factory (see :mod:`hub.schemes`): called once with a
 :class:`~hub.schemes.SchemeContext`, it validates ``ctx.params`` and returns the per-step
-coder ``coder(sensors, step) -> Stimulation``.
+coder ``coder(sensors, window) -> Stimulation`` (``window``: the step's
+:class:`~hub.protocol.StepWindow`).
 
 Body ↔ culture convention (shared with :mod:`hub.decoding`)
 -----------------------------------------------------------
@@ -29,7 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hub.protocol import Description, SensorReading, Stimulation
+from hub.protocol import Description, SensorReading, StepWindow, Stimulation
 from hub.schemes import Coder, ConfigError, SchemeContext
 
 # One place for the defaults shared by the schemes.
@@ -157,10 +158,10 @@ def _ranges(sensors: SensorReading, n_sensors: int) -> list[float]:
     return ranges.tolist()
 
 
-def _stimulation(step, channel, amplitude_ua, width_ms, onset_ms) -> Stimulation:
+def _stimulation(window, channel, amplitude_ua, width_ms, onset_ms) -> Stimulation:
     """A Stimulation from Python lists, built directly in the wire's dtypes."""
     return Stimulation(
-        step=step,
+        **window.stamp,
         channel=np.array(channel, dtype=np.uint32),
         amplitude_ua=np.array(amplitude_ua, dtype=np.float32),
         width_ms=np.full(len(channel), width_ms, dtype=np.float32),
@@ -206,13 +207,13 @@ def _amplitude_code(ctx: SchemeContext, *, inverse: bool) -> Coder:
     n_sensors = body.n_sensors
     last_onset_ms = _last_onset_ms(period_ms)
 
-    def code(sensors: SensorReading, step: int) -> Stimulation:
-        t0_ms = step * period_ms
+    def code(sensors: SensorReading, window: StepWindow) -> Stimulation:
+        t0_ms = window.t0_s * 1e3
         # pulse times m·P inside [t0, t0 + T): the same grid for every site
         m0 = math.ceil(t0_ms / pulse_period_ms - 1e-9)
         m1 = math.ceil((t0_ms + period_ms) / pulse_period_ms - 1e-9)
         if m1 <= m0:
-            return Stimulation(step=step)
+            return Stimulation.none(window)
         channel, amplitude = [], []
         for chans, d in zip(sites, _ranges(sensors, n_sensors), strict=True):
             d = min(max(d, 0.0), max_range_m)
@@ -221,11 +222,11 @@ def _amplitude_code(ctx: SchemeContext, *, inverse: bool) -> Coder:
                 channel += chans
                 amplitude += [amp] * len(chans)
         if not channel:
-            return Stimulation(step=step)
+            return Stimulation.none(window)
         onsets = [min(max(m * pulse_period_ms - t0_ms, 0.0), last_onset_ms) for m in range(m0, m1)]
         n_on = len(channel)
         return _stimulation(
-            step,
+            window,
             channel * len(onsets),
             amplitude * len(onsets),
             width_ms,
@@ -305,7 +306,7 @@ def rate(ctx: SchemeContext) -> Coder:
     span_hz = max_hz - min_hz
     phase = [1.0] * n_sensors  # one phase per sensor: a sensor's sites pulse together
 
-    def code(sensors: SensorReading, step: int) -> Stimulation:
+    def code(sensors: SensorReading, window: StepWindow) -> Stimulation:
         channel, onset = [], []
         for s, d in enumerate(_ranges(sensors, n_sensors)):
             d = min(max(d, 0.0), max_range_m)
@@ -322,7 +323,7 @@ def rate(ctx: SchemeContext) -> Coder:
                     onset += [t_ms] * len(chans)
             phase[s] = end - n
         if not channel:
-            return Stimulation(step=step)
-        return _stimulation(step, channel, [amplitude_ua] * len(channel), width_ms, onset)
+            return Stimulation.none(window)
+        return _stimulation(window, channel, [amplitude_ua] * len(channel), width_ms, onset)
 
     return code

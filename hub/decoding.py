@@ -2,7 +2,8 @@
 
 Each public function here is a scheme factory (see :mod:`hub.schemes`): called once with a
 :class:`~hub.schemes.SchemeContext`, it validates ``ctx.params`` and returns the per-step
-decoder ``decoder(spikes, step) -> MotorCommand``.
+decoder ``decoder(spikes, window) -> MotorCommand`` (``window``: the step's
+:class:`~hub.protocol.StepWindow`).
 
 Both decoders look at the spikes of the last ``window_ms`` of culture time (the window ends at
 the end of the latest batch, ``t1_s``), kept in a small ring of per-batch cumulative sums, so
@@ -30,7 +31,7 @@ from collections import deque
 import numpy as np
 
 from hub.coding import CultureFrame
-from hub.protocol import Description, MotorCommand, SpikeBatch
+from hub.protocol import Description, MotorCommand, SpikeBatch, StepWindow
 from hub.schemes import ConfigError, Decoder, SchemeContext
 
 WINDOW_MS = 50.0  # the paper's CA time scale
@@ -127,9 +128,11 @@ def wheel_speeds(v_mps: float, omega_rad_s: float, body: Description) -> tuple[f
     return left, right, v_mps, omega_rad_s
 
 
-def _command(step: int, v_mps: float, omega_rad_s: float, body: Description) -> MotorCommand:
+def _command(
+    window: StepWindow, v_mps: float, omega_rad_s: float, body: Description
+) -> MotorCommand:
     left, right, v, w = wheel_speeds(v_mps, omega_rad_s, body)
-    return MotorCommand(step=step, left_mps=left, right_mps=right, v_mps=v, omega_rad_s=w)
+    return MotorCommand(**window.stamp, left_mps=left, right_mps=right, v_mps=v, omega_rad_s=w)
 
 
 # --------------------------------------------------------------------------- schemes
@@ -203,23 +206,23 @@ def center_of_activity(ctx: SchemeContext) -> Decoder:
         ],
         axis=1,
     )
-    window = SpikeWindow(culture, rel, window_ms)
+    spike_window = SpikeWindow(culture, rel, window_ms)
     dead_zone_um = dead_zone * frame.radius_um
 
-    def decode(spikes: SpikeBatch, step: int) -> MotorCommand:
-        (sx, sy, n), _ = window.add(spikes)
+    def decode(spikes: SpikeBatch, window: StepWindow) -> MotorCommand:
+        (sx, sy, n), _ = spike_window.add(spikes)
         if n == 0:
-            return _command(step, min_speed, 0.0, body)
+            return _command(window, min_speed, 0.0, body)
         dx, dy = sx / n - centre[0], sy / n - centre[1]
         if follow:
             centre[0] += follow * dx
             centre[1] += follow * dy
         d_um = math.hypot(dx, dy)
         if d_um < dead_zone_um:
-            return _command(step, min_speed, 0.0, body)
+            return _command(window, min_speed, 0.0, body)
         theta = math.atan2(-dx, dy)  # CCW from +y: the culture's −x is the robot's left
         v = min(max(speed_gain * d_um / frame.radius_um, min_speed), max_speed)
-        return _command(step, v, turn_gain * theta, body)
+        return _command(window, v, turn_gain * theta, body)
 
     return decode
 
@@ -300,11 +303,11 @@ def two_population(ctx: SchemeContext) -> Decoder:
     left, right = _populations(ctx)
     # weights: 1/size of the population, so the sums are spikes per channel
     weights = np.stack([left / left.sum(), right / right.sum()], axis=1)
-    window = SpikeWindow(ctx.culture, weights, window_ms)
+    spike_window = SpikeWindow(ctx.culture, weights, window_ms)
     half_base = float(body.wheel_base_m) / 2.0
 
-    def decode(spikes: SpikeBatch, step: int) -> MotorCommand:
-        (per_left, per_right), covered_ms = window.add(spikes)
+    def decode(spikes: SpikeBatch, window: StepWindow) -> MotorCommand:
+        (per_left, per_right), covered_ms = spike_window.add(spikes)
         to_hz = 1e3 / covered_ms if covered_ms > 0 else 0.0
         rate_left_hz, rate_right_hz = per_left * to_hz, per_right * to_hz
         if crossed:
@@ -315,6 +318,6 @@ def two_population(ctx: SchemeContext) -> Decoder:
             wheel_r = baseline + gain * rate_right_hz
         v = (wheel_l + wheel_r) / 2.0
         omega = (wheel_r - wheel_l) / (2.0 * half_base) if half_base > 0 else 0.0
-        return _command(step, v, omega, body)
+        return _command(window, v, omega, body)
 
     return decode

@@ -1,12 +1,22 @@
 """The endpoint base class: what every participant of the loop does on the bus.
 
 A subclass supplies the model or the device: :meth:`Endpoint.describe` and
-:meth:`Endpoint.step` (plus, for devices, :meth:`Endpoint.on_input_timeout` and
-:meth:`Endpoint.close`). :meth:`Endpoint.serve` does the rest: opens the
-session, declares the liveliness token and the ``describe`` queryable, receives
-the input of each step, validates it, calls ``step``, publishes the output, and
-counts and drops what is malformed, out of order or from the far future. It
-shuts down cleanly on SIGINT/SIGTERM, always closing the Zenoh session.
+:meth:`Endpoint.step`, plus for a device :meth:`Endpoint.start_run`,
+:meth:`Endpoint.make_safe` and :meth:`Endpoint.close`. :meth:`Endpoint.serve` does the
+rest (contract v2, docs/contract.md):
+
+- declares the ``describe`` and ``run`` queryables and then its liveliness token;
+- takes a run when the hub announces it (``RunStart``: run id, period, number of steps,
+  the key this endpoint and the hub seal their messages with), refuses another run while
+  one is going, and ends it on ``RunEnd`` or when the hub's liveliness vanishes;
+- receives each step's input, unseals and validates it, checks it against the run (step
+  order, window) and against the endpoint's own limits, calls ``step`` with the input's
+  window, and publishes the sealed output;
+- drops and counts whatever fails (``foreign``, ``stale``, ``future``, ``window``,
+  ``limit`` and the schema's kinds): it is never stepped on;
+- makes the device safe when no input came for ``input_timeout_s``, when the run ends,
+  and when the hub goes away — none of which needs the hub to be alive;
+- shuts down cleanly on SIGINT/SIGTERM, always closing the Zenoh session.
 """
 
 from __future__ import annotations
@@ -21,15 +31,25 @@ import time
 from collections import Counter
 from collections.abc import Sequence
 
+import zenoh
+
+from hub import wire
 from hub.bus import LOOP_PUBLISH, TELEMETRY_PUBLISH, open_session, payload_bytes
 from hub.config import BusSection, ConfigError, EndpointSection, ExperimentConfig
+from hub.limits import StimulationLimits, motor_violation
 from hub.protocol import (
     INPUT_TYPE,
     OUTPUT_TYPE,
+    WINDOW_TOLERANCE_S,
     Description,
     Keys,
     Message,
     ProtocolError,
+    RunEnd,
+    RunReply,
+    RunStart,
+    StepWindow,
+    decode_run_request,
 )
 from hub.scheduling import (
     Scheduling,
@@ -42,8 +62,9 @@ from hub.scheduling import (
 
 log = logging.getLogger(__name__)
 
-# An input this many steps ahead of the last one is dropped as "future".
-FUTURE_HORIZON_STEPS = 1000
+
+class RunRefused(Exception):
+    """Raised by :meth:`Endpoint.start_run`: this endpoint cannot serve that run (why)."""
 
 
 class Endpoint(abc.ABC):
@@ -54,8 +75,8 @@ class Endpoint(abc.ABC):
     id : str
         Which body or culture this is (``nv/<s>/<role>/<id>/...``).
     input_timeout_s : float
-        With no input for this long, :meth:`on_input_timeout` is called once
-        (a device body stops its motors there).
+        With no input for this long, :meth:`on_input_timeout` is called once per
+        silence (by default :meth:`make_safe`: a body stops its motors).
     """
 
     role: str = ""  # "body" or "culture", set by subclasses
@@ -70,11 +91,19 @@ class Endpoint(abc.ABC):
         self.busy_s = 0.0  # time spent in step(): the model's or device's share of a run
         self.steps = 0
         self.last_step = -1
+        self.run: RunStart | None = None  # the run being served (None: idle)
+        self.runs = 0  # runs taken since serving began
+        self.keys = Keys()
+        self.scheduling = Scheduling("normal", reason="not serving")
+        self._inbox = wire.Inbox()
+        self._outbox: wire.Outbox | None = None
+        self._owed: set[int] = set()  # steps stepped on whose reply has not left yet
+        self._limits: StimulationLimits | None = None
+        self._described: Description | None = None
+        self._lock = threading.RLock()  # one of input, reply, run change, timeout at a time
         self._stop = threading.Event()
         self._session = None
         self._telemetry: dict = {}
-        self.keys = Keys()
-        self.scheduling = Scheduling("normal", reason="not serving")
 
     # ------------------------------------------------------------ for subclasses
 
@@ -94,24 +123,43 @@ class Endpoint(abc.ABC):
 
     @abc.abstractmethod
     def describe(self) -> Description:
-        """What this endpoint is: its kind and geometry (channels or sensors)."""
+        """What this endpoint is: its kind, geometry (channels or sensors) and limits."""
 
     @abc.abstractmethod
-    def step(self, message: Message) -> Message:
-        """Apply one step's input, advance one loop period, return the output.
+    def step(self, message: Message, window: StepWindow) -> Message | None:
+        """Apply one step's input over ``window`` and return the output for it.
 
-        ``message`` is a validated :class:`~hub.protocol.MotorCommand` (body)
-        or :class:`~hub.protocol.Stimulation` (culture); the returned
-        :class:`~hub.protocol.SensorReading` or
-        :class:`~hub.protocol.SpikeBatch` must carry the same ``step``.
+        ``message`` is a validated :class:`~hub.protocol.MotorCommand` (body) or
+        :class:`~hub.protocol.Stimulation` (culture) of the current run; ``window`` is
+        its step and run time ``[t0_s, t1_s)``. Return the
+        :class:`~hub.protocol.SensorReading` or :class:`~hub.protocol.SpikeBatch` for
+        that window (same ``step`` and ``run``; a SpikeBatch with the window's
+        ``t0_s``/``t1_s``), or None to reply later through :meth:`reply` (a device that
+        collects over the window answers when the window has passed).
         """
+
+    def start_run(self, run: RunStart) -> None:
+        """A run begins: reset the model or device to its step 0 for ``run``'s period.
+
+        Raise :class:`RunRefused` with the reason if this endpoint cannot serve it (a
+        period it cannot step, a device not ready). Default: nothing to reset.
+        """
+
+    def end_run(self) -> None:
+        """The run is over (``RunEnd``, or the hub went away). Default: :meth:`make_safe`."""
+        self.make_safe()
+
+    def make_safe(self) -> None:
+        """Leave the device harmless: a body stops its motors, a culture stops stimulating.
+        Default: nothing (a simulator has nothing to make safe)."""
 
     def warm_up(self) -> None:
         """Run what the first step would compile or load, leaving the state as it was
         (called before the endpoint declares itself alive). Default: nothing."""
 
     def on_input_timeout(self) -> None:
-        """No input for ``input_timeout_s``: make the device safe. Default: nothing."""
+        """No input for ``input_timeout_s``. Default: :meth:`make_safe`."""
+        self.make_safe()
 
     def close(self) -> None:
         """Stop the device and release it. Default: nothing."""
@@ -126,14 +174,16 @@ class Endpoint(abc.ABC):
             self._telemetry[key] = publisher
         publisher.put(message.encode())
 
-    # ------------------------------------------------------------ serving
+    # ------------------------------------------------------------ the run
 
     def description(self) -> Description:
-        """:meth:`describe` with this endpoint's counters: drops by kind, steps, busy time
-        (inside :meth:`step`) and CPU time of the process so far."""
+        """:meth:`describe` with this endpoint's counters: drops by kind, steps, runs, busy
+        time (inside :meth:`step`) and CPU time of the process so far."""
         counters = {
             "dropped": dict(self.dropped),
             "steps": self.steps,
+            "runs": self.runs,
+            "run": self.run.run if self.run else "",
             "busy_s": self.busy_s,
             "cpu_s": time.process_time(),  # the whole process, every thread
             "scheduling": self.scheduling.to_dict(),
@@ -141,41 +191,169 @@ class Endpoint(abc.ABC):
         cpus = available_cpus()
         if cpus is not None:
             counters["cpus"] = sorted(cpus)  # those this process could run on
-        return dataclasses.replace(self.describe(), counters=counters)
+        return dataclasses.replace(self._description(), counters=counters)
 
-    def request_stop(self) -> None:
-        """Ask :meth:`serve` to return (thread-safe; used by signal handlers)."""
-        self._stop.set()
+    def _description(self) -> Description:
+        if self._described is None:
+            self._described = self.describe()
+        return self._described
 
-    def handle(self, raw: bytes) -> Message | None:
-        """Validate one raw input and step on it; None if it was dropped."""
+    def take_run_request(self, raw: bytes) -> RunReply:
+        """Handle a ``RunStart`` or ``RunEnd`` (the payload of a query on the ``run`` key)."""
         try:
-            message = INPUT_TYPE[self.role].decode(raw)
+            request = decode_run_request(raw)
         except ProtocolError as exc:
-            self._drop(exc.kind, str(exc))
-            return None
-        if message.step <= self.last_step:
-            self._drop("stale", f"step {message.step} after step {self.last_step}")
-            return None
-        if message.step > self.last_step + FUTURE_HORIZON_STEPS:
-            self._drop("future", f"step {message.step} far ahead of step {self.last_step}")
-            return None
-        self.last_step = message.step
-        t0 = time.perf_counter()
-        output = self.step(message)
-        self.busy_s += time.perf_counter() - t0
-        self.steps += 1
-        if not isinstance(output, OUTPUT_TYPE[self.role]) or output.step != message.step:
-            raise TypeError(
-                f"{type(self).__name__}.step must return a {OUTPUT_TYPE[self.role].__name__} "
-                f"for step {message.step}"
+            self._drop(exc.kind, f"run request: {exc}")
+            return RunReply(ok=False, run="", reason=str(exc))
+        with self._lock:
+            current = self.run
+            if isinstance(request, RunEnd):
+                if current is None or current.run != request.run:
+                    return RunReply(ok=False, run=request.run, reason="not serving that run")
+                self._end_run(f"the hub ended it ({request.outcome})")
+                return RunReply(ok=True, run=request.run)
+            if current is not None:
+                if current.run == request.run:
+                    return RunReply(ok=True, run=request.run)  # the same announcement again
+                return RunReply(ok=False, run=request.run, reason=f"busy with run {current.run}")
+            try:
+                self.start_run(request)
+            except RunRefused as exc:
+                log.warning("%s/%s refused run %s: %s", self.role, self.id, request.run, exc)
+                return RunReply(ok=False, run=request.run, reason=str(exc))
+            self.run, self.last_step, self.runs = request, -1, self.runs + 1
+            self._owed.clear()
+            self._inbox.key = request.key
+            if self._outbox is not None:
+                self._outbox.key = request.key
+            culture = self.role == "culture"
+            self._limits = StimulationLimits(self._description()) if culture else None
+            log.info("%s/%s took run %s", self.role, self.id, request.run)
+            return RunReply(ok=True, run=request.run)
+
+    def _end_run(self, why: str) -> None:
+        """Back to idle; the device made safe (under the lock)."""
+        log.info("%s/%s: run %s ended: %s", self.role, self.id, self.run.run, why)
+        self.run = None
+        self._owed.clear()
+        self._inbox.key = None
+        self.end_run()
+
+    def on_hub_gone(self) -> None:
+        """The hub's liveliness vanished: the run ends here and now, the device made safe."""
+        with self._lock:
+            if self.run is not None:
+                self._end_run("the hub went away")
+
+    # ------------------------------------------------------------ each step
+
+    def handle(self, payload, attachment=None) -> Message | None:
+        """Unseal, validate and check one input and step on it.
+
+        Returns the output to publish, or None when the input was dropped (counted) or
+        the endpoint replies later (:meth:`reply`).
+        """
+        with self._lock:
+            run = self.run
+            if run is None:
+                self._drop("foreign", "an input while no run is going")
+                return None
+            try:
+                raw = self._inbox.feed(payload, attachment)
+            except wire.WireError as exc:
+                self._drop(exc.kind, str(exc))
+                return None
+            if raw is None:  # more frames to come
+                return None
+            try:
+                message = INPUT_TYPE[self.role].decode(raw)
+            except ProtocolError as exc:
+                self._drop(exc.kind, str(exc))
+                return None
+            window = self._check_input(message, run)
+            if window is None:
+                return None
+            self.last_step = message.step
+            self._owed.add(message.step)
+            t0 = time.perf_counter()
+            output = self.step(message, window)
+            self.busy_s += time.perf_counter() - t0
+            self.steps += 1
+            if output is None:
+                return None
+            self._check_output(output)
+            self._owed.discard(output.step)
+            return output
+
+    def _check_input(self, message: Message, run: RunStart) -> StepWindow | None:
+        """The input's window if it may be stepped on; else None (dropped and counted)."""
+        step = message.step
+        if message.run != run.run:
+            return self._drop("foreign", f"an input of run {message.run!r} during {run.run}")
+        if step <= self.last_step:
+            return self._drop("stale", f"step {step} after step {self.last_step}")
+        if step > run.n_steps:  # n_steps itself: the hub's final stop after the last step
+            return self._drop("future", f"step {step} beyond the run's {run.n_steps} steps")
+        window = run.window(step)
+        if (
+            abs(message.t0_s - window.t0_s) > WINDOW_TOLERANCE_S
+            or abs(message.t1_s - window.t1_s) > WINDOW_TOLERANCE_S
+        ):
+            return self._drop(
+                "window", f"step {step} window [{message.t0_s}, {message.t1_s}) is not the run's"
             )
-        return output
+        if self.role == "body":
+            why = motor_violation(message, self._description())
+            if why is not None:
+                self._drop("limit", f"step {step}: {why}; motors stopped")
+                self.make_safe()
+                return None
+        else:
+            why = self._limits.violation(message)
+            if why is not None:
+                return self._drop("limit", f"step {step}: {why}; nothing delivered")
+            self._limits.accept(message)
+        return window
+
+    def _check_output(self, output: Message) -> None:
+        """A subclass's output must answer a step owed, in this run (a bug otherwise)."""
+        kind = OUTPUT_TYPE[self.role]
+        run = self.run
+        if (
+            not isinstance(output, kind)
+            or run is None
+            or output.run != run.run
+            or output.step not in self._owed
+        ):
+            raise TypeError(
+                f"{type(self).__name__} replied {output!r}; expected a {kind.__name__} of run "
+                f"{run.run if run else None} for one of steps {sorted(self._owed)}"
+            )
+
+    def reply(self, output: Message) -> None:
+        """Publish the output of a step answered later (thread-safe).
+
+        Raises
+        ------
+        TypeError
+            ``output`` is not the output of a step owed in the current run.
+        """
+        with self._lock:
+            self._check_output(output)
+            self._owed.discard(output.step)
+            if self._outbox is not None:
+                self._outbox.put(output.encode())
 
     def _drop(self, kind: str, detail: str) -> None:
         if not self.dropped[kind]:
             log.warning("%s/%s dropped a message (%s): %s", self.role, self.id, kind, detail)
         self.dropped[kind] += 1
+
+    # ------------------------------------------------------------ serving
+
+    def request_stop(self) -> None:
+        """Ask :meth:`serve` to return (thread-safe; used by signal handlers)."""
+        self._stop.set()
 
     def serve(
         self,
@@ -200,6 +378,7 @@ class Endpoint(abc.ABC):
         if placement.reason:
             log.warning("%s.cpus not applied: %s", self.role, placement.reason)
         try:
+            self._description()  # described once: what inputs are checked against
             self.warm_up()  # so that the first realtime steps are not late
             session = self._session = open_session(bus, listener=False)
         except BaseException:
@@ -210,39 +389,48 @@ class Endpoint(abc.ABC):
         if realtime_priority and self.scheduling.policy != "fifo":
             log.warning("%s/%s: %s", self.role, self.id, self.scheduling.reason)
         publisher = session.declare_publisher(keys.output(self.role, self.id), **LOOP_PUBLISH)
+        self._outbox = wire.Outbox(publisher)
         # Inputs are stepped on in the subscriber's own callback thread (one thread, so in
         # order): handing them to this thread would cost a wake-up per step. This thread
         # only watches for the input timeout and the stop request.
-        lock = threading.Lock()  # one of step, describe, timeout and close at a time
         state = {"last_input": time.monotonic(), "serving": True}
         failures: list[BaseException] = []
 
         def on_input(sample) -> None:
-            raw = payload_bytes(sample)
-            with lock:
+            with self._lock:
                 if not state["serving"]:
                     return
                 try:
-                    output = self.handle(raw)
+                    output = self.handle(sample.payload, sample.attachment)
+                    state["last_input"] = time.monotonic()
                     if output is not None:
-                        publisher.put(output.encode())
-                        state["last_input"] = time.monotonic()
-                        if self.steps == 1:  # this callback thread has started now
-                            self.scheduling.include_new_threads()
+                        self._outbox.put(output.encode())
+                    if self.steps == 1:  # this callback thread has started now
+                        self.scheduling.include_new_threads()
                 except BaseException as exc:  # handed to serve(), which re-raises it
                     state["serving"] = False
                     failures.append(exc)
                     self._stop.set()
 
         def on_describe(query) -> None:
-            with lock:
-                query.reply(query.key_expr, self.description().encode())
+            with self._lock:
+                raw = self.description().encode()
+            wire.reply(query, raw)
+
+        def on_run(query) -> None:
+            wire.reply(query, self.take_run_request(payload_bytes(query)).encode())
+
+        def on_hub_alive(sample) -> None:
+            if sample.kind == zenoh.SampleKind.DELETE:
+                self.on_hub_gone()
 
         try:
             # Zenoh undeclares what is garbage-collected: keep every declaration.
             declared = [  # noqa: F841
                 session.declare_subscriber(keys.input(self.role, self.id), on_input),
                 session.declare_queryable(keys.describe(self.role, self.id), on_describe),
+                session.declare_queryable(keys.run(self.role, self.id), on_run),
+                session.liveliness().declare_subscriber(keys.alive("hub", "0"), on_hub_alive),
             ]
             # Declared last: when the hub sees us alive, we already listen.
             token = session.liveliness().declare_token(keys.alive(self.role, self.id))  # noqa: F841
@@ -251,7 +439,7 @@ class Endpoint(abc.ABC):
             log.info("%s/%s (%s) ready on session %s", self.role, self.id, self.kind, bus.session)
             timed_out = False
             while not self._stop.wait(0.05):
-                with lock:
+                with self._lock:
                     idle_s = time.monotonic() - state["last_input"]
                     if idle_s <= self.input_timeout_s:
                         timed_out = False
@@ -260,8 +448,9 @@ class Endpoint(abc.ABC):
                         self.on_input_timeout()
         finally:
             try:
-                with lock:
+                with self._lock:
                     state["serving"] = False
+                    self.make_safe()
                     self.close()
             finally:
                 self._telemetry.clear()

@@ -23,6 +23,7 @@ import queue
 import sys
 import threading
 import time
+import uuid
 from collections import Counter, defaultdict
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -31,15 +32,18 @@ from pathlib import Path
 import numpy as np
 import zenoh
 
+from hub import wire
 from hub.analysis.bursts import BurstParams
 from hub.analysis.network_bursts import NetworkBurstParams
 from hub.bus import LOOP_PUBLISH, TELEMETRY_PUBLISH, open_session, payload_bytes
 from hub.config import ConfigError, ExperimentConfig
+from hub.limits import StimulationLimits, motor_violation
 from hub.live import BackgroundLiveBursts, LiveBursts
 from hub.protocol import (
     OUTPUT_TYPE,
     ROLES,
     SMALL_ARRAY,
+    WINDOW_TOLERANCE_S,
     ControlReply,
     ControlRequest,
     Description,
@@ -47,8 +51,12 @@ from hub.protocol import (
     Message,
     MotorCommand,
     ProtocolError,
+    RunEnd,
+    RunReply,
+    RunStart,
     SensorReading,
     SpikeBatch,
+    StepWindow,
     Stimulation,
 )
 from hub.record import Recorder, host, utc_now, versions, write_manifest
@@ -145,6 +153,11 @@ class Hub:
         self.input_key = {role: self.keys.input(role, i) for role, i in self.ids.items()}
         self.output_key = {role: self.keys.output(role, i) for role, i in self.ids.items()}
         self.inbox: queue.SimpleQueue = queue.SimpleQueue()
+        # The run's identity: its id goes into every message, and each endpoint gets a key
+        # of its own that seals what the hub and it send each other (hub/wire.py).
+        self.run_id = uuid.uuid4().hex
+        self.run_keys = {role: wire.new_key() for role in ROLES}
+        self.period_s = cfg.loop.period_ms / 1e3
         self.state = "waiting"
         self.k = 0
         self.alive: set[tuple[str, str]] = set()
@@ -194,6 +207,7 @@ class Hub:
             "v": 1,
             "name": cfg.experiment.name,
             "seed": cfg.experiment.seed,
+            "run_id": self.run_id,
             "config_source": cfg.source,
             "config": cfg.to_dict(),
             "versions": versions(),
@@ -218,6 +232,7 @@ class Hub:
             self._declare(session)
             self._wait_for_endpoints()
             self._describe_all(session)
+            self._announce_run(session)
             self._build_schemes()
             self._record_event("start", mode=cfg.loop.mode, n_steps=cfg.n_steps)
             self._steps()
@@ -236,7 +251,8 @@ class Hub:
             raise
         finally:
             self._safe_stop_body()
-            endpoint_stats = self._final_counters(session) if outcome != "fault" else {}
+            endpoint_stats = self._final_counters(session)  # those alive, whatever the outcome
+            self._end_run(session, outcome)
             self.state = "stopped"
             self._publish_status()
             timing, counts = self.timing(), self.counts()
@@ -395,7 +411,7 @@ class Hub:
             if not self.direct:  # the steps ended meanwhile: the loop's thread decides
                 return self.inbox.put(item)
             try:
-                self._on_reply(*item[1:])
+                self._handle(item)
                 self._advance(self.cfg.n_steps)
             except BaseException as exc:  # the loop's thread raises it
                 self.direct, self._failure = False, exc
@@ -445,30 +461,59 @@ class Hub:
             self._live_in.put(reply)
 
     def _motor_for(self, k: int, spikes: SpikeBatch | None) -> MotorCommand:
+        window = self._window(k)
         if k == 0:
-            return MotorCommand.stop(0)
+            return MotorCommand.stop(window)
         if spikes is not None:
-            self.last_motor = self._checked(self.decoder(spikes, k), MotorCommand, k)
+            motor = self._checked(self.decoder(spikes, window), MotorCommand, window)
+            why = motor_violation(motor, self.descriptions["body"])
+            if why is None:
+                self.last_motor = motor
+            else:  # refused, never clipped: the robot stops for this step
+                self._drop("decoding", "limit", f"step {k}: {why}")
+                self.last_motor = MotorCommand.stop(window)
         elif self.cfg.policy.missing_spikes == "stop_robot":
-            self.last_motor = MotorCommand.stop(k)
+            self.last_motor = MotorCommand.stop(window)
         else:  # hold
             m = self.last_motor
-            self.last_motor = MotorCommand(k, m.left_mps, m.right_mps, m.v_mps, m.omega_rad_s)
+            self.last_motor = MotorCommand(
+                **window.stamp,
+                left_mps=m.left_mps,
+                right_mps=m.right_mps,
+                v_mps=m.v_mps,
+                omega_rad_s=m.omega_rad_s,
+            )
         return self.last_motor
 
     def _stim_for(self, k: int, sensors: SensorReading | None) -> Stimulation:
+        window = self._window(k)
         if k == 0:
-            return Stimulation(step=0)
+            return Stimulation.none(window)
         if sensors is not None:
             self.last_sensors = sensors
         elif self.cfg.policy.missing_sensors == "zero_stim" or self.last_sensors is None:
-            return Stimulation(step=k)
-        return self._checked(self.coder(self.last_sensors, k), Stimulation, k)
+            return Stimulation.none(window)
+        stim = self._checked(self.coder(self.last_sensors, window), Stimulation, window)
+        why = self.stim_limits.violation(stim)
+        if why is not None:  # refused, never clipped: no stimulation this step
+            self._drop("coding", "limit", f"step {k}: {why}")
+            return Stimulation.none(window)
+        self.stim_limits.accept(stim)
+        return stim
 
     @staticmethod
-    def _checked(message, kind, k):
-        if not isinstance(message, kind) or message.step != k:
-            raise HubError(f"scheme returned {message!r}, expected a {kind.__name__} for step {k}")
+    def _checked(message, kind, window: StepWindow):
+        if (
+            not isinstance(message, kind)
+            or message.step != window.step
+            or message.run != window.run
+            or message.t0_s != window.t0_s
+            or message.t1_s != window.t1_s
+        ):
+            raise HubError(
+                f"scheme returned {message!r}, expected a {kind.__name__} for step "
+                f"{window.step} (window {window})"
+            )
         return message
 
     def _work_live(self, *, flush: bool = False, pause: Callable[[], bool] | None = None) -> bool:
@@ -596,6 +641,8 @@ class Hub:
         kind = item[0]
         if kind == "rx":
             self._on_reply(*item[1:])
+        elif kind == "refused":
+            self._on_refused(*item[1:])
         elif kind == "alive":
             self._on_liveliness(*item[1:])
         elif kind == "control":
@@ -603,6 +650,12 @@ class Hub:
         elif kind == "stop":
             self._stop_reason = self._stop_reason or item[1]
         # "wake": nothing to do but look at the state
+
+    def _on_refused(self, role: str, raw: bytes, kind: str, detail: str, t_wall_ns: int) -> None:
+        """A payload on a reply key that did not unseal or reassemble: not the endpoint's."""
+        self._drop(role, kind, detail)
+        if self.recorder and raw:
+            self.recorder.message("drop", self.output_key[role], raw, t_wall_ns)
 
     def _on_reply(self, role: str, raw: bytes, t_wall_ns: int, t_arrival: float) -> None:
         """Accept, count as late, or drop one reply; record it with that verdict."""
@@ -617,6 +670,18 @@ class Hub:
         except ProtocolError as exc:
             return self._drop(role, exc.kind, str(exc))
         step, expected = message.step, self.expect[role]
+        if message.run != self.run_id:
+            return self._drop(role, "foreign", f"reply of run {message.run!r}")
+        if role == "culture":
+            if (
+                abs(message.t0_s - step * self.period_s) > WINDOW_TOLERANCE_S
+                or abs(message.t1_s - (step + 1) * self.period_s) > WINDOW_TOLERANCE_S
+            ):
+                return self._drop(
+                    role, "window", f"spikes of step {step} over [{message.t0_s}, {message.t1_s})"
+                )
+        elif message.t_s > (step + 1) * self.period_s + WINDOW_TOLERANCE_S:
+            return self._drop(role, "window", f"reading of step {step} taken at {message.t_s} s")
         if self.state == "waiting":
             return self._drop(role, "early", f"reply for step {step} before the run started")
         if step == self.k and t_arrival > self.reply_deadline and step not in self.missed[role]:
@@ -720,12 +785,26 @@ class Hub:
         # every step (bench/loop.py: ~5 % fewer lockstep steps/s). Keys are told apart
         # here; the hub's own publications are not delivered to it (remote origin only).
         role_of = {key: role for role, key in self.output_key.items()}
+        # Replies are unsealed and reassembled with each endpoint's run key (one thread).
+        inboxes = {role: wire.Inbox(self.run_keys[role]) for role in ROLES}
+        abandoned = dict.fromkeys(ROLES, 0)
 
         def on_output(sample):
             role = role_of.get(str(sample.key_expr))
             if role is None:  # another endpoint's output, or someone's stimulation
                 return
-            item = ("rx", role, payload_bytes(sample), time.time_ns(), time.monotonic())
+            inbox = inboxes[role]
+            try:
+                raw = inbox.feed(sample.payload, sample.attachment)
+            except wire.WireError as exc:
+                item = ("refused", role, payload_bytes(sample), exc.kind, str(exc), time.time_ns())
+            else:
+                if inbox.abandoned != abandoned[role]:
+                    abandoned[role] = inbox.abandoned
+                    put(("refused", role, b"", "frame", "an incomplete message", time.time_ns()))
+                if raw is None:  # more frames to come
+                    return
+                item = ("rx", role, raw, time.time_ns(), time.monotonic())
             if self.direct:
                 self._on_reply_direct(item)
             else:
@@ -734,6 +813,10 @@ class Hub:
         self.publishers = {
             role: session.declare_publisher(key, **LOOP_PUBLISH)
             for role, key in self.input_key.items()
+        }
+        self.outboxes = {
+            role: wire.Outbox(publisher, self.run_keys[role])
+            for role, publisher in self.publishers.items()
         }
         self.status_pub = session.declare_publisher(self.keys.hub_status, **TELEMETRY_PUBLISH)
         # Zenoh undeclares what is garbage-collected: keep every declaration.
@@ -769,10 +852,7 @@ class Hub:
         for role, i in self.ids.items():
             key = self.keys.describe(role, i)
             desc = None
-            for reply in session.get(key, timeout=5.0):
-                if reply.ok is None:
-                    continue
-                raw = payload_bytes(reply.ok)
+            for raw in wire.get(session, key, timeout_s=5.0):
                 if self.recorder:
                     self.recorder.message("rx", key, raw)
                 try:
@@ -783,6 +863,41 @@ class Hub:
                 raise HubError(f"{role}/{i} did not describe itself on {key}")
             self._take_description(desc)
             self._record_event("described", role=role, id=i, kind=desc.kind)
+
+    def _announce_run(self, session: zenoh.Session) -> None:
+        """Give each endpoint the run: its id, timing and that endpoint's key (contract v2)."""
+        cfg = self.cfg
+        for role, i in self.ids.items():
+            start = RunStart(
+                run=self.run_id,
+                period_ms=float(cfg.loop.period_ms),
+                n_steps=cfg.n_steps,
+                mode=cfg.loop.mode,
+                start_unix_s=time.time(),
+                deadline_ms=cfg.loop.deadline_s * 1e3,
+                key=self.run_keys[role],
+                seed=cfg.experiment.seed,
+            )
+            replies = wire.get(session, self.keys.run(role, i), start.encode(), timeout_s=5.0)
+            answers = []
+            for raw in replies:
+                try:
+                    answers.append(RunReply.decode(raw))
+                except ProtocolError:
+                    continue
+            if not answers:
+                raise HubError(f"{role}/{i} did not answer the run's announcement")
+            refusals = [a.reason for a in answers if not a.ok or a.run != self.run_id]
+            if refusals:
+                raise HubError(f"{role}/{i} refused the run: {refusals[0]}")
+            self._record_event("run_taken", role=role, id=i, run=self.run_id)
+
+    def _end_run(self, session: zenoh.Session, outcome: str) -> None:
+        """Tell each endpoint still there that the run is over (it makes itself safe)."""
+        end = RunEnd(run=self.run_id, outcome=outcome).encode()
+        for role, i in self.ids.items():
+            if (role, i) in self.alive and role in self.descriptions:
+                wire.get(session, self.keys.run(role, i), end, timeout_s=1.0)
 
     def _take_description(self, desc: Description) -> None:
         """Keep an endpoint's description, and what its replies are checked against."""
@@ -811,12 +926,11 @@ class Hub:
         for role, i in self.ids.items():
             if (role, i) not in self.alive:
                 continue
-            for reply in session.get(self.keys.describe(role, i), timeout=2.0):
-                if reply.ok is not None:
-                    try:
-                        out[role] = Description.decode(payload_bytes(reply.ok)).counters or {}
-                    except ProtocolError:
-                        pass
+            for raw in wire.get(session, self.keys.describe(role, i), timeout_s=2.0):
+                try:
+                    out[role] = Description.decode(raw).counters or {}
+                except ProtocolError:
+                    pass
         return out
 
     def _build_schemes(self) -> None:
@@ -833,7 +947,8 @@ class Hub:
         self.decoder = load_scheme(cfg.decoding.scheme, "decoding")(
             SchemeContext(params=cfg.decoding.params, section="decoding", **common)
         )
-        self.last_motor = MotorCommand.stop(0)
+        self.last_motor = MotorCommand.stop(self._window(0))
+        self.stim_limits = StimulationLimits(self.descriptions["culture"])
         self.last_sensors: SensorReading | None = None
         if cfg.online.enabled:
             params = {}
@@ -849,16 +964,20 @@ class Hub:
 
     def _send(self, role: str, message: Message, raw: bytes | None = None) -> None:
         raw = raw or message.encode()
-        self.publishers[role].put(raw)
+        self.outboxes[role].put(raw)
         self.last_sent[role] = message.step
         if self.recorder:
             self.recorder.message("tx", self.input_key[role], raw)
 
     def _safe_stop_body(self) -> None:
         """Whatever ended the run, leave the robot stopped."""
-        publishers = getattr(self, "publishers", None)
-        if publishers and ("body", self.ids["body"]) in self.alive:
-            self._send("body", MotorCommand.stop(self.last_sent.get("body", -1) + 1))
+        # Sent whether or not the body looks alive: a frozen body gets it if it comes back
+        # in time (it also stops itself: its input timeout, the hub's liveliness).
+        if getattr(self, "outboxes", None) and self.descriptions.get("body"):
+            self._send("body", MotorCommand.stop(self._window(self.last_sent.get("body", -1) + 1)))
+
+    def _window(self, k: int) -> StepWindow:
+        return StepWindow.of(self.run_id, k, self.period_s)
 
     def _record_event(self, name: str, **details) -> None:
         if self.recorder:

@@ -23,7 +23,7 @@ from typing import Any, ClassVar
 import msgpack
 import numpy as np
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
 ROLES = ("body", "culture")
 MAX_MESSAGE_BYTES = 64 * 1024 * 1024
 SMALL_ARRAY = 64
@@ -98,6 +98,10 @@ class Keys:
     def describe(self, role: str, id: str) -> str:
         return f"{self.root}/{role}/{id}/describe"
 
+    def run(self, role: str, id: str) -> str:
+        """Queryable of each endpoint: the hub's ``RunStart`` / ``RunEnd`` → ``RunReply``."""
+        return f"{self.root}/{role}/{id}/run"
+
     def alive(self, role: str, id: str) -> str:
         return f"{self.root}/alive/{role}/{id}"
 
@@ -169,6 +173,14 @@ class Mapping:
 class StrList:
     """A list of str."""
 
+    optional: bool = False
+
+
+@dataclass(frozen=True)
+class Blob:
+    """Opaque bytes (msgpack ``bin``) of a fixed length."""
+
+    length: int
     optional: bool = False
 
 
@@ -319,6 +331,12 @@ def _quick_check(spec) -> Callable[[Any], bool]:
         def accepts(value):
             return type(value) is dict
 
+    elif isinstance(spec, Blob):
+        optional, length = spec.optional, spec.length
+
+        def accepts(value):
+            return type(value) is bytes and len(value) == length
+
     else:
         optional = spec.optional
 
@@ -371,7 +389,7 @@ class Message:
     message that exists is a valid one, whether built locally or decoded.
     """
 
-    SCHEMA: ClassVar[dict[str, Scalar | Array | Mapping | StrList]]
+    SCHEMA: ClassVar[dict[str, Scalar | Array | Mapping | StrList | Blob]]
 
     def __init_subclass__(cls, **kwargs):
         super().__init_subclass__(**kwargs)
@@ -438,6 +456,9 @@ class Message:
             elif isinstance(spec, StrList):
                 if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
                     raise ProtocolError("type", f"{name} must be a list of str")
+            elif isinstance(spec, Blob):
+                if not isinstance(value, bytes) or len(value) != spec.length:
+                    raise ProtocolError("type", f"{name} must be {spec.length} bytes")
             elif not isinstance(value, dict):
                 raise ProtocolError("type", f"{name} must be a map")
 
@@ -475,7 +496,7 @@ class Message:
         fields through the constructor's quick checks. Anything else takes the full
         path, through the constructor, which names what is wrong."""
         version = data.get("v")
-        if version != SCHEMA_VERSION:
+        if type(version) is not int or version != SCHEMA_VERSION:  # True and 2.0 are not 2
             raise ProtocolError("version", f"v must be {SCHEMA_VERSION}, got {version!r}")
         if not data.keys() <= cls._KNOWN:
             unknown = sorted(set(data) - cls._KNOWN)
@@ -547,6 +568,44 @@ def unpack_map(raw: bytes | bytearray | memoryview) -> dict[str, Any]:
 
 
 _STEP = Scalar(int, min=0)
+_RUN = Scalar(str)
+_TIME = Scalar(float, min=0.0)
+# Tolerance of window comparisons: times are products of integers and the period.
+WINDOW_TOLERANCE_S = 1e-9
+MODES = ("lockstep", "realtime")
+
+
+@dataclass(frozen=True)
+class StepWindow:
+    """The run time that step ``step`` of run ``run`` covers: ``[t0_s, t1_s)``.
+
+    The one place where a step becomes a time: every input carries its window, and
+    every endpoint answers for that window (contract v2, docs/contract.md).
+    """
+
+    run: str
+    step: int
+    t0_s: float
+    t1_s: float
+
+    @classmethod
+    def of(cls, run: str, step: int, period_s: float) -> StepWindow:
+        """Step ``step`` of a run with period ``period_s``: ``[step·T, (step+1)·T)``."""
+        return cls(run, step, step * period_s, (step + 1) * period_s)
+
+    @property
+    def period_s(self) -> float:
+        return self.t1_s - self.t0_s
+
+    @property
+    def stamp(self) -> dict:
+        """The fields an input message takes from its window."""
+        return {"step": self.step, "run": self.run, "t0_s": self.t0_s, "t1_s": self.t1_s}
+
+
+def _check_window(message) -> None:
+    if not message.t1_s > message.t0_s:
+        raise ProtocolError("inconsistent", f"t1_s {message.t1_s} must follow t0_s {message.t0_s}")
 
 
 # --------------------------------------------------------------------------- messages
@@ -554,9 +613,12 @@ _STEP = Scalar(int, min=0)
 
 @dataclass(frozen=True, eq=False)
 class MotorCommand(Message):
-    """Hub → body: wheel speeds for one step (zeros at step 0)."""
+    """Hub → body: wheel speeds for one step's window (zeros at step 0)."""
 
     step: int
+    run: str
+    t0_s: float
+    t1_s: float
     left_mps: float
     right_mps: float
     v_mps: float | None = None
@@ -564,15 +626,25 @@ class MotorCommand(Message):
 
     SCHEMA = {
         "step": _STEP,
+        "run": _RUN,
+        "t0_s": _TIME,
+        "t1_s": _TIME,
         "left_mps": Scalar(float),
         "right_mps": Scalar(float),
         "v_mps": Scalar(float, optional=True),
         "omega_rad_s": Scalar(float, optional=True),
     }
 
+    _check = _check_window
+
     @classmethod
-    def stop(cls, step: int) -> MotorCommand:
-        return cls(step=step, left_mps=0.0, right_mps=0.0, v_mps=0.0, omega_rad_s=0.0)
+    def stop(cls, window: StepWindow) -> MotorCommand:
+        """Both wheels stopped for ``window``."""
+        return cls(**window.stamp, left_mps=0.0, right_mps=0.0, v_mps=0.0, omega_rad_s=0.0)
+
+    @property
+    def window(self) -> StepWindow:
+        return StepWindow(self.run, self.step, self.t0_s, self.t1_s)
 
 
 @dataclass(frozen=True, eq=False)
@@ -580,17 +652,21 @@ class SensorReading(Message):
     """Body → hub: range finders, pose and contact at the end of a step."""
 
     step: int
-    t_s: float
+    run: str
+    t_s: float  # run time at which the reading was taken (<= the window's t1_s)
     ranges_m: np.ndarray
     pose: np.ndarray
     contact: bool
+    age_s: float | None = None  # how old the reading was when the reply left (devices)
 
     SCHEMA = {
         "step": _STEP,
-        "t_s": Scalar(float, min=0.0),
+        "run": _RUN,
+        "t_s": _TIME,
         "ranges_m": Array("<f4", min=0.0),
         "pose": Array("<f8", length=3),
         "contact": Scalar(bool),
+        "age_s": Scalar(float, min=0.0, optional=True),
     }
 
 
@@ -599,6 +675,9 @@ class Stimulation(Message):
     """Hub → culture: the pulses to deliver during a step (parallel arrays)."""
 
     step: int
+    run: str
+    t0_s: float
+    t1_s: float
     channel: np.ndarray = field(default_factory=_empty("<u4"))
     amplitude_ua: np.ndarray = field(default_factory=_empty("<f4"))
     width_ms: np.ndarray = field(default_factory=_empty("<f4"))
@@ -606,11 +685,34 @@ class Stimulation(Message):
 
     SCHEMA = {
         "step": _STEP,
+        "run": _RUN,
+        "t0_s": _TIME,
+        "t1_s": _TIME,
         "channel": Array("<u4", group="pulse"),
         "amplitude_ua": Array("<f4", group="pulse"),
         "width_ms": Array("<f4", group="pulse", min=0.0),
         "onset_ms": Array("<f4", group="pulse", min=0.0),
     }
+
+    def _check(self):
+        _check_window(self)
+        onset = self.onset_ms
+        if onset.size:
+            last = max(onset.tolist()) if onset.size <= SMALL_ARRAY else float(onset.max())
+            window_ms = (self.t1_s - self.t0_s) * 1e3
+            if last >= window_ms:
+                raise ProtocolError(
+                    "range", f"onset_ms {last} lies outside the step's {window_ms} ms window"
+                )
+
+    @classmethod
+    def none(cls, window: StepWindow) -> Stimulation:
+        """No pulse during ``window``."""
+        return cls(**window.stamp)
+
+    @property
+    def window(self) -> StepWindow:
+        return StepWindow(self.run, self.step, self.t0_s, self.t1_s)
 
     @property
     def n_pulses(self) -> int:
@@ -622,6 +724,7 @@ class SpikeBatch(Message):
     """Culture → hub: spikes fired in the window ``[t0_s, t1_s)``, sorted by time."""
 
     step: int
+    run: str
     t0_s: float
     t1_s: float
     channel: np.ndarray = field(default_factory=_empty("<u4"))
@@ -629,11 +732,16 @@ class SpikeBatch(Message):
 
     SCHEMA = {
         "step": _STEP,
-        "t0_s": Scalar(float, min=0.0),
-        "t1_s": Scalar(float, min=0.0),
+        "run": _RUN,
+        "t0_s": _TIME,
+        "t1_s": _TIME,
         "channel": Array("<u4", group="spike"),
         "t_ms": Array("<f4", group="spike", min=0.0),
     }
+
+    @property
+    def window(self) -> StepWindow:
+        return StepWindow(self.run, self.step, self.t0_s, self.t1_s)
 
     def _check(self):
         if self.t1_s < self.t0_s:
@@ -672,9 +780,11 @@ class Description(Message):
     """Reply of an endpoint's ``describe`` queryable: what it is and its geometry.
 
     A culture lists its channels (``channel``, ``x_um``, ``y_um``, and for
-    simulated neurons ``cell_type``: 0 excitatory, 1 inhibitory). A body lists
-    its range finders and drive geometry. ``counters`` reports what the
-    endpoint has dropped, by kind.
+    simulated neurons ``cell_type``: 0 excitatory, 1 inhibitory) and the limits of
+    the stimulation it takes (``max_amplitude_ua``, ``max_width_ms``, ``max_pulse_hz``
+    per channel; :mod:`hub.limits`). A body lists its range finders and drive geometry
+    (``max_wheel_mps`` is its speed limit). ``counters`` reports what the endpoint has
+    dropped, by kind.
     """
 
     role: str
@@ -689,6 +799,9 @@ class Description(Message):
     wheel_base_m: float | None = None
     radius_m: float | None = None
     max_wheel_mps: float | None = None
+    max_amplitude_ua: float | None = None
+    max_width_ms: float | None = None
+    max_pulse_hz: float | None = None
     counters: dict | None = None
 
     SCHEMA = {
@@ -704,6 +817,9 @@ class Description(Message):
         "wheel_base_m": Scalar(float, min=0.0, optional=True),
         "radius_m": Scalar(float, min=0.0, optional=True),
         "max_wheel_mps": Scalar(float, min=0.0, optional=True),
+        "max_amplitude_ua": Scalar(float, min=0.0, optional=True),
+        "max_width_ms": Scalar(float, min=0.0, optional=True),
+        "max_pulse_hz": Scalar(float, min=0.0, optional=True),
         "counters": Mapping(optional=True),
     }
 
@@ -766,6 +882,87 @@ class HubStatus(Message):
     def _check(self):
         if self.state not in self.STATES:
             raise ProtocolError("range", f"state must be one of {self.STATES}, got {self.state!r}")
+
+
+RUN_ID_CHARS = frozenset("0123456789abcdef")
+
+
+def _check_run_id(run: str) -> None:
+    if len(run) != 32 or not set(run) <= RUN_ID_CHARS:
+        raise ProtocolError("range", f"run must be 32 lowercase hex characters, got {run!r}")
+
+
+@dataclass(frozen=True, eq=False)
+class RunStart(Message):
+    """Hub → one endpoint, as the payload of a query on its ``run`` key: a run begins.
+
+    The run's timing is announced here once; every input then carries its window.
+    ``key`` is this endpoint's secret for this run (inputs and replies are sealed with
+    it, :mod:`hub.wire`); it travels only to the endpoint's own queryable.
+    """
+
+    run: str
+    period_ms: float
+    n_steps: int
+    mode: str
+    start_unix_s: float
+    deadline_ms: float
+    key: bytes
+    seed: int | None = None
+
+    SCHEMA = {
+        "run": _RUN,
+        "period_ms": Scalar(float, min=0.0),
+        "n_steps": Scalar(int, min=1),
+        "mode": Scalar(str),
+        "start_unix_s": Scalar(float, min=0.0),
+        "deadline_ms": Scalar(float, min=0.0),
+        "key": Blob(16),
+        "seed": Scalar(int, min=0, optional=True),
+    }
+
+    def _check(self):
+        _check_run_id(self.run)
+        if self.mode not in MODES:
+            raise ProtocolError("range", f"mode must be one of {MODES}, got {self.mode!r}")
+        if not self.period_ms > 0 or not self.deadline_ms > 0:
+            raise ProtocolError("range", "period_ms and deadline_ms must be > 0")
+
+    @property
+    def period_s(self) -> float:
+        return self.period_ms / 1e3
+
+    def window(self, step: int) -> StepWindow:
+        """The window of ``step`` in this run."""
+        return StepWindow.of(self.run, step, self.period_s)
+
+
+@dataclass(frozen=True, eq=False)
+class RunEnd(Message):
+    """Hub → one endpoint, on its ``run`` key: the run is over (the endpoint makes
+    itself safe and becomes idle)."""
+
+    run: str
+    outcome: str
+
+    SCHEMA = {"run": _RUN, "outcome": Scalar(str)}
+
+
+@dataclass(frozen=True, eq=False)
+class RunReply(Message):
+    """An endpoint's answer to ``RunStart``/``RunEnd``: taken, or refused and why."""
+
+    ok: bool
+    run: str
+    reason: str = ""
+
+    SCHEMA = {"ok": Scalar(bool), "run": _RUN, "reason": Scalar(str)}
+
+
+def decode_run_request(raw: bytes) -> RunStart | RunEnd:
+    """The payload of a query on a ``run`` key: a ``RunStart`` or a ``RunEnd``."""
+    data = unpack_map(raw)
+    return (RunStart if "period_ms" in data else RunEnd).from_dict(data)
 
 
 CONTROL_COMMANDS = ("status", "pause", "resume", "stop", "config")

@@ -4,8 +4,12 @@ A scheme is named in the experiment file as ``module:function``. The function
 is a *factory*: called once, before step 0, with a :class:`SchemeContext`, it
 returns the per-step callable::
 
-    coder   = factory(ctx)   ;  coder(sensors: SensorReading, step) -> Stimulation
-    decoder = factory(ctx)   ;  decoder(spikes: SpikeBatch, step)   -> MotorCommand
+    coder   = factory(ctx)   ;  coder(sensors: SensorReading, window: StepWindow) -> Stimulation
+    decoder = factory(ctx)   ;  decoder(spikes: SpikeBatch, window: StepWindow)   -> MotorCommand
+
+``window`` is the step the output is for (its ``step``, ``run`` and run time
+``[t0_s, t1_s)``); the output carries it (``Stimulation(**window.stamp, ...)``,
+``Stimulation.none(window)``, ``MotorCommand.stop(window)``).
 
 The factory validates ``ctx.params`` (raising :class:`~hub.config.ConfigError`
 naming ``coding.params.<key>``) and may keep state in the callable it returns
@@ -22,10 +26,17 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from hub.config import ConfigError, check_value
-from hub.protocol import Description, MotorCommand, SensorReading, SpikeBatch, Stimulation
+from hub.protocol import (
+    Description,
+    MotorCommand,
+    SensorReading,
+    SpikeBatch,
+    StepWindow,
+    Stimulation,
+)
 
-Coder = Callable[[SensorReading, int], Stimulation]
-Decoder = Callable[[SpikeBatch, int], MotorCommand]
+Coder = Callable[[SensorReading, StepWindow], Stimulation]
+Decoder = Callable[[SpikeBatch, StepWindow], MotorCommand]
 
 
 @dataclass(frozen=True)
@@ -71,10 +82,10 @@ def load_scheme(spec: str, section: str) -> Callable[[SchemeContext], Callable]:
 def no_stimulation(ctx: SchemeContext) -> Coder:
     """Never stimulate: the blind control of the paper (spontaneous activity only)."""
     ctx.check_params(set())
-    return lambda sensors, step: Stimulation(step=step)
+    return lambda sensors, window: Stimulation.none(window)
 
 
 def stopped(ctx: SchemeContext) -> Decoder:
     """Always stand still, whatever the culture does."""
     ctx.check_params(set())
-    return lambda spikes, step: MotorCommand.stop(step)
+    return lambda spikes, window: MotorCommand.stop(window)

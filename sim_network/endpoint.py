@@ -14,22 +14,40 @@ import numpy as np
 
 import settings
 from hub.config import ConfigError, EndpointSection, ExperimentConfig, check_value
-from hub.endpoint import Endpoint
-from hub.protocol import Description, Potentials, SpikeBatch, Stimulation
+from hub.endpoint import Endpoint, RunRefused
+from hub.protocol import Description, Potentials, RunStart, SpikeBatch, StepWindow, Stimulation
 from sim_network import Network, PulseError, Pulses
 from sim_network.config import config_from_dict, config_to_dict, read_config_data
 
+# What the simulated culture takes (contract v2 limits; a real rig's are far lower): the
+# paper's pulses are 10 ms of up to 150 uA, at most one per channel per 10 ms step.
+MAX_AMPLITUDE_UA = 1000.0
+MAX_WIDTH_MS = 100.0
+MAX_PULSE_HZ = 200.0
+
 
 class NetworkEndpoint(Endpoint):
-    """A simulated culture advanced one hub period per step."""
+    """A simulated culture advanced one hub period per step.
+
+    Parameters
+    ----------
+    network : Network
+        The culture, as built (its state then is what every run starts from).
+    id : str
+        Which culture this is on the bus.
+    potentials_hz : float
+        Rate of membrane-potential snapshots published for observers (0: none).
+    """
 
     role, kind = "culture", "sim_network"
 
-    def __init__(self, network: Network, period_ms: float, id: str = "0", potentials_hz=0.0):
+    def __init__(self, network: Network, id: str = "0", potentials_hz: float = 0.0):
         super().__init__(id)
         self.net = network
-        self.period_ms = period_ms
-        self.potentials_every = round(1e3 / (potentials_hz * period_ms)) if potentials_hz else 0
+        self.potentials_hz = potentials_hz
+        self.potentials_every = 0
+        self.period_ms = 0.0  # the run's, from its RunStart
+        self._initial = network.get_state()
 
     @classmethod
     def check_config(cls, section: EndpointSection, cfg: ExperimentConfig) -> dict:
@@ -80,7 +98,7 @@ class NetworkEndpoint(Endpoint):
     def from_config(cls, section: EndpointSection, cfg: ExperimentConfig) -> NetworkEndpoint:
         params = cls.check_config(section, cfg)
         network = Network(config_from_dict(params["config"]), seed=params["seed"])
-        return cls(network, cfg.loop.period_ms, section.id, params["potentials_hz"])
+        return cls(network, section.id, params["potentials_hz"])
 
     def describe(self) -> Description:
         ch = self.net.channels
@@ -92,16 +110,32 @@ class NetworkEndpoint(Endpoint):
             x_um=ch.x_um,
             y_um=ch.y_um,
             cell_type=ch.cell_type,
+            max_amplitude_ua=MAX_AMPLITUDE_UA,
+            max_width_ms=MAX_WIDTH_MS,
+            max_pulse_hz=MAX_PULSE_HZ,
         )
 
     def warm_up(self) -> None:
-        """One stimulated period on a saved state, then the state restored exactly."""
+        """One stimulated step of 10 ms on a saved state, then the state restored exactly."""
         state = self.net.get_state()
-        self.net.run(self.period_ms, Pulses.single([int(self.net.channels.channel[0])], 1.0, 1.0))
+        self.net.run(10.0, Pulses.single([int(self.net.channels.channel[0])], 1.0, 1.0))
         self.net.set_state(state)
 
-    def step(self, s: Stimulation) -> SpikeBatch:
-        t0_ms = s.step * self.period_ms
+    def start_run(self, run: RunStart) -> None:
+        """Back to the culture as built, stepped by the run's period."""
+        dt_ms = self.net.cfg.dt_ms
+        ratio = run.period_ms / dt_ms
+        if abs(ratio - round(ratio)) > 1e-6 * ratio:
+            raise RunRefused(
+                f"period_ms {run.period_ms} is not a whole multiple of the culture's dt_ms {dt_ms}"
+            )
+        self.net.set_state(self._initial)
+        self.period_ms = run.period_ms
+        hz = self.potentials_hz
+        self.potentials_every = max(1, round(1e3 / (hz * run.period_ms))) if hz else 0
+
+    def step(self, s: Stimulation, window: StepWindow) -> SpikeBatch:
+        t0_ms = window.t0_s * 1e3
         if self.net.t_ms < t0_ms:  # steps the hub skipped: the culture lived on, unstimulated
             self.net.run(t0_ms - self.net.t_ms)
         pulses = Pulses(s.channel, s.amplitude_ua, s.width_ms, s.onset_ms) if s.n_pulses else None
@@ -116,9 +150,7 @@ class NetworkEndpoint(Endpoint):
                 Potentials(step=s.step, t_s=self.net.t_ms / 1e3, v_mv=self.net.potentials()),
             )
         return SpikeBatch(
-            step=s.step,
-            t0_s=t0_ms / 1e3,
-            t1_s=(t0_ms + self.period_ms) / 1e3,
+            **window.stamp,
             channel=spikes.channel,
             t_ms=(spikes.t_ms - t0_ms).astype(np.float32),
         )

@@ -14,7 +14,7 @@ import numpy as np
 import settings
 from hub.config import ConfigError, EndpointSection, ExperimentConfig, check_value
 from hub.endpoint import Endpoint
-from hub.protocol import Description, MotorCommand, SensorReading
+from hub.protocol import Description, MotorCommand, RunStart, SensorReading, StepWindow
 from sim_robot import Arena, WorldError
 from sim_robot.world import DEFAULT_WORLD_FILE, read_world_data, world_from_dict
 
@@ -22,14 +22,22 @@ DEFAULT_WORLD = str(DEFAULT_WORLD_FILE)
 
 
 class ArenaEndpoint(Endpoint):
-    """A simulated robot in a simulated arena, stepped by the hub's period."""
+    """A simulated robot in a simulated arena, stepped by the run's period.
+
+    Parameters
+    ----------
+    arena : Arena
+        The world and robot; each run starts from its start pose.
+    id : str
+        Which body this is on the bus.
+    """
 
     role, kind = "body", "sim_robot"
 
-    def __init__(self, arena: Arena, period_ms: float, id: str = "0"):
+    def __init__(self, arena: Arena, id: str = "0"):
         super().__init__(id)
         self.arena = arena
-        self.period_s = period_ms / 1e3
+        self.period_s = 0.0  # the run's, from its RunStart
         self.last_wheels_mps = (0.0, 0.0)
 
     @classmethod
@@ -72,7 +80,7 @@ class ArenaEndpoint(Endpoint):
     def from_config(cls, section: EndpointSection, cfg: ExperimentConfig) -> ArenaEndpoint:
         params = cls.check_config(section, cfg)
         arena = Arena(world_from_dict(params["world"]), seed=params["seed"])
-        return cls(arena, cfg.loop.period_ms, section.id)
+        return cls(arena, section.id)
 
     def describe(self) -> Description:
         body = self.arena.body
@@ -91,16 +99,27 @@ class ArenaEndpoint(Endpoint):
         """Load the ray-casting kernels (reading the sensors changes nothing)."""
         self.arena.read_sensors()
 
-    def step(self, m: MotorCommand) -> SensorReading:
+    def start_run(self, run: RunStart) -> None:
+        """The robot back at the world's start pose, stopped, at time 0."""
+        self.arena.reset()
+        self.period_s = run.period_s
+        self.last_wheels_mps = (0.0, 0.0)
+
+    def make_safe(self) -> None:
+        """Wheels stopped: steps the hub skips from now on see the robot standing."""
+        self.last_wheels_mps = (0.0, 0.0)
+
+    def step(self, m: MotorCommand, window: StepWindow) -> SensorReading:
         # Steps the hub skipped (realtime, lost input): the robot kept rolling.
-        gap = m.step - round(self.arena.t_s / self.period_s)
-        if gap > 0:
-            self.arena.step(*self.last_wheels_mps, gap * self.period_s)
+        gap_s = window.t0_s - self.arena.t_s
+        if gap_s > 1e-9:
+            self.arena.step(*self.last_wheels_mps, gap_s)
         self.last_wheels_mps = (m.left_mps, m.right_mps)
-        self.arena.step(m.left_mps, m.right_mps, self.period_s)
+        self.arena.step(m.left_mps, m.right_mps, window.period_s)
         return SensorReading(
             step=m.step,
-            t_s=(m.step + 1) * self.period_s,
+            run=window.run,
+            t_s=window.t1_s,
             ranges_m=self.arena.read_sensors(),
             pose=np.asarray(self.arena.pose, dtype=np.float64),
             contact=bool(self.arena.contact),

@@ -14,11 +14,20 @@ import numpy as np
 
 from hub.config import ConfigError
 from hub.endpoint import Endpoint
-from hub.protocol import Description, MotorCommand, SensorReading, SpikeBatch, Stimulation
+from hub.protocol import (
+    Description,
+    MotorCommand,
+    SensorReading,
+    SpikeBatch,
+    StepWindow,
+    Stimulation,
+)
 
 N_SENSORS = 3
 MAX_RANGE_M = 1.0
 N_CHANNELS = 4
+# The echo body's decoder writes step numbers into wheel speeds: its limit is beyond them.
+MAX_WHEEL_MPS = 1e9
 
 
 class EchoBody(Endpoint):
@@ -47,17 +56,18 @@ class EchoBody(Endpoint):
             max_range_m=MAX_RANGE_M,
             wheel_base_m=0.05,
             radius_m=0.035,
-            max_wheel_mps=1.0,
+            max_wheel_mps=MAX_WHEEL_MPS,
         )
 
-    def step(self, m: MotorCommand) -> SensorReading:
+    def step(self, m: MotorCommand, window) -> SensorReading:
         if self.delay_ms:
             time.sleep(self.delay_ms / 1e3)
         if self.late_every and m.step % self.late_every == self.late_every - 1:
             time.sleep(0.05)
         return SensorReading(
             step=m.step,
-            t_s=m.step * 0.01,
+            run=window.run,
+            t_s=window.t1_s,
             ranges_m=np.full(N_SENSORS, 0.5, np.float32),
             pose=np.array([m.step, m.left_mps, m.right_mps]),
             contact=False,
@@ -79,14 +89,12 @@ class EchoCulture(Endpoint):
             y_um=np.arange(N_CHANNELS) * 100.0,
         )
 
-    def step(self, s: Stimulation) -> SpikeBatch:
+    def step(self, s: Stimulation, window) -> SpikeBatch:
         n = s.n_pulses
         return SpikeBatch(
-            step=s.step,
-            t0_s=s.step * 0.01,
-            t1_s=(s.step + 1) * 0.01,
+            **window.stamp,
             channel=np.zeros(n, np.uint32),
-            t_ms=np.sort(np.minimum(s.onset_ms, 10.0)),
+            t_ms=np.sort(s.onset_ms),
         )
 
 
@@ -94,10 +102,10 @@ def code_step_count(ctx):
     """Coder: as many pulses as the sensor reading's step (capped at 8), amplitude = step."""
     ctx.check_params(set())
 
-    def coder(sensors, step):
+    def coder(sensors, window):
         n = min(sensors.step, 8)
         return Stimulation(
-            step=step,
+            **window.stamp,
             channel=np.zeros(n, np.uint32),
             amplitude_ua=np.full(n, float(sensors.step), np.float32),
             width_ms=np.ones(n, np.float32),
@@ -110,14 +118,20 @@ def code_step_count(ctx):
 def code_wrong_step_at_20(ctx):
     """Coder with a bug: no pulses, and at step 20 the stimulation of step 21."""
     ctx.check_params(set())
-    return lambda sensors, step: Stimulation(step=step + (step == 20))
+
+    def coder(sensors, window):
+        if window.step == 20:
+            window = StepWindow.of(window.run, 21, window.period_s)
+        return Stimulation.none(window)
+
+    return coder
 
 
 def decode_step(ctx):
     """Decoder: left_mps = step of the spike batch, right_mps = its spike count."""
     ctx.check_params(set())
-    return lambda spikes, step: MotorCommand(
-        step=step, left_mps=float(spikes.step), right_mps=float(spikes.channel.size)
+    return lambda spikes, window: MotorCommand(
+        **window.stamp, left_mps=float(spikes.step), right_mps=float(spikes.channel.size)
     )
 
 
@@ -126,7 +140,7 @@ def constant_drive(ctx):
     ctx.check_params({"left_mps", "right_mps"})
     left = ctx.param("left_mps", 0.0)
     right = ctx.param("right_mps", 0.0)
-    return lambda spikes, step: MotorCommand(step=step, left_mps=left, right_mps=right)
+    return lambda spikes, window: MotorCommand(**window.stamp, left_mps=left, right_mps=right)
 
 
 def pulse_at_step(ctx):
@@ -137,11 +151,15 @@ def pulse_at_step(ctx):
     width = ctx.param("width_ms", 10.0)
     at = ctx.param("step", 10, kind=int)
 
-    def coder(sensors, step):
-        if step != at:
-            return Stimulation(step=step)
+    def coder(sensors, window):
+        if window.step != at:
+            return Stimulation.none(window)
         return Stimulation(
-            step=step, channel=[channel], amplitude_ua=[amplitude], width_ms=[width], onset_ms=[0]
+            **window.stamp,
+            channel=[channel],
+            amplitude_ua=[amplitude],
+            width_ms=[width],
+            onset_ms=[0],
         )
 
     return coder

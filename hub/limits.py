@@ -1,0 +1,90 @@
+"""Limits on what may reach a device: stimulation and wheel speeds (contract v2).
+
+A culture describes the stimulation it takes (``Description.max_amplitude_ua``,
+``max_width_ms``, ``max_pulse_hz`` per channel), a body its top wheel speed
+(``max_wheel_mps``). Both sides check every message against them — the culture or body
+endpoint on what it receives, the hub on what its coding and decoding schemes make —
+with the functions here, so there is one definition of "over the limit". A message over
+a limit is refused whole and counted (``limit``), never clipped: a scheme or a stranger
+that asks for 1e6 µA gets nothing delivered rather than something else.
+"""
+
+from __future__ import annotations
+
+from collections import defaultdict, deque
+
+import numpy as np
+
+from hub.protocol import Description, MotorCommand, Stimulation
+
+# Pulses are counted over this trailing window for the per-channel rate limit.
+RATE_WINDOW_S = 1.0
+
+
+def motor_violation(motor: MotorCommand, body: Description) -> str | None:
+    """Why ``motor`` exceeds the body's ``max_wheel_mps``, or None if it does not."""
+    limit = body.max_wheel_mps
+    if limit is None:
+        return None
+    fastest = max(abs(motor.left_mps), abs(motor.right_mps))
+    if fastest > limit * (1 + 1e-9):
+        return f"wheel speed {fastest:g} m/s exceeds max_wheel_mps {limit:g}"
+    return None
+
+
+class StimulationLimits:
+    """Checks each step's :class:`Stimulation` against a culture's described limits.
+
+    Amplitude (absolute value) and width per pulse; pulses per channel over the last
+    :data:`RATE_WINDOW_S` (``max_pulse_hz`` per channel). Onsets inside the step are a
+    rule of the message itself (``Stimulation`` refuses an onset outside its window).
+
+    Parameters
+    ----------
+    culture : Description
+        The culture's description; its ``max_*`` fields that are None are not checked.
+    """
+
+    def __init__(self, culture: Description):
+        self.max_amplitude_ua = culture.max_amplitude_ua
+        self.max_width_ms = culture.max_width_ms
+        self.max_pulse_hz = culture.max_pulse_hz
+        self._recent: dict[int, deque] = defaultdict(deque)  # channel → pulse times (s)
+
+    def violation(self, stim: Stimulation) -> str | None:
+        """Why ``stim`` may not be delivered, or None. Call :meth:`accept` if delivered."""
+        if not stim.n_pulses:
+            return None
+        if self.max_amplitude_ua is not None:
+            top = float(np.abs(stim.amplitude_ua).max())
+            if top > self.max_amplitude_ua:
+                return f"amplitude {top:g} uA exceeds max_amplitude_ua {self.max_amplitude_ua:g}"
+        if self.max_width_ms is not None:
+            top = float(stim.width_ms.max())
+            if top > self.max_width_ms:
+                return f"width {top:g} ms exceeds max_width_ms {self.max_width_ms:g}"
+        if self.max_pulse_hz is not None:
+            allowed = self.max_pulse_hz * RATE_WINDOW_S
+            channels, counts = np.unique(stim.channel, return_counts=True)
+            since = stim.t1_s - RATE_WINDOW_S
+            for channel, n in zip(channels.tolist(), counts.tolist(), strict=True):
+                recent = self._recent.get(channel)
+                before = sum(1 for t in recent if t > since) if recent else 0
+                if before + n > allowed:
+                    return (
+                        f"channel {channel}: {before + n} pulses in {RATE_WINDOW_S:g} s exceed "
+                        f"max_pulse_hz {self.max_pulse_hz:g}"
+                    )
+        return None
+
+    def accept(self, stim: Stimulation) -> None:
+        """Count ``stim``'s pulses towards the rate limit (it is being delivered)."""
+        if self.max_pulse_hz is None or not stim.n_pulses:
+            return
+        onsets_s = stim.t0_s + stim.onset_ms.astype(np.float64) / 1e3
+        since = stim.t1_s - RATE_WINDOW_S
+        for channel, t in zip(stim.channel.tolist(), onsets_s.tolist(), strict=True):
+            recent = self._recent[channel]
+            recent.append(t)
+            while recent and recent[0] <= since:
+                recent.popleft()
