@@ -138,6 +138,14 @@ class LiveBursts:
         self._next_ms = self._until_ms + self.every_ms
         return done
 
+    def finish(self) -> list[NetworkBurst]:
+        """End of the run: feed what is buffered and complete every burst still open (as
+        offline detection does at the end of a record); return the network bursts
+        completed."""
+        done = self.work()
+        self._count(self.detector.flush(), done)
+        return done
+
     def _count(self, events: list, done: list[NetworkBurst]) -> None:
         for event in events:
             if isinstance(event, NetworkBurst):
@@ -202,5 +210,5 @@ class BackgroundLiveBursts:
             if live.due:  # chunked, and spikes too far behind are dropped and counted
                 for nb in live.work(deadline=until):
                     self._out.put(nb)
-        for nb in live.work():
+        for nb in live.finish():
             self._out.put(nb)

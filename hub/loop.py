@@ -528,7 +528,7 @@ class Hub:
                 break
         if not (flush or live.due):
             return False
-        done = live.work(pause=None if flush else pause)
+        done = live.finish() if flush else live.work(pause=pause)
         with self.lock:
             self._record_network_bursts(done)
         return True

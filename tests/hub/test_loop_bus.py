@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 import zenoh
 
+from hub import wire
 from hub.bus import open_session, payload_bytes
 from hub.protocol import (
     ControlReply,
@@ -24,6 +25,7 @@ from hub.protocol import (
     MotorCommand,
     SensorReading,
     SpikeBatch,
+    StepWindow,
     Stimulation,
 )
 from tests.harness import harness, wait_for
@@ -40,7 +42,7 @@ def test_lockstep_keeps_the_step_order_with_one_step_of_latency(tmp_path, bus_ov
     sensors, spikes = h.received(SensorReading), h.received(SpikeBatch)
     assert sorted(sensors) == sorted(stims) == sorted(spikes) == list(range(50))
     # Whatever ends a run, the hub's last word to the body is "stop".
-    assert sorted(motors) == list(range(51)) and motors[50] == MotorCommand.stop(50)
+    assert sorted(motors) == list(range(51)) and motors[50] == MotorCommand.stop(motors[50].window)
     # Step 0: zero motion, no stimulation.
     assert motors[0].left_mps == motors[0].right_mps == 0 and stims[0].n_pulses == 0
     for k in range(1, 50):
@@ -206,38 +208,61 @@ GARBAGE = [
     b"\xc1not msgpack",
     msgpack.packb([1, 2, 3]),
     msgpack.packb({"v": 99, "step": 5}),
-    msgpack.packb({"v": 1, "step": "five"}),
-    msgpack.packb({"v": 1, "step": 1, "left_mps": float("nan"), "right_mps": 0.0}),
-    MotorCommand(step=10**9, left_mps=1.0, right_mps=1.0).encode(),  # far future
-    MotorCommand(step=0, left_mps=1.0, right_mps=1.0).encode(),  # the past
-    Stimulation(step=1, channel=[0], amplitude_ua=[1], width_ms=[1], onset_ms=[0]).encode(),
-    SensorReading(step=1, t_s=0, ranges_m=[0.1] * 3, pose=[0, 0, 0], contact=False).encode(),
-    SensorReading(step=10**9, t_s=0, ranges_m=[0.1] * 3, pose=[0, 0, 0], contact=False).encode(),
-    SensorReading(step=3, t_s=0, ranges_m=[0.1] * 7, pose=[0, 0, 0], contact=False).encode(),
-    SpikeBatch(step=2, t0_s=0, t1_s=0.01, channel=[999], t_ms=[1]).encode(),
+    msgpack.packb({"v": 2, "step": "five"}),
+    msgpack.packb({"v": True, "step": 1, "left_mps": 0.0, "right_mps": 0.0}),
     os.urandom(64),
 ]
 
 
-def _spray_garbage(bus, keys):
-    """Publish every kind of garbage on every key of the session, and query with it."""
+def _forged(run: str, step: int) -> dict[str, bytes]:
+    """Well-formed messages of the current run (its id read off the bus) for a step to
+    come: what a stranger who watches the bus can make, all but the seal."""
+    w = StepWindow.of(run, step, 0.01)
+    return {
+        "motor": MotorCommand(**w.stamp, left_mps=0.5, right_mps=-0.5).encode(),
+        "stim": Stimulation(
+            **w.stamp, channel=[0], amplitude_ua=[1], width_ms=[1], onset_ms=[0]
+        ).encode(),
+        "sensors": SensorReading(
+            step=step, run=run, t_s=w.t1_s, ranges_m=[0.1] * 3, pose=[9, 9, 9], contact=False
+        ).encode(),
+        "spikes": SpikeBatch(**w.stamp, channel=[1], t_ms=[1]).encode(),
+    }
+
+
+def _spray(bus, keys, rounds=3):
+    """A stranger on the bus: learns the run's id from the hub's motor commands, then puts
+    garbage and forged messages (unsealed, or sealed with a key of its own) on every loop
+    key, and garbage queries on the control key. Returns what it put on each key."""
     session = open_session(bus, listener=False)
+    seen: list[MotorCommand] = []
+    watcher = session.declare_subscriber(
+        keys.motor("0"), lambda s: seen.append(MotorCommand.decode(payload_bytes(s)))
+    )
     try:
-        # Publish only once this session reaches the endpoints (a describe answers).
-        wait_for(lambda: any(r.ok for r in session.get(keys.describe("body", "0"), timeout=1)))
-        targets = [
-            keys.motor("0"),
-            keys.sensors("0"),
-            keys.stim("0"),
-            keys.spikes("0"),
-            keys.potentials("0"),
-            keys.hub_status,
-            keys.alive("body", "0"),
-        ]
-        for _ in range(3):
-            for key in targets:
+        wait_for(lambda: len(seen) > 0)
+        watcher.undeclare()
+        run, step = seen[-1].run, seen[-1].step
+        targets = {
+            "motor": keys.motor("0"),
+            "stim": keys.stim("0"),
+            "sensors": keys.sensors("0"),
+            "spikes": keys.spikes("0"),
+        }
+        sent = dict.fromkeys(targets, 0)
+        own_key = wire.new_key()  # seals with a key that is not the run's
+        for r in range(rounds):
+            forged = _forged(run, step + 1 + r)
+            for name, key in targets.items():
                 for raw in GARBAGE:
                     session.put(key, raw, congestion_control=zenoh.CongestionControl.BLOCK)
+                (raw, attachment), *_ = wire.frames(forged[name], own_key, r)
+                session.put(key, forged[name], attachment=attachment)
+                session.put(key, forged[name])  # unsealed
+                sent[name] += len(GARBAGE) + 2
+        for key in (keys.potentials("0"), keys.hub_status, keys.alive("body", "0")):
+            for raw in GARBAGE:
+                session.put(key, raw)
         replies = []
         for raw in GARBAGE[:6]:
             for reply in session.get(keys.hub_control, payload=raw, timeout=5):
@@ -246,21 +271,21 @@ def _spray_garbage(bus, keys):
         counters = {}
 
         def counted_all():
-            for role in ("body", "culture"):
-                for reply in session.get(keys.describe(role, "0"), payload=b"\xc1", timeout=5):
-                    counters[role] = Description.decode(payload_bytes(reply.ok)).counters["dropped"]
+            for role, key in (("body", "motor"), ("culture", "stim")):
+                for raw in wire.get(session, keys.describe(role, "0"), timeout_s=5):
+                    counters[role] = Description.decode(raw).counters["dropped"]
             return (
-                all(sum(counters.get(r, {}).values()) >= 3 * 8 for r in counters)
-                and len(counters) == 2
+                counters.get("body", {}).get("foreign", 0) >= sent["motor"]
+                and counters.get("culture", {}).get("foreign", 0) >= sent["stim"]
             )
 
         wait_for(counted_all)
-        return replies, counters
+        return sent, replies, counters
     finally:
         session.close()
 
 
-def test_garbage_on_every_key_is_dropped_and_counted_and_the_run_goes_on(tmp_path, bus_overrides):
+def test_a_stranger_on_the_bus_is_never_taken_for_the_hub_or_an_endpoint(tmp_path, bus_overrides):
     out = {}
 
     # The body takes 5 ms a step, so that the run (3 s) outlasts the spraying.
@@ -271,7 +296,7 @@ def test_garbage_on_every_key_is_dropped_and_counted_and_the_run_goes_on(tmp_pat
         bus, keys = h.cfg.bus, h.cfg.bus.keys
 
         def spray():
-            out["replies"], out["counters"] = _spray_garbage(bus, keys)
+            out["sent"], out["replies"], out["counters"] = _spray(bus, keys)
 
         sprayer = threading.Thread(target=spray)
 
@@ -282,22 +307,26 @@ def test_garbage_on_every_key_is_dropped_and_counted_and_the_run_goes_on(tmp_pat
 
         result = h.run(progress=start_spraying)
         sprayer.join(timeout=30)
-    counters = out["counters"]
     assert out.get("started"), "garbage was never sent"
+    sent, counters = out["sent"], out["counters"]
     assert result.outcome == "completed" and result.steps == 600
+    # Everything the stranger put on a reply key was refused as foreign, counted exactly.
     dropped = result.counts["dropped"]
-    assert sum(dropped["body"].values()) >= 3 * 8
-    assert sum(dropped["culture"].values()) >= 3 * 8
-    assert {"not_msgpack", "version", "missing", "stale", "future", "array"} <= set(dropped["body"])
-    assert set(dropped["culture"]) & {"range", "stale", "future", "unknown", "missing"}
+    assert dropped["body"] == {"foreign": sent["sensors"]}
+    assert dropped["culture"] == {"foreign": sent["spikes"]}
     assert sum(dropped["control"].values()) == 6
     assert all(not r.ok for r in out["replies"]) and len(out["replies"]) == 6
-    # The endpoints counted what they dropped too, and kept serving.
-    for role in ("body", "culture"):
-        assert sum(counters[role].values()) >= 3 * 8, counters
-    assert {"not_msgpack", "future", "stale"} <= set(counters["body"])
-    # Every valid step still arrived, in order.
-    assert sorted(h.received(SensorReading)) == list(range(600))
+    # The endpoints refused every input it sent, and stepped only on the hub's.
+    assert counters["body"] == {"foreign": sent["motor"]}
+    assert counters["culture"] == {"foreign": sent["stim"]}
+    # Nothing of the stranger's was taken: every step's reply is the endpoint's own.
+    sensors = h.received(SensorReading)
+    assert sorted(sensors) == list(range(600))
+    motors = h.sent(MotorCommand)
+    assert all(
+        tuple(sensors[k].pose)[1:] == (motors[k].left_mps, motors[k].right_mps) for k in sensors
+    )
+    assert len(h.record.drops) == sent["sensors"] + sent["spikes"] - 2 * 3  # b"" not stored
 
 
 def _control(session, keys, cmd):
