@@ -271,7 +271,7 @@ def _spray(bus, keys, rounds=3):
         counters = {}
 
         def counted_all():
-            for role, key in (("body", "motor"), ("culture", "stim")):
+            for role in ("body", "culture"):
                 for raw in wire.get(session, keys.describe(role, "0"), timeout_s=5):
                     counters[role] = Description.decode(raw).counters["dropped"]
             return (
