@@ -1,5 +1,6 @@
-"""What Endpoint.serve does on the bus: one output per valid input, drops counted, the
-input timeout, describe answered, a failing step ends serve with its error, close always."""
+"""What Endpoint.serve does on the bus: a run taken from the hub's announcement, one output
+per valid input of that run, drops counted, the input timeout, describe answered, a reply
+sent later, a failing step ends serve with its error, the device made safe, close always."""
 
 from __future__ import annotations
 
@@ -10,30 +11,69 @@ import threading
 import numpy as np
 import pytest
 
-from hub.bus import free_tcp_port, open_session, payload_bytes
+from hub import wire
+from hub.bus import free_tcp_port, open_session
 from hub.config import BusSection
-from hub.protocol import Description, MotorCommand, SensorReading
-from tests.endpoints import EchoBody
+from hub.endpoint import RunRefused
+from hub.protocol import (
+    Description,
+    MotorCommand,
+    RunEnd,
+    RunReply,
+    RunStart,
+    SensorReading,
+    StepWindow,
+)
+from tests.endpoints import MAX_WHEEL_MPS, EchoBody
 from tests.harness import wait_for
+
+PERIOD_S = 0.01
+
+
+def _run_start(n_steps: int = 100, run: str | None = None) -> RunStart:
+    return RunStart(
+        run=run or secrets.token_hex(16),
+        period_ms=PERIOD_S * 1e3,
+        n_steps=n_steps,
+        mode="lockstep",
+        start_unix_s=0.0,
+        deadline_ms=10.0,
+        key=wire.new_key(),
+    )
 
 
 class RecordingBody(EchoBody):
     """The echo body, noting the timeouts and the close it is given."""
 
-    def __init__(self, fail_at_step: int | None = None):
+    def __init__(self, fail_at_step: int | None = None, later: bool = False, refuse: str = ""):
         super().__init__("0")
         self.input_timeout_s = 0.2
         self.fail_at_step = fail_at_step
+        self.later = later  # reply from another thread, after step() returned
+        self.refuse = refuse
         self.timeouts = 0
+        self.safe = 0
         self.closed = False
 
-    def step(self, m):
+    def start_run(self, run):
+        if self.refuse:
+            raise RunRefused(self.refuse)
+
+    def step(self, m, window):
         if m.step == self.fail_at_step:
             raise RuntimeError(f"device fault at step {m.step}")
-        return super().step(m)
+        if self.later:
+            reading = super().step(m, window)
+            threading.Timer(0.01, self.reply, (reading,)).start()
+            return None
+        return super().step(m, window)
 
     def on_input_timeout(self):
         self.timeouts += 1
+        super().on_input_timeout()
+
+    def make_safe(self):
+        self.safe += 1
 
     def close(self):
         self.closed = True
@@ -52,15 +92,22 @@ class Served:
         self.session = open_session(self.bus, listener=True)
         self.replies: queue.SimpleQueue = queue.SimpleQueue()
         self.alive = threading.Event()
+        self.inbox = wire.Inbox()
+
+        def on_reply(sample):
+            raw = self.inbox.feed(sample.payload, sample.attachment)
+            if raw is not None:
+                self.replies.put(raw)
+
         self._declared = [
-            self.session.declare_subscriber(
-                self.keys.sensors("0"), lambda s: self.replies.put(payload_bytes(s))
-            ),
+            self.session.declare_subscriber(self.keys.sensors("0"), on_reply),
             self.session.liveliness().declare_subscriber(
                 self.keys.alive("body", "0"), lambda s: self.alive.set(), history=True
             ),
         ]
-        self.motor = self.session.declare_publisher(self.keys.motor("0"))
+        self.hub_token = self.session.liveliness().declare_token(self.keys.alive("hub", "0"))
+        self.motor = wire.Outbox(self.session.declare_publisher(self.keys.motor("0")))
+        self.run: RunStart | None = None
         self.error: BaseException | None = None
         self.status: int | None = None
         self.thread = threading.Thread(target=self._serve, daemon=True)
@@ -73,15 +120,31 @@ class Served:
         except BaseException as exc:
             self.error = exc
 
-    def send(self, step: int) -> None:
-        self.motor.put(MotorCommand(step, 0.1, 0.2).encode())
+    def announce(self, start: RunStart | RunEnd) -> RunReply:
+        """Query the endpoint's run key as the hub does; with a RunStart accepted, the
+        inputs and replies that follow are sealed with its key."""
+        (raw,) = wire.get(self.session, self.keys.run("body", "0"), start.encode(), timeout_s=5)
+        reply = RunReply.decode(raw)
+        if reply.ok and isinstance(start, RunStart):
+            self.run = start
+            self.motor.key = self.inbox.key = start.key
+        return reply
+
+    def start(self, n_steps: int = 100) -> None:
+        assert self.announce(_run_start(n_steps)).ok
+
+    def send(self, step: int, left_mps: float = 0.1, right_mps: float = 0.2) -> None:
+        window = StepWindow.of(self.run.run, step, PERIOD_S)
+        self.motor.put(
+            MotorCommand(**window.stamp, left_mps=left_mps, right_mps=right_mps).encode()
+        )
 
     def reply(self, timeout_s: float = 5.0) -> SensorReading:
         return SensorReading.decode(self.replies.get(timeout=timeout_s))
 
     def describe(self) -> Description:
-        replies = list(self.session.get(self.keys.describe("body", "0"), timeout=5.0))
-        return Description.decode(payload_bytes(replies[0].ok))
+        (raw,) = wire.get(self.session, self.keys.describe("body", "0"), timeout_s=5.0)
+        return Description.decode(raw)
 
     def stop(self) -> None:
         self.endpoint.request_stop()
@@ -105,10 +168,12 @@ def served():
 
 def test_each_input_is_answered_once_with_an_output_of_its_step(served):
     s = served(RecordingBody())
+    s.start()
     for k in range(5):
         s.send(k)
         reading = s.reply()
-        assert reading.step == k
+        assert reading.step == k and reading.run == s.run.run
+        assert reading.t_s == StepWindow.of(s.run.run, k, PERIOD_S).t1_s
         np.testing.assert_allclose(reading.pose, [k, 0.1, 0.2])
     s.stop()
     assert s.status == 0 and s.error is None
@@ -117,23 +182,100 @@ def test_each_input_is_answered_once_with_an_output_of_its_step(served):
 
 def test_stale_and_malformed_inputs_are_dropped_counted_and_described(served):
     s = served(RecordingBody())
+    s.start(n_steps=10)
     s.send(0)
     s.send(1)
     assert [s.reply().step, s.reply().step] == [0, 1]
     s.send(1)  # stale: already stepped
     s.motor.put(b"\xc1 not msgpack")
+    s.send(11)  # future: beyond the run's last step and the final stop after it
     s.send(2)
     assert s.reply().step == 2  # the run goes on
     counters = s.describe().counters
-    assert counters["dropped"] == {"stale": 1, "not_msgpack": 1}
+    assert counters["dropped"] == {"stale": 1, "not_msgpack": 1, "future": 1}
     assert counters["steps"] == 3
     assert s.replies.empty()
+
+
+def test_inputs_not_sealed_with_the_run_key_are_foreign_and_never_stepped_on(served):
+    s = served(RecordingBody())
+    stranger = wire.Outbox(s.motor.publisher)
+    window = StepWindow.of("a" * 32, 0, PERIOD_S)
+    forged = MotorCommand(**window.stamp, left_mps=0.5, right_mps=0.5).encode()
+    stranger.put(forged)  # before any run: nothing to take
+    s.start()
+    window = StepWindow.of(s.run.run, 0, PERIOD_S)
+    forged = MotorCommand(**window.stamp, left_mps=0.5, right_mps=0.5).encode()
+    stranger.put(forged)  # the run's id, but no seal
+    stranger.key = wire.new_key()
+    stranger.put(forged)  # sealed with another key
+    s.send(0)
+    reading = s.reply()
+    assert reading.step == 0 and tuple(reading.pose) == (0, 0.1, 0.2)  # the hub's, not theirs
+    assert s.describe().counters["dropped"] == {"foreign": 3}
+    assert s.replies.empty()
+
+
+def test_a_run_is_taken_once_refused_while_busy_and_ended_by_the_hub(served):
+    body = RecordingBody()
+    s = served(body)
+    first = _run_start()
+    assert s.announce(first).ok
+    assert s.announce(first).ok  # the same announcement again: still that run
+    busy = s.announce(_run_start())
+    assert not busy.ok and busy.reason == f"busy with run {first.run}"
+    s.send(0)
+    s.reply()
+    assert s.announce(RunEnd(run=first.run, outcome="completed")).ok
+    assert body.safe >= 1 and s.describe().counters["run"] == ""
+    s.start()  # a new run starts again at step 0
+    s.send(0)
+    assert s.reply().run == s.run.run
+
+
+def test_an_endpoint_that_cannot_serve_a_run_refuses_it_with_its_reason(served):
+    s = served(RecordingBody(refuse="the device is not calibrated"))
+    reply = s.announce(_run_start())
+    assert not reply.ok and reply.reason == "the device is not calibrated"
+
+
+def test_a_body_told_to_go_over_its_speed_limit_drops_it_and_stops(served):
+    body = RecordingBody()
+    s = served(body)
+    s.start()
+    safe = body.safe
+    s.send(0, left_mps=2 * MAX_WHEEL_MPS)
+    s.send(1)
+    assert s.reply().step == 1  # step 0 was never applied
+    assert s.describe().counters["dropped"] == {"limit": 1}
+    assert body.safe == safe + 1
+
+
+def test_when_the_hub_goes_away_the_run_ends_and_the_device_is_made_safe(served):
+    body = RecordingBody()
+    s = served(body)
+    s.start()
+    s.send(0)
+    s.reply()
+    safe = body.safe
+    s.hub_token.undeclare()
+    wait_for(lambda: body.safe > safe and body.run is None, timeout_s=5)
+
+
+def test_a_device_may_reply_after_its_step_returned(served):
+    s = served(RecordingBody(later=True))
+    s.start()
+    for k in range(3):
+        s.send(k)
+        assert s.reply().step == k
 
 
 def test_silence_calls_the_input_timeout_once_until_inputs_come_again(served):
     body = RecordingBody()
     s = served(body)
+    s.start()
     wait_for(lambda: body.timeouts == 1, timeout_s=5)
+    assert body.safe >= 1  # by default a timeout makes the device safe
     s.send(0)
     s.reply()
     wait_for(lambda: body.timeouts == 2, timeout_s=5)
@@ -144,6 +286,7 @@ def test_silence_calls_the_input_timeout_once_until_inputs_come_again(served):
 def test_a_failing_step_ends_serve_with_its_error_and_closes_the_device(served):
     body = RecordingBody(fail_at_step=1)
     s = served(body)
+    s.start()
     s.send(0)
     s.reply()
     s.send(1)
