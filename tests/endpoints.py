@@ -163,3 +163,43 @@ def pulse_at_step(ctx):
         )
 
     return coder
+
+
+class LargeCulture(Endpoint):
+    """A culture of ``n_channels`` channels that fires ``spikes_per_step`` spikes every step,
+    spread over its channels and its window: what a large culture's network burst puts on
+    the wire (100,000 channels firing 3 spikes each make a 2.4 MB SpikeBatch)."""
+
+    role, kind = "culture", "test_large_culture"
+
+    def __init__(self, id="0", n_channels: int = 4096, spikes_per_step: int = 0):
+        super().__init__(id)
+        self.n_channels = n_channels
+        self.spikes_per_step = spikes_per_step
+
+    @classmethod
+    def from_config(cls, section, cfg):
+        unknown = set(section.params) - {"n_channels", "spikes_per_step"}
+        if unknown:
+            raise ConfigError(f"culture.params.{sorted(unknown)[0]} is not a parameter")
+        return cls(section.id, **section.params)
+
+    def describe(self):
+        n = self.n_channels
+        return Description(
+            role="culture",
+            id=self.id,
+            kind=self.kind,
+            channel=np.arange(n),
+            x_um=np.arange(n) % 316 * 10.0,
+            y_um=np.arange(n) // 316 * 10.0,
+        )
+
+    def step(self, s: Stimulation, window) -> SpikeBatch:
+        n = self.spikes_per_step
+        span_ms = window.period_s * 1e3
+        return SpikeBatch(
+            **window.stamp,
+            channel=np.arange(n, dtype=np.uint32) % self.n_channels,
+            t_ms=np.linspace(0.0, span_ms, n, endpoint=False, dtype=np.float32),
+        )

@@ -401,3 +401,25 @@ def test_a_missing_endpoint_is_named_after_the_wait(tmp_path, bus_overrides):
     assert result.outcome == "fault"
     assert "culture/0 did not appear" in result.reason and "body" not in result.reason
     assert h.record.manifest["outcome"] == "fault"
+
+
+def test_a_large_cultures_description_and_bursts_pass_the_loop(tmp_path, bus_overrides):
+    # 100,000 channels (a 1.3 MB description) each firing 3 spikes a step: a 2.4 MB
+    # SpikeBatch every step, over the default low-latency transport (one put carries at
+    # most ~49 kB: the messages go in frames, hub/wire.py).
+    with harness(
+        tmp_path,
+        bus_overrides,
+        'culture.kind="tests.endpoints:LargeCulture"',
+        "culture.params.n_channels=100000",
+        "culture.params.spikes_per_step=300000",
+        "online.enabled=false",
+        "experiment.duration_s=0.1",
+    ) as h:
+        result = h.run()
+    assert result.outcome == "completed" and result.steps == 10, result.reason
+    assert result.counts["dropped"] == {} and result.counts["missing"] == {}
+    assert h.record.descriptions()["culture"].channel.size == 100_000
+    spikes = h.received(SpikeBatch)
+    assert sorted(spikes) == list(range(10))
+    assert all(b.channel.size == 300_000 for b in spikes.values())
