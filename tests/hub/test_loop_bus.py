@@ -126,6 +126,10 @@ def test_a_late_reply_is_counted_and_the_policy_stands_in(tmp_path, bus_override
     )
     assert 9 in missed
     assert result.counts["late"]["body"] >= 1
+    # Each reply that missed its deadline is counted once: late if it came after all,
+    # missing if it never came.
+    late, missing = result.counts["late"]["body"], result.counts["missing"].get("body", 0)
+    assert late + missing == len(missed)
     stims = h.sent(Stimulation)
     for k in missed:
         if k + 1 in stims:
