@@ -190,6 +190,10 @@ class Hub:
         self.direct = False
         self._failure: BaseException | None = None  # raised in such a thread
         self._last_progress = 0.0  # when the last step completed
+        # The loop's thread wakes at least every record.flush_s; a longer gap means the
+        # hub itself did not run (frozen, starved): (when it ended, how long it was).
+        self._last_wake = time.monotonic()
+        self._stall: tuple[float, float] = (-math.inf, 0.0)
         self._live_in: queue.SimpleQueue = queue.SimpleQueue()  # spikes for live analysis
 
     # ================================================================ public
@@ -616,6 +620,21 @@ class Hub:
             return None
         finally:
             self.waiting_s += time.perf_counter() - t0
+            self._note_wake()
+
+    def _note_wake(self) -> None:
+        """Keep the last gap in the loop's own running longer than half a lease."""
+        now = time.monotonic()
+        gap_s = now - self._last_wake
+        self._last_wake = now
+        if gap_s > self.cfg.bus.lease_ms / 2e3:
+            self._stall = (now, gap_s)
+
+    def _hub_stalled_s(self) -> float:
+        """How long the hub's loop did not run, if that ended within the last few leases
+        (an endpoint's death seen then is the hub's doing); 0.0 otherwise."""
+        ended, gap_s = self._stall
+        return gap_s if time.monotonic() - ended < 5 * self.cfg.bus.lease_ms / 1e3 else 0.0
 
     def _drain(self) -> None:
         while True:
@@ -742,6 +761,12 @@ class Hub:
         self._record_event("alive" if present else "dead", role=parsed[0], id=parsed[1])
         required = parsed[0] in ROLES and self.ids[parsed[0]] == parsed[1]
         if not present and required and self.state in ("running", "paused"):
+            stalled_s = self._hub_stalled_s()
+            if stalled_s:
+                raise HubError(
+                    f"the hub itself stopped running for {stalled_s:.1f} s (frozen or starved "
+                    f"of CPU) at step {self.k}: {parsed[0]}/{parsed[1]}'s lease lapsed meanwhile"
+                )
             log.error("%s/%s died at step %d", *parsed, self.k)
             if self.cfg.policy.endpoint_death == "stop":
                 raise EndpointDied(*parsed, self.k)
