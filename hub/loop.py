@@ -623,11 +623,12 @@ class Hub:
             self._note_wake()
 
     def _note_wake(self) -> None:
-        """Keep the last gap in the loop's own running longer than half a lease."""
+        """Keep the last gap in the loop's own running longer than its longest wait
+        (``record.flush_s``) and a quarter lease: less than a lease lapsing takes."""
         now = time.monotonic()
         gap_s = now - self._last_wake
         self._last_wake = now
-        if gap_s > self.cfg.bus.lease_ms / 2e3:
+        if gap_s > self.cfg.record.flush_s + self.cfg.bus.lease_ms / 4e3:
             self._stall = (now, gap_s)
 
     def _hub_stalled_s(self) -> float:
