@@ -289,13 +289,21 @@ def _spray(bus, keys, rounds=3):
         session.close()
 
 
-def test_a_stranger_on_the_bus_is_never_taken_for_the_hub_or_an_endpoint(tmp_path, bus_overrides):
+@pytest.mark.parametrize("mode", ["lockstep", "realtime"])
+def test_a_stranger_on_the_bus_is_never_taken_for_the_hub_or_an_endpoint(
+    tmp_path, bus_overrides, mode
+):
     out = {}
 
-    # The body takes 5 ms a step, so that the run (3 s) outlasts the spraying.
+    # The body takes 5 ms a step, so that the run (3 s or more) outlasts the spraying.
     slow = "body.params.delay_ms=5"
     with harness(
-        tmp_path, bus_overrides, "experiment.duration_s=6", "loop.status_hz=50", slow
+        tmp_path,
+        bus_overrides,
+        "experiment.duration_s=6",
+        "loop.status_hz=50",
+        slow,
+        f'loop.mode="{mode}"',
     ) as h:
         bus, keys = h.cfg.bus, h.cfg.bus.keys
 
