@@ -2,17 +2,23 @@
 
 from __future__ import annotations
 
+import os
+import secrets
 import signal
 import subprocess
 import sys
+import threading
 import time
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
+from hub.bus import free_tcp_port, open_session
 from hub.protocol import MotorCommand
 from hub.record import read_run
 from tests.conftest import TEST_ENDPOINTS
-from tests.harness import wait_for
+from tests.harness import harness, wait_for
 
 pytestmark = pytest.mark.bus
 
@@ -64,4 +70,71 @@ def test_a_frozen_hub_names_itself_as_the_cause_and_leaves_the_robot_stopped(
     assert rec.manifest["outcome"] == "fault"
     assert "the hub itself" in rec.manifest["reason"]
     last = rec.decoded(MotorCommand, "tx")[-1]
+    assert last.left_mps == last.right_mps == 0
+
+
+ACTIONS = st.lists(
+    st.tuples(
+        st.integers(min_value=5, max_value=80),  # at step
+        st.sampled_from(["garbage", "freeze_body"]),
+        st.floats(min_value=0.05, max_value=1.6),  # freeze length (s)
+        st.sampled_from(["motor", "stim", "sensors", "spikes"]),
+    ),
+    max_size=4,
+)
+
+
+@settings(max_examples=4, derandomize=True)
+@given(actions=ACTIONS, late_every=st.sampled_from([0, 7]))
+def test_whatever_happens_the_hub_ends_cleanly_with_a_whole_record_and_the_robot_stopped(
+    tmp_path_factory, actions, late_every
+):
+    tmp_path = tmp_path_factory.mktemp("run")
+    bus = [
+        f'bus.session="test-{secrets.token_hex(4)}"',
+        f'bus.listen=["tcp/127.0.0.1:{free_tcp_port()}"]',
+    ]
+    todo = sorted(actions)
+    with harness(
+        tmp_path,
+        bus,
+        'loop.mode="realtime"',
+        "loop.period_ms=10",
+        "experiment.duration_s=1.0",
+        f"body.params.late_every={late_every}",
+    ) as h:
+        keys = h.cfg.bus.keys
+        stranger = []  # a session of its own, opened once the hub's router is up
+        frozen = []
+
+        def act(progress):
+            while todo and progress.step >= todo[0][0]:
+                _, what, freeze_s, key = todo.pop(0)
+                if what == "garbage":
+                    if not stranger:
+                        stranger.append(open_session(h.cfg.bus, listener=False))
+                    target = getattr(keys, key)("0")
+                    for raw in (b"\xc1", os.urandom(32), b""):
+                        stranger[0].put(target, raw)
+                else:
+                    pid = h.pid("body")
+                    os.kill(pid, signal.SIGSTOP)
+                    frozen.append(pid)
+                    threading.Timer(freeze_s, os.kill, (pid, signal.SIGCONT)).start()
+
+        try:
+            result = h.run(progress=act)
+        finally:
+            for pid in frozen:
+                os.kill(pid, signal.SIGCONT)
+            for session in stranger:
+                session.close()
+    # The hub never crashed: the run completed or ended as a fault it named.
+    assert result.outcome in ("completed", "fault"), result.reason
+    if result.outcome == "fault":
+        assert "body/0" in result.reason
+    # Every frame written is read back (the recorder counts the file's header too).
+    assert len(h.record.frames) + 1 == h.hub.recorder.n_frames
+    # Its last word to the body is a stop.
+    last = h.record.decoded(MotorCommand, "tx")[-1]
     assert last.left_mps == last.right_mps == 0
