@@ -8,17 +8,25 @@ import numpy as np
 import pytest
 
 from hub.coding import CultureFrame, rate, somatotopic, somatotopic_inverse, stimulation_sites
-from hub.protocol import SensorReading, Stimulation
+from hub.protocol import SensorReading, StepWindow, Stimulation
 from hub.schemes import ConfigError
 from tests.schemes.descriptions import PAPER7_DEG, body, context, grid, points
 
 MAX_RANGE_M = 0.25
+PERIOD_S = 0.01
+RUN = "0" * 32
+
+
+def W(step: int) -> StepWindow:
+    """The window of ``step`` in the test run."""
+    return StepWindow.of(RUN, step, PERIOD_S)
 
 
 def reading(ranges_m, step: int = 0) -> SensorReading:
     return SensorReading(
         step=step,
-        t_s=step * 0.01,
+        run=RUN,
+        t_s=W(step).t1_s,
         ranges_m=np.asarray(ranges_m, dtype=np.float32),
         pose=[0.0, 0.0, 0.0],
         contact=False,
@@ -131,7 +139,7 @@ def test_khepera_like_sensors_facing_the_same_way_get_distinct_sites():
 def test_somatotopic_amplitude_is_gain_times_distance_on_each_sensors_site():
     ctx = context(channels=[10, 11, 12, 13, 14, 15, 16])
     code = somatotopic(ctx)
-    stim = code(reading([0.25, 0.2, 0.1, 0.05, 0.0, 0.125, 0.25]), 3)
+    stim = code(reading([0.25, 0.2, 0.1, 0.05, 0.0, 0.125, 0.25]), W(3))
     # default gain 100 µA / 0.25 m = 400 µA/m; 0 m → 0 µA, under the 20 µA minimum: no pulse
     assert stim.step == 3
     assert stim.channel.tolist() == [10, 11, 12, 13, 15, 16]
@@ -141,35 +149,35 @@ def test_somatotopic_amplitude_is_gain_times_distance_on_each_sensors_site():
 
 def test_every_site_of_a_sensor_gets_its_sensors_amplitude():
     code = somatotopic(context(sites_per_sensor=4))
-    stim = code(reading([0.25, 0, 0, 0, 0, 0, 0.125]), 1)
+    stim = code(reading([0.25, 0, 0, 0, 0, 0, 0.125]), W(1))
     assert stim.n_pulses == 8
     np.testing.assert_allclose(np.sort(stim.amplitude_ua), [50] * 4 + [100] * 4, rtol=1e-6)
 
 
 def test_amplitude_is_clamped_to_the_maximum():
     code = somatotopic(context(gain_ua_per_m=1000.0, max_amplitude_ua=150.0))
-    stim = code(reading([0.25, 0.1, 0.05, 0.01, 0.01, 0.01, 0.01]), 1)
+    stim = code(reading([0.25, 0.1, 0.05, 0.01, 0.01, 0.01, 0.01]), W(1))
     np.testing.assert_allclose(stim.amplitude_ua, [150, 100, 50], rtol=1e-6)
 
 
 def test_pulses_weaker_than_the_minimum_are_not_sent():
     code = somatotopic(context(min_amplitude_ua=25.0))
     # 0.0625 m → exactly 25 µA (sent: the minimum itself is allowed); 0.06 m → 24 µA (not)
-    stim = code(reading([0.25, 0.2, 0.0625, 0.06, 0.01, 0.0, 0.0]), 1)
+    stim = code(reading([0.25, 0.2, 0.0625, 0.06, 0.01, 0.0, 0.0]), W(1))
     np.testing.assert_allclose(stim.amplitude_ua, [100, 80, 25], rtol=1e-6)
 
 
 def test_inverse_code_is_stronger_for_nearer_obstacles_and_silent_when_nothing_is_seen():
     code = somatotopic_inverse(context(channels=[10, 11, 12, 13, 14, 15, 16]))
-    stim = code(reading([0.0, 0.05, 0.125, 0.1875, 0.24, 0.25, 0.25]), 2)
+    stim = code(reading([0.0, 0.05, 0.125, 0.1875, 0.24, 0.25, 0.25]), W(2))
     assert stim.channel.tolist() == [10, 11, 12, 13]
     np.testing.assert_allclose(stim.amplitude_ua, [100, 80, 50, 25], rtol=1e-6)
-    assert code(nothing_seen(), 3).n_pulses == 0
+    assert code(nothing_seen(), W(3)).n_pulses == 0
 
 
 def test_ranges_beyond_max_range_count_as_max_range():
     code = somatotopic(context(channels=[10, 11, 12, 13, 14, 15, 16]))
-    stim = code(reading([0.3] + [0.25] * 6), 1)
+    stim = code(reading([0.3] + [0.25] * 6), W(1))
     np.testing.assert_allclose(stim.amplitude_ua, [100] * 7, rtol=1e-6)
 
 
@@ -177,7 +185,7 @@ def test_pulse_period_spaces_pulses_over_steps_on_a_fixed_grid():
     code = somatotopic(context(pulse_period_ms=25.0, channels=[0, 1, 2, 3, 4, 5, 6]))
     times = []
     for step in range(12):
-        stim = code(nothing_seen(), step)
+        stim = code(nothing_seen(), W(step))
         assert stim.n_pulses in (0, 7)
         times += [step * 10.0 + t for t in np.unique(stim.onset_ms)]
     np.testing.assert_allclose(times, [0, 25, 50, 75, 100])
@@ -185,18 +193,18 @@ def test_pulse_period_spaces_pulses_over_steps_on_a_fixed_grid():
 
 def test_default_is_one_pulse_per_site_every_step():
     code = somatotopic(context())
-    assert [code(nothing_seen(), k).n_pulses for k in range(5)] == [7] * 5
+    assert [code(nothing_seen(), W(k)).n_pulses for k in range(5)] == [7] * 5
 
 
 def test_a_coder_output_is_a_valid_message():
-    stim = somatotopic(context(sites_per_sensor=4))(nothing_seen(), 9)
+    stim = somatotopic(context(sites_per_sensor=4))(nothing_seen(), W(9))
     assert Stimulation.decode(stim.encode()) == stim
 
 
 def test_a_reading_with_the_wrong_number_of_ranges_is_an_error():
     code = somatotopic(context())
     with pytest.raises(ValueError, match="3 ranges, the body described 7"):
-        code(reading([0.1, 0.1, 0.1]), 1)
+        code(reading([0.1, 0.1, 0.1]), W(1))
 
 
 @pytest.mark.parametrize(
@@ -227,7 +235,7 @@ def run_rate(code, ranges_per_step):
     """Absolute pulse times (ms) per channel over consecutive steps."""
     times: dict[int, list[float]] = {}
     for step, ranges in enumerate(ranges_per_step):
-        stim = code(reading(ranges, step), step)
+        stim = code(reading(ranges, step), W(step))
         assert ((stim.onset_ms >= 0) & (stim.onset_ms < 10.0)).all()
         for c, t in zip(stim.channel.tolist(), stim.onset_ms.tolist(), strict=True):
             times.setdefault(c, []).append(step * 10.0 + t)
@@ -247,7 +255,7 @@ def test_rate_code_pulses_at_exact_times_for_a_constant_distance():
 
 def test_rate_code_uses_a_fixed_clamped_amplitude_and_the_width():
     code = rate(context(amplitude_ua=300.0, max_amplitude_ua=120.0, width_ms=5.0))
-    stim = code(reading([0.0] * 7), 1)
+    stim = code(reading([0.0] * 7), W(1))
     assert stim.n_pulses == 7
     assert (stim.amplitude_ua == 120.0).all() and (stim.width_ms == 5.0).all()
 

@@ -10,11 +10,19 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from hub.decoding import center_of_activity, two_population, wheel_speeds
-from hub.protocol import SpikeBatch
+from hub.protocol import SpikeBatch, StepWindow
 from hub.schemes import ConfigError
 from tests.schemes.descriptions import body, context, points
 
 PERIOD_MS = 10.0
+RUN = "0" * 32
+
+
+def W(step: int) -> StepWindow:
+    """The window of ``step`` in the test run."""
+    return StepWindow.of(RUN, step, PERIOD_MS / 1e3)
+
+
 # A 5-channel culture: centre (0, 0), radius 1000 µm; channels at the centre, left (−x),
 # right (+x), front (+y) and back (−y), 500 µm out.
 CENTRE, LEFT, RIGHT, FRONT, BACK = range(5)
@@ -29,9 +37,7 @@ def batch(step: int, channels=(), t_ms=None) -> SpikeBatch:
     if t_ms is None:
         t_ms = np.linspace(0.0, PERIOD_MS, len(channels), endpoint=False)
     return SpikeBatch(
-        step=step,
-        t0_s=step * PERIOD_MS / 1e3,
-        t1_s=(step + 1) * PERIOD_MS / 1e3,
+        **W(step).stamp,
         channel=np.asarray(channels, dtype=np.uint32),
         t_ms=np.asarray(t_ms, dtype=np.float32),
     )
@@ -50,7 +56,7 @@ def expected(v, omega, b=0.1):
 
 
 def test_ca_on_the_left_turns_left_at_a_speed_set_by_its_distance():
-    m = ca_decoder()(batch(4, [LEFT] * 3), 5)
+    m = ca_decoder()(batch(4, [LEFT] * 3), W(5))
     # d = 500 µm = 0.5 radius → v = 0.4 × 0.5 = 0.2 m/s; θ = +π/2 → ω = +π/2 rad/s
     assert m.step == 5
     assert (m.v_mps, m.omega_rad_s) == pytest.approx((0.2, math.pi / 2))
@@ -59,44 +65,44 @@ def test_ca_on_the_left_turns_left_at_a_speed_set_by_its_distance():
 
 
 def test_ca_on_the_right_turns_right():
-    m = ca_decoder()(batch(0, [RIGHT]), 1)
+    m = ca_decoder()(batch(0, [RIGHT]), W(1))
     assert m.omega_rad_s == pytest.approx(-math.pi / 2)
     assert m.left_mps > m.right_mps
 
 
 def test_ca_in_front_goes_straight_and_behind_turns_fully():
-    ahead = ca_decoder()(batch(0, [FRONT]), 1)
+    ahead = ca_decoder()(batch(0, [FRONT]), W(1))
     assert (ahead.v_mps, ahead.omega_rad_s) == pytest.approx((0.2, 0.0))
     assert ahead.left_mps == pytest.approx(ahead.right_mps)
-    behind = ca_decoder()(batch(0, [BACK]), 1)
+    behind = ca_decoder()(batch(0, [BACK]), W(1))
     assert abs(behind.omega_rad_s) == pytest.approx(math.pi)
 
 
 def test_ca_is_the_spike_weighted_mean_position():
     # 3 spikes left, 1 spike in front: CA = (−375, 125) µm
-    m = ca_decoder()(batch(0, [LEFT, LEFT, LEFT, FRONT]), 1)
+    m = ca_decoder()(batch(0, [LEFT, LEFT, LEFT, FRONT]), W(1))
     d_rel = math.hypot(-375, 125) / 1000
     theta = math.atan2(375, 125)
     assert (m.v_mps, m.omega_rad_s) == pytest.approx((0.4 * d_rel, theta))
 
 
 def test_ca_at_the_centre_goes_straight_at_the_minimum_speed():
-    m = ca_decoder(min_speed_mps=0.03)(batch(0, [LEFT, RIGHT, FRONT, BACK, CENTRE]), 1)
+    m = ca_decoder(min_speed_mps=0.03)(batch(0, [LEFT, RIGHT, FRONT, BACK, CENTRE]), W(1))
     assert (m.left_mps, m.right_mps, m.omega_rad_s) == pytest.approx((0.03, 0.03, 0.0))
 
 
 def test_ca_inside_the_dead_zone_goes_straight_at_the_minimum_speed():
     # 1 spike front + 9 at the centre: CA 50 µm ahead, inside a dead zone of 0.1 × 1000 µm
-    m = ca_decoder(dead_zone_frac=0.1)(batch(0, [FRONT] + [CENTRE] * 9), 1)
+    m = ca_decoder(dead_zone_frac=0.1)(batch(0, [FRONT] + [CENTRE] * 9), W(1))
     assert (m.v_mps, m.omega_rad_s) == pytest.approx((0.02, 0.0))
-    m = ca_decoder(dead_zone_frac=0.01)(batch(0, [FRONT] + [CENTRE] * 9), 1)
+    m = ca_decoder(dead_zone_frac=0.01)(batch(0, [FRONT] + [CENTRE] * 9), W(1))
     assert m.v_mps == pytest.approx(0.02)  # 0.4 × 0.05 = 0.02: the floor and the gain agree
-    m = ca_decoder(dead_zone_frac=0.01, min_speed_mps=0.01)(batch(0, [BACK] + [CENTRE] * 9), 1)
+    m = ca_decoder(dead_zone_frac=0.01, min_speed_mps=0.01)(batch(0, [BACK] + [CENTRE] * 9), W(1))
     assert (m.v_mps, abs(m.omega_rad_s)) == pytest.approx((0.02, math.pi))
 
 
 def test_no_spike_in_the_window_goes_straight_at_the_minimum_speed():
-    m = ca_decoder(min_speed_mps=0.05)(batch(0), 1)
+    m = ca_decoder(min_speed_mps=0.05)(batch(0), W(1))
     assert (m.left_mps, m.right_mps, m.v_mps, m.omega_rad_s) == pytest.approx(
         (0.05,) * 2 + (0.05, 0)
     )
@@ -104,73 +110,73 @@ def test_no_spike_in_the_window_goes_straight_at_the_minimum_speed():
 
 def test_a_running_centre_follows_the_ca_so_a_lasting_bias_stops_steering():
     decode = ca_decoder(centre_tau_s=0.05)  # moves 10 ms / 50 ms = 1/5 of the way each step
-    m = decode(batch(0, [LEFT]), 1)  # the first CA is judged from the geometric centre
+    m = decode(batch(0, [LEFT]), W(1))  # the first CA is judged from the geometric centre
     assert (m.v_mps, m.omega_rad_s) == pytest.approx((0.2, math.pi / 2))
-    m = decode(batch(1, [LEFT]), 2)  # centre now at (−100, 0): CA 400 µm left of it
+    m = decode(batch(1, [LEFT]), W(2))  # centre now at (−100, 0): CA 400 µm left of it
     assert (m.v_mps, m.omega_rad_s) == pytest.approx((0.16, math.pi / 2))
     for k in range(2, 60):  # activity stays on the left: the centre catches up
-        m = decode(batch(k, [LEFT]), k + 1)
+        m = decode(batch(k, [LEFT]), W(k + 1))
     assert (m.v_mps, m.omega_rad_s) == pytest.approx((0.02, 0.0))
-    m = decode(batch(60, [RIGHT] * 20), 61)  # a departure from the usual CA steers again
+    m = decode(batch(60, [RIGHT] * 20), W(61))  # a departure from the usual CA steers again
     assert m.omega_rad_s == pytest.approx(-math.pi / 2)
 
 
 def test_speed_is_limited_to_max_speed():
-    m = ca_decoder(speed_gain_mps=10.0, max_speed_mps=0.3)(batch(0, [FRONT]), 1)
+    m = ca_decoder(speed_gain_mps=10.0, max_speed_mps=0.3)(batch(0, [FRONT]), W(1))
     assert m.v_mps == pytest.approx(0.3)
 
 
 def test_ca_averages_over_the_window_across_batches():
     decode = ca_decoder()  # 50 ms window: five 10 ms steps
-    decode(batch(0, [LEFT]), 1)
-    m = decode(batch(1, [RIGHT]), 2)  # left and right together: CA at the centre
+    decode(batch(0, [LEFT]), W(1))
+    m = decode(batch(1, [RIGHT]), W(2))  # left and right together: CA at the centre
     assert (m.v_mps, m.omega_rad_s) == pytest.approx((0.02, 0.0))
     for k in range(2, 5):
-        m = decode(batch(k), k + 1)
+        m = decode(batch(k), W(k + 1))
     assert m.omega_rad_s == pytest.approx(0.0)  # both still inside [0, 50) ms
-    m = decode(batch(5), 6)  # window [10, 60): the left spike (t = 0) has left it
+    m = decode(batch(5), W(6))  # window [10, 60): the left spike (t = 0) has left it
     assert m.omega_rad_s == pytest.approx(-math.pi / 2)
-    m = decode(batch(6), 7)  # window [20, 70): empty
+    m = decode(batch(6), W(7))  # window [20, 70): empty
     assert (m.v_mps, m.omega_rad_s) == pytest.approx((0.02, 0.0))
 
 
 def test_a_window_that_is_not_a_whole_number_of_steps_cuts_inside_a_batch():
     decode = ca_decoder(window_ms=15.0)
-    decode(batch(0, [RIGHT, LEFT], t_ms=[2.0, 6.0]), 1)
+    decode(batch(0, [RIGHT, LEFT], t_ms=[2.0, 6.0]), W(1))
     # after batch 1 the window is [5, 20) ms: the right spike (2 ms) is out, the left one in
-    m = decode(batch(1), 2)
+    m = decode(batch(1), W(2))
     assert m.omega_rad_s == pytest.approx(math.pi / 2)
 
 
 def test_a_culture_restart_clears_the_window():
     decode = ca_decoder()
-    decode(batch(7, [LEFT]), 8)
-    m = decode(batch(0, [RIGHT]), 9)  # time went back: the left spike is forgotten
+    decode(batch(7, [LEFT]), W(8))
+    m = decode(batch(0, [RIGHT]), W(9))  # time went back: the left spike is forgotten
     assert m.omega_rad_s == pytest.approx(-math.pi / 2)
 
 
 def test_spikes_on_undescribed_channels_are_ignored():
     decode = ca_decoder()
-    m = decode(batch(0, [LEFT, 99, 1234]), 1)
+    m = decode(batch(0, [LEFT, 99, 1234]), W(1))
     assert m.omega_rad_s == pytest.approx(math.pi / 2)
-    m = ca_decoder()(batch(0, [99]), 1)
+    m = ca_decoder()(batch(0, [99]), W(1))
     assert (m.v_mps, m.omega_rad_s) == pytest.approx((0.02, 0.0))
 
 
 def test_channel_ids_need_not_be_indices():
     culture = points([[-500, 0], [500, 0], [0, 1000], [0, -1000]], channels=[70, 3, 12, 40])
     decode = center_of_activity(context("decoding", WIDE, culture, turn_gain_rad_s_per_rad=1.0))
-    assert decode(batch(0, [70]), 1).omega_rad_s == pytest.approx(math.pi / 2)
-    assert decode(batch(1, [3, 3, 3]), 2).omega_rad_s == pytest.approx(-math.pi / 2)
+    assert decode(batch(0, [70]), W(1)).omega_rad_s == pytest.approx(math.pi / 2)
+    assert decode(batch(1, [3, 3, 3]), W(2)).omega_rad_s == pytest.approx(-math.pi / 2)
 
 
 def test_large_channel_ids_are_looked_up_too():
     big = [1 << 31, 70_000, 12, 1 << 20]
     culture = points([[-500, 0], [500, 0], [0, 1000], [0, -1000]], channels=big)
     ctx = context("decoding", WIDE, culture, turn_gain_rad_s_per_rad=1.0)
-    m = center_of_activity(ctx)(batch(0, [1 << 31, 5, (1 << 31) + 1]), 1)
+    m = center_of_activity(ctx)(batch(0, [1 << 31, 5, (1 << 31) + 1]), W(1))
     assert m.omega_rad_s == pytest.approx(math.pi / 2)  # only channel 2³¹ (left) counts
-    m = center_of_activity(ctx)(batch(0, [70_000] * 3 + [1 << 20]), 1)
+    m = center_of_activity(ctx)(batch(0, [70_000] * 3 + [1 << 20]), W(1))
     assert m.omega_rad_s == pytest.approx(math.atan2(-375, -250))  # CA at (375, −250) µm
 
 
@@ -179,7 +185,7 @@ def test_wheels_are_clipped_to_the_body_limit_keeping_the_turn():
     decode = center_of_activity(
         context("decoding", paper7, CROSS, speed_gain_mps=5.0, turn_gain_rad_s_per_rad=50.0)
     )
-    m = decode(batch(0, [LEFT]), 1)
+    m = decode(batch(0, [LEFT]), W(1))
     assert max(abs(m.left_mps), abs(m.right_mps)) == pytest.approx(0.2)
     assert m.right_mps == pytest.approx(0.2) and m.left_mps == pytest.approx(-0.2)
     assert m.omega_rad_s == pytest.approx(0.4 / 0.053) and m.v_mps == pytest.approx(0.0)
@@ -202,7 +208,7 @@ def test_wheel_speeds_never_exceed_the_body_limit(channels, speed_gain, turn_gai
             max_speed_mps=10.0,
         )
     )
-    m = decode(batch(0, sorted(channels)), 1)
+    m = decode(batch(0, sorted(channels)), W(1))
     assert abs(m.left_mps) <= 0.2 and abs(m.right_mps) <= 0.2
     assert (m.left_mps, m.right_mps) == pytest.approx(
         expected(m.v_mps, m.omega_rad_s, b=0.053), abs=1e-12
@@ -248,7 +254,7 @@ def two_pop(**params):
 
 def five_steps(decode, channels_per_step):
     for k in range(5):
-        m = decode(batch(k, channels_per_step), k + 1)
+        m = decode(batch(k, channels_per_step), W(k + 1))
     return m
 
 
@@ -273,7 +279,7 @@ def test_rates_are_per_channel_and_per_second_over_the_window():
 
 
 def test_rates_use_the_time_seen_so_far_before_a_full_window():
-    m = two_pop()(batch(0, [2, 3]), 1)  # 2 spikes / 2 channels / 0.01 s = 100 Hz on the right
+    m = two_pop()(batch(0, [2, 3]), W(1))  # 2 spikes / 2 channels / 0.01 s = 100 Hz on the right
     assert (m.left_mps, m.right_mps) == pytest.approx((0.11, 0.01))
 
 
