@@ -700,7 +700,7 @@ class Stimulation(Message):
         if onset.size:
             last = max(onset.tolist()) if onset.size <= SMALL_ARRAY else float(onset.max())
             window_ms = (self.t1_s - self.t0_s) * 1e3
-            if last >= window_ms:
+            if last >= window_ms * (1 - 1e-9):  # the window's length carries rounding
                 raise ProtocolError(
                     "range", f"onset_ms {last} lies outside the step's {window_ms} ms window"
                 )

@@ -22,18 +22,36 @@ from hub.protocol import (
     MotorCommand,
     Potentials,
     ProtocolError,
+    RunEnd,
+    RunStart,
     SensorReading,
     SpikeBatch,
+    StepWindow,
     Stimulation,
+    decode_run_request,
 )
 
+RUN = "0" * 32
+PERIOD_S = 0.01
+MOTOR_WINDOW = {"run": RUN, "t0_s": 0.0, "t1_s": PERIOD_S}
+
+
+def W(step: int) -> StepWindow:
+    """The window of ``step`` in the test run."""
+    return StepWindow.of(RUN, step, PERIOD_S)
+
+
 EXAMPLES = [
-    MotorCommand(step=4, left_mps=0.1, right_mps=-0.2, v_mps=-0.05, omega_rad_s=5.7),
-    MotorCommand.stop(0),
-    SensorReading(step=7, t_s=0.07, ranges_m=[0.1, 0.3, 0.0], pose=[0.1, -0.2, 3.1], contact=True),
-    Stimulation(step=2, channel=[3, 9], amplitude_ua=[50, 10], width_ms=[1, 10], onset_ms=[0, 2.5]),
-    Stimulation(step=0),
-    SpikeBatch(step=5, t0_s=0.05, t1_s=0.06, channel=[1, 1, 8], t_ms=[0.1, 2.0, 9.9]),
+    MotorCommand(**W(4).stamp, left_mps=0.1, right_mps=-0.2, v_mps=-0.05, omega_rad_s=5.7),
+    MotorCommand.stop(W(0)),
+    SensorReading(
+        step=7, run=RUN, t_s=0.07, ranges_m=[0.1, 0.3, 0.0], pose=[0.1, -0.2, 3.1], contact=True
+    ),
+    Stimulation(
+        **W(2).stamp, channel=[3, 9], amplitude_ua=[50, 10], width_ms=[1, 10], onset_ms=[0, 2.5]
+    ),
+    Stimulation.none(W(0)),
+    SpikeBatch(step=5, run=RUN, t0_s=0.05, t1_s=0.06, channel=[1, 1, 8], t_ms=[0.1, 2.0, 9.9]),
     Potentials(step=5, t_s=0.05, v_mv=[-65.0, -70.0]),
     Description(
         role="culture",
@@ -76,17 +94,18 @@ def test_every_message_round_trips(message):
 
 
 def test_arrays_travel_as_little_endian_bin_of_the_schema_dtype():
-    m = SensorReading(step=1, t_s=0.0, ranges_m=[0.25, 0.5], pose=[1, 2, 3], contact=False)
+    m = SensorReading(step=1, run=RUN, t_s=0.0, ranges_m=[0.25, 0.5], pose=[1, 2, 3], contact=False)
     data = msgpack.unpackb(m.encode(), raw=False)
-    assert data["v"] == 1
+    assert data["v"] == 2
     assert data["ranges_m"] == np.array([0.25, 0.5], "<f4").tobytes()
     assert data["pose"] == np.array([1, 2, 3], "<f8").tobytes()
 
 
 def _raw(**fields):
     base = {
-        "v": 1,
+        "v": 2,
         "step": 3,
+        "run": RUN,
         "t_s": 0.03,
         "ranges_m": np.array([0.1, 0.2], "<f4").tobytes(),
         "pose": np.zeros(3, "<f8").tobytes(),
@@ -101,7 +120,7 @@ def _raw(**fields):
     [
         (b"\xc1\xc1garbage", "not_msgpack"),
         (msgpack.packb([1, 2, 3]), "not_a_map"),
-        (_raw(v=2), "version"),
+        (_raw(v=1), "version"),
         (_raw(v=...), "version"),
         (_raw(step=...), "missing"),
         (_raw(extra=1), "unknown"),
@@ -126,16 +145,18 @@ def test_malformed_sensor_readings_are_rejected_with_their_kind(raw, kind):
 
 def test_parallel_arrays_must_have_equal_lengths():
     with pytest.raises(ProtocolError, match="amplitude_ua has 1 values but channel has 2"):
-        Stimulation(step=1, channel=[1, 2], amplitude_ua=[5], width_ms=[1, 1], onset_ms=[0, 0])
+        Stimulation(
+            **W(1).stamp, channel=[1, 2], amplitude_ua=[5], width_ms=[1, 1], onset_ms=[0, 0]
+        )
 
 
 def test_spikes_must_be_sorted_and_inside_their_window():
     with pytest.raises(ProtocolError, match="sorted"):
-        SpikeBatch(step=1, t0_s=0.01, t1_s=0.02, channel=[0, 1], t_ms=[5, 2])
+        SpikeBatch(step=1, run=RUN, t0_s=0.01, t1_s=0.02, channel=[0, 1], t_ms=[5, 2])
     with pytest.raises(ProtocolError, match="beyond"):
-        SpikeBatch(step=1, t0_s=0.01, t1_s=0.02, channel=[0], t_ms=[12.0])
+        SpikeBatch(step=1, run=RUN, t0_s=0.01, t1_s=0.02, channel=[0], t_ms=[12.0])
     with pytest.raises(ProtocolError, match="precedes"):
-        SpikeBatch(step=1, t0_s=0.02, t1_s=0.01)
+        SpikeBatch(step=1, run=RUN, t0_s=0.02, t1_s=0.01)
 
 
 def test_descriptions_need_their_role_geometry():
@@ -196,7 +217,7 @@ finite = st.floats(allow_nan=False, allow_infinity=False, width=32)
     contact=st.booleans(),
 )
 def test_sensor_readings_round_trip_for_any_valid_content(step, ranges, pose, contact):
-    m = SensorReading(step=step, t_s=0.0, ranges_m=ranges, pose=pose, contact=contact)
+    m = SensorReading(step=step, run=RUN, t_s=0.0, ranges_m=ranges, pose=pose, contact=contact)
     back = SensorReading.decode(m.encode())
     assert back == m
     assert back.ranges_m.dtype == np.float32 and back.pose.dtype == np.float64
@@ -242,7 +263,12 @@ def _value_for(spec):
             )
 
         return dtype.flatmap(array)
-    right = {float: st.floats(), int: st.integers(-3, 2**40), bool: st.booleans()}[spec.kind]
+    right = {
+        float: st.floats(),
+        int: st.integers(-3, 2**40),
+        bool: st.booleans(),
+        str: st.text(max_size=40),
+    }[spec.kind]
     return st.one_of(right, right, right, st.integers(-3, 3), st.none(), st.just("a"))
 
 
@@ -297,8 +323,9 @@ def test_valid_messages_decode_on_the_fast_path_and_re_encode_to_the_same_bytes(
 
 def _spikes(**fields):
     base = {
-        "v": 1,
+        "v": 2,
         "step": 3,
+        "run": RUN,
         "t0_s": 0.03,
         "t1_s": 0.04,
         "channel": np.array([4, 1, 9], "<u4").tobytes(),
@@ -310,8 +337,11 @@ def _spikes(**fields):
 
 def _pulses(**fields):
     base = {
-        "v": 1,
+        "v": 2,
         "step": 3,
+        "run": RUN,
+        "t0_s": 0.03,
+        "t1_s": 0.04,
         "channel": np.array([4, 1], "<u4").tobytes(),
         "amplitude_ua": np.array([10, 20], "<f4").tobytes(),
         "width_ms": np.array([0.2, 0.2], "<f4").tobytes(),
@@ -379,23 +409,47 @@ LONG = SMALL_ARRAY + 6  # past the plain-Python size: numpy reductions check the
         (Stimulation, _pulses(channel=b"", amplitude_ua=b"", width_ms=b"", onset_ms=b""), None),
         (Stimulation, _pulses(channel=b"\x01\x00\x00"), "array"),
         (Stimulation, _pulses(extra=1), "unknown"),
-        (Stimulation, _pulses(v=2), "version"),
-        (MotorCommand, msgpack.packb({"v": 1, "step": 0, "left_mps": 0.0}), "missing"),
-        (MotorCommand, msgpack.packb({"v": 1, "step": 0, "left_mps": 0, "right_mps": 1}), None),
+        (Stimulation, _pulses(v=1), "version"),
         (
             MotorCommand,
-            msgpack.packb({"v": 1, "step": 0, "left_mps": 0.0, "right_mps": 1e400}),
+            msgpack.packb({"v": 2, "step": 0, **MOTOR_WINDOW, "left_mps": 0.0}),
+            "missing",
+        ),
+        (
+            MotorCommand,
+            msgpack.packb({"v": 2, "step": 0, **MOTOR_WINDOW, "left_mps": 0, "right_mps": 1}),
+            None,
+        ),
+        (
+            MotorCommand,
+            msgpack.packb({"v": 2, "step": 0, **MOTOR_WINDOW, "left_mps": 0.0, "right_mps": 1e400}),
             "non_finite",
         ),
         (
             MotorCommand,
-            msgpack.packb({"v": 1, "step": 0, "left_mps": 0.0, "right_mps": 0.0, "v_mps": None}),
+            msgpack.packb(
+                {
+                    "v": 2,
+                    "step": 0,
+                    **MOTOR_WINDOW,
+                    "left_mps": 0.0,
+                    "right_mps": 0.0,
+                    "v_mps": None,
+                }
+            ),
             None,
         ),
         (
             MotorCommand,
             msgpack.packb(
-                {"v": 1, "step": 0, "left_mps": 0.0, "right_mps": 0.0, "omega_rad_s": True}
+                {
+                    "v": 2,
+                    "step": 0,
+                    **MOTOR_WINDOW,
+                    "left_mps": 0.0,
+                    "right_mps": 0.0,
+                    "omega_rad_s": True,
+                }
             ),
             "type",
         ),
@@ -440,7 +494,7 @@ def test_the_fast_decoding_path_agrees_with_the_full_one_on_any_map(data):
                 fields["t_ms"] = np.sort(np.frombuffer(fields["t_ms"][: 4 * n], "<f4")).tobytes()
         some = st.sets(st.sampled_from(list(fields)), max_size=2)
         absent = data.draw(st.one_of(st.just(set()), st.just(set()), some), label="absent")
-        wire = {"v": 1} | {k: v for k, v in fields.items() if k not in absent}
+        wire = {"v": 2} | {k: v for k, v in fields.items() if k not in absent}
 
         fast, full = _outcome(kind.from_dict, wire), _outcome(kind._from_dict_in_full, wire)
         assert fast == full
@@ -455,7 +509,7 @@ def _outcome(from_dict, data):
 
 
 def test_default_arrays_are_shared_read_only_and_decoded_ones_read_only_from_any_buffer():
-    a, b = Stimulation(step=1), Stimulation(step=2)
+    a, b = Stimulation.none(W(1)), Stimulation.none(W(2))
     assert a.channel is b.channel and not a.channel.flags.writeable
     assert a.channel.dtype == np.uint32 and a.onset_ms.dtype == np.float32
     raw = EXAMPLES[5].encode()
@@ -463,7 +517,7 @@ def test_default_arrays_are_shared_read_only_and_decoded_ones_read_only_from_any
         m = SpikeBatch.decode(buffer)
         assert m == EXAMPLES[5] and not m.t_ms.flags.writeable
     fresh = np.array([0.1, 0.2], np.float32)
-    SensorReading(step=1, t_s=0.0, ranges_m=fresh, pose=[0, 0, 0], contact=False)
+    SensorReading(step=1, run=RUN, t_s=0.0, ranges_m=fresh, pose=[0, 0, 0], contact=False)
     assert not fresh.flags.writeable
 
 
@@ -489,3 +543,72 @@ def test_a_message_that_fails_to_encode_leaves_the_next_one_whole():
     with pytest.raises(TypeError):
         bad.encode()
     assert ControlRequest.decode(ControlRequest(cmd="stop").encode()) == ControlRequest(cmd="stop")
+
+
+# --------------------------------------------------------------------------- contract v2
+
+
+@pytest.mark.parametrize("version", [True, 2.0, 1, 3, "2"])
+def test_the_version_must_be_exactly_the_integer_2(version):
+    data = MotorCommand.stop(W(1)).to_dict()
+    data["v"] = version
+    with pytest.raises(ProtocolError) as err:
+        MotorCommand.from_dict(data)
+    assert err.value.kind == "version"
+
+
+def test_a_step_window_is_the_steps_run_time():
+    w = StepWindow.of(RUN, 7, 0.01)
+    assert (w.step, w.t0_s, w.t1_s) == (7, 7 * 0.01, 8 * 0.01)
+    assert w.period_s == pytest.approx(0.01)
+    assert MotorCommand.stop(w).window == w and Stimulation.none(w).window == w
+
+
+def test_a_pulse_must_start_inside_its_step():
+    w = W(3)
+    Stimulation(**w.stamp, channel=[1], amplitude_ua=[1], width_ms=[1], onset_ms=[9.9])
+    with pytest.raises(ProtocolError, match="outside the step"):
+        Stimulation(**w.stamp, channel=[1], amplitude_ua=[1], width_ms=[1], onset_ms=[10.0])
+
+
+def test_a_window_must_have_a_length():
+    with pytest.raises(ProtocolError, match="must follow"):
+        MotorCommand(step=1, run=RUN, t0_s=0.02, t1_s=0.02, left_mps=0.0, right_mps=0.0)
+
+
+def _run_start(**fields) -> RunStart:
+    values = dict(
+        run="ab" * 16,
+        period_ms=10.0,
+        n_steps=100,
+        mode="lockstep",
+        start_unix_s=1.0,
+        deadline_ms=10.0,
+        key=bytes(16),
+    )
+    return RunStart(**{**values, **fields})
+
+
+def test_the_run_announcement_round_trips_and_is_told_from_its_end():
+    start = _run_start(seed=3)
+    assert decode_run_request(start.encode()) == start
+    assert start.window(2) == StepWindow.of(start.run, 2, 0.01)
+    end = RunEnd(run=start.run, outcome="completed")
+    assert decode_run_request(end.encode()) == end
+
+
+@pytest.mark.parametrize(
+    "fields, kind",
+    [
+        ({"run": "AB" * 16}, "range"),  # upper case
+        ({"run": "ab"}, "range"),  # too short
+        ({"mode": "fast"}, "range"),
+        ({"key": bytes(8)}, "type"),
+        ({"period_ms": 0.0}, "range"),
+        ({"n_steps": 0}, "range"),
+    ],
+)
+def test_a_bad_run_announcement_is_refused_with_its_kind(fields, kind):
+    with pytest.raises(ProtocolError) as err:
+        _run_start(**fields)
+    assert err.value.kind == kind
