@@ -36,15 +36,14 @@ METRICS_FILE = "metrics.json"
 REPORT_FILE = "report.html"
 
 
-def stimulus_onsets_ms(stimulations, period_ms: float) -> tuple[np.ndarray, np.ndarray]:
+def stimulus_onsets_ms(stimulations) -> tuple[np.ndarray, np.ndarray]:
     """Distinct pulse onsets and the stimulated channel ids of recorded stimulations.
 
     Parameters
     ----------
     stimulations : list of hub.protocol.Stimulation
-        A pulse of step k starts at ``k * period_ms + onset_ms``.
-    period_ms : float
-        The loop's period.
+        A pulse starts ``onset_ms`` into its message's window (``t0_s``): the same run
+        time the culture's spikes are stamped with.
 
     Returns
     -------
@@ -54,7 +53,7 @@ def stimulus_onsets_ms(stimulations, period_ms: float) -> tuple[np.ndarray, np.n
     channels : uint32 array
         The distinct stimulated channel ids.
     """
-    onsets = [m.step * period_ms + m.onset_ms.astype(np.float64) for m in stimulations]
+    onsets = [m.t0_s * 1e3 + m.onset_ms.astype(np.float64) for m in stimulations]
     chans = [m.channel for m in stimulations]
     if not onsets or not sum(o.size for o in onsets):
         return np.empty(0), np.empty(0, np.uint32)
@@ -147,11 +146,7 @@ def analyze_run(run_dir, out_dir=None, params: AnalysisParams | None = None) -> 
     stimulations = rec.decoded(Stimulation, "tx")
     stim_ms, stim_ids = None, None
     if stimulations:
-        if not period_ms:
-            raise AnalysisInputError(
-                "config.loop.period_ms is needed to place the recorded stimulations in time"
-            )
-        stim_ms, stim_ids = stimulus_onsets_ms(stimulations, float(period_ms))
+        stim_ms, stim_ids = stimulus_onsets_ms(stimulations)
         if stim_ms.size == 0:
             stim_ms = None
 

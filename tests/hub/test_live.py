@@ -13,6 +13,7 @@ from hub.live import BackgroundLiveBursts, LiveBursts
 from hub.loop import Hub
 from hub.protocol import Description, SpikeBatch
 from tests.endpoints import EchoBody, EchoCulture
+from tests.windows import RUN
 
 PERIOD_MS = 10.0
 # Channel ids need not be 0..n-1: a real MEA names its electrodes.
@@ -32,6 +33,7 @@ def _batches(spikes_by_channel, n_steps):
         inside = (t_ms >= t0) & (t_ms < t0 + PERIOD_MS)
         yield SpikeBatch(
             step=k,
+            run=RUN,
             t0_s=t0 / 1e3,
             t1_s=(t0 + PERIOD_MS) / 1e3,
             channel=channel[inside],

@@ -17,10 +17,13 @@ from hub.record import (
     read_run,
     write_manifest,
 )
+from tests.windows import RUN
 
 
 def _reading(k):
-    return SensorReading(step=k, t_s=k * 0.01, ranges_m=[0.2], pose=[k, 0, 0], contact=False)
+    return SensorReading(
+        step=k, run=RUN, t_s=k * 0.01, ranges_m=[0.2], pose=[k, 0, 0], contact=False
+    )
 
 
 def test_messages_and_events_read_back_in_order(tmp_path):
@@ -67,7 +70,9 @@ def test_the_writer_flushes_at_the_first_tick_its_period_after_the_last_flush(tm
 def test_spikes_are_returned_in_absolute_time(tmp_path):
     rec = Recorder(tmp_path)
     for k in range(2):
-        batch = SpikeBatch(step=k, t0_s=k * 0.01, t1_s=(k + 1) * 0.01, channel=[k], t_ms=[2.5])
+        batch = SpikeBatch(
+            step=k, run=RUN, t0_s=k * 0.01, t1_s=(k + 1) * 0.01, channel=[k], t_ms=[2.5]
+        )
         rec.message("rx", "nv/s/culture/0/spikes", batch.encode())
     rec.close()
     channel, t_ms = read_run(tmp_path).spikes()
@@ -110,7 +115,7 @@ def test_10000_dropped_50_kb_payloads_leave_a_small_record_and_the_messages_inta
         rec.message("drop", "nv/s/culture/0/spikes", junk[k % 4])
         if k % 1000 == 0:
             batch = SpikeBatch(
-                step=k, t0_s=k * 0.01, t1_s=(k + 1) * 0.01, channel=[k % 7], t_ms=[1.5]
+                step=k, run=RUN, t0_s=k * 0.01, t1_s=(k + 1) * 0.01, channel=[k % 7], t_ms=[1.5]
             )
             batches.append(batch)
             rec.message("rx", "nv/s/culture/0/spikes", batch.encode())

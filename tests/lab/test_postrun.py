@@ -7,6 +7,7 @@ import pytest
 from hub.protocol import SensorReading, SpikeBatch
 from hub.record import Recorder, write_manifest
 from lab.postrun import SUMMARY_FILE, summarize_run
+from tests.windows import RUN
 
 
 def test_a_real_body_gets_path_metrics_and_late_batches_still_make_a_raster(tmp_path):
@@ -15,12 +16,17 @@ def test_a_real_body_gets_path_metrics_and_late_batches_still_make_a_raster(tmp_
     rec = Recorder(tmp_path)
     for k in (0, 2, 1):  # step 1's batch was late: recorded after step 2's
         batch = SpikeBatch(
-            step=k, t0_s=k * 0.01, t1_s=(k + 1) * 0.01, channel=[0, 1], t_ms=[1.0, 2.0]
+            step=k, run=RUN, t0_s=k * 0.01, t1_s=(k + 1) * 0.01, channel=[0, 1], t_ms=[1.0, 2.0]
         )
         rec.message("rx", "nv/s/culture/0/spikes", batch.encode())
     for k in range(3):
         reading = SensorReading(
-            step=k, t_s=(k + 1) * 0.01, ranges_m=[0.1], pose=[0.01 * k, 0.0, 0.0], contact=False
+            step=k,
+            run=RUN,
+            t_s=(k + 1) * 0.01,
+            ranges_m=[0.1],
+            pose=[0.01 * k, 0.0, 0.0],
+            contact=False,
         )
         rec.message("rx", "nv/s/body/0/sensors", reading.encode())
     rec.close()

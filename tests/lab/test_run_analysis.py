@@ -9,6 +9,7 @@ from hub.analysis.spikes import AnalysisInputError
 from hub.protocol import Description, SensorReading, SpikeBatch, Stimulation
 from hub.record import Recorder, write_manifest
 from lab.run_analysis import analyze_run, stimulus_onsets_ms
+from tests.windows import RUN, W
 
 PERIOD_MS = 10.0
 N_CHANNELS = 20
@@ -62,7 +63,7 @@ def _write_run(run_dir, n_steps=600, world="configs/worlds/paper.toml"):
     for k in range(n_steps):
         if k in stim_steps:
             stim = Stimulation(
-                step=int(k),
+                **W(int(k)).stamp,
                 channel=ids[[0, 1]],
                 amplitude_ua=np.full(2, 100.0, np.float32),
                 width_ms=np.full(2, 10.0, np.float32),
@@ -72,6 +73,7 @@ def _write_run(run_dir, n_steps=600, world="configs/worlds/paper.toml"):
         lo, hi = np.searchsorted(t_all, [k * PERIOD_MS, (k + 1) * PERIOD_MS])
         batch = SpikeBatch(
             step=k,
+            run=RUN,
             t0_s=k * PERIOD_MS / 1e3,
             t1_s=(k + 1) * PERIOD_MS / 1e3,
             channel=ids[c_all[lo:hi]],
@@ -81,6 +83,7 @@ def _write_run(run_dir, n_steps=600, world="configs/worlds/paper.toml"):
         angle = k / n_steps * 2 * np.pi
         reading = SensorReading(
             step=k,
+            run=RUN,
             t_s=k * PERIOD_MS / 1e3,
             ranges_m=[0.2],
             pose=[0.3 * np.cos(angle), 0.3 * np.sin(angle), angle],
@@ -146,7 +149,7 @@ def test_a_silent_culture_still_gets_metrics_and_report(tmp_path):
     write_manifest(tmp_path, {"name": "silent", "config": {"loop": {"period_ms": 10.0}}})
     rec = Recorder(tmp_path)
     for k in range(100):
-        batch = SpikeBatch(step=k, t0_s=k * 0.01, t1_s=(k + 1) * 0.01)
+        batch = SpikeBatch(step=k, run=RUN, t0_s=k * 0.01, t1_s=(k + 1) * 0.01)
         rec.message("rx", "nv/s/culture/0/spikes", batch.encode())
     rec.close()
     out = analyze_run(tmp_path)
@@ -155,11 +158,13 @@ def test_a_silent_culture_still_gets_metrics_and_report(tmp_path):
     assert out["report_path"].stat().st_size > 0
 
 
-def test_stimulus_onsets_are_step_times_plus_pulse_onsets():
+def test_stimulus_onsets_are_window_starts_plus_pulse_onsets():
     msgs = [
-        Stimulation(step=3, channel=[1, 2], amplitude_ua=[1, 1], width_ms=[1, 1], onset_ms=[0, 0]),
-        Stimulation(step=5, channel=[4], amplitude_ua=[1], width_ms=[1], onset_ms=[2.5]),
+        Stimulation(
+            **W(3).stamp, channel=[1, 2], amplitude_ua=[1, 1], width_ms=[1, 1], onset_ms=[0, 0]
+        ),
+        Stimulation(**W(5).stamp, channel=[4], amplitude_ua=[1], width_ms=[1], onset_ms=[2.5]),
     ]
-    onsets, chans = stimulus_onsets_ms(msgs, 10.0)
+    onsets, chans = stimulus_onsets_ms(msgs)
     assert onsets.tolist() == [30.0, 52.5]
     assert chans.tolist() == [1, 2, 4]
