@@ -37,7 +37,6 @@ import dataclasses
 import json
 import os
 import queue
-import subprocess
 import sys
 import tempfile
 import threading
@@ -50,6 +49,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 os.environ["PYTHONPATH"] = os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")]))
 
+from bench.host import StealMeter, child_popen, interrupt_on_sigterm  # noqa: E402
 from hub.bus import LOOP_PUBLISH, free_tcp_port, open_session, payload_bytes  # noqa: E402
 from hub.config import BusSection, load_config  # noqa: E402
 from hub.launch import start_local_endpoints, stop_local_endpoints  # noqa: E402
@@ -207,7 +207,7 @@ def framed_round_trip_ms(n: int = 50) -> tuple[float, float]:
     inbox = Inbox(key)
     payload = np.random.default_rng(0).bytes(LARGE_BYTES)
     cmd = [sys.executable, __file__, "--framed-echo", str(port), key.hex()]
-    proc = subprocess.Popen(cmd)
+    proc = child_popen(cmd)
     try:
         if not alive.wait(30):
             raise SystemExit("the echo process did not come up")
@@ -245,7 +245,7 @@ def zenoh_round_trip_us(n: int = 2000) -> float:
         ),
     ]
     publisher = session.declare_publisher(f"{bus.keys.root}/ping", **LOOP_PUBLISH)
-    proc = subprocess.Popen([sys.executable, __file__, "--echo", str(port)])
+    proc = child_popen([sys.executable, __file__, "--echo", str(port)])
     try:
         if not alive.wait(30):
             raise SystemExit("the echo process did not come up")
@@ -272,6 +272,7 @@ def main() -> None:
     parser.add_argument("--echo", type=int, help=argparse.SUPPRESS)
     parser.add_argument("--framed-echo", nargs=2, help=argparse.SUPPRESS)
     args = parser.parse_args()
+    interrupt_on_sigterm()
     if args.echo:
         return echo(args.echo)
     if args.framed_echo:
@@ -314,7 +315,8 @@ def main() -> None:
     if args.realtime_priority is not None:
         extra = [f"loop.realtime_priority={args.realtime_priority}"]
     for period in (10.0, 1.0):
-        t = run_once("realtime", period, n, *extra)
+        with StealMeter() as steal:
+            t = run_once("realtime", period, n, *extra)
         tag = f"rt{period:g}"
         sched = t["scheduling"]
         sched = f"fifo {sched['priority']}" if sched["policy"] == "fifo" else "normal"
@@ -323,8 +325,10 @@ def main() -> None:
             f"realtime {period:4g} ms ({sched}) {n} steps: "
             f"lateness median {t['lateness_ms_median']:.3f} ms"
             f"  p99 {t['lateness_ms_p99']:.3f} ms  max {t['lateness_ms_max']:.3f} ms  "
-            f"late steps {t['late_steps']} ({100 * t['late_share']:.2f} %)"
+            f"late steps {t['late_steps']} ({100 * t['late_share']:.2f} %)  "
+            f"CPU steal {steal.share:.1%}"
         )
+        out[f"{tag}_steal_share"] = round(steal.share, 4)
         out[f"{tag}_late_share"] = round(t["late_share"], 5)
         out[f"{tag}_p99_lateness_ms"] = round(t["lateness_ms_p99"], 4)
         out[f"{tag}_median_lateness_ms"] = round(t["lateness_ms_median"], 4)

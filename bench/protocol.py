@@ -33,7 +33,13 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from hub.protocol import MotorCommand, SensorReading, SpikeBatch, Stimulation  # noqa: E402
+from hub.protocol import (  # noqa: E402
+    MotorCommand,
+    SensorReading,
+    SpikeBatch,
+    StepWindow,
+    Stimulation,
+)
 from hub.wire import Inbox, Outbox, new_key  # noqa: E402
 
 
@@ -56,11 +62,13 @@ def per_call_us(fn, repeat: int, round_s: float) -> float:
     return statistics.median(rounds)
 
 
+# Step 5 of a run with a 10 ms period: the window every loop message of the bench carries.
+WINDOW = StepWindow.of("0" * 32, 5, 0.01)
+
+
 def spike_batch_fields(n: int, rng: np.random.Generator) -> dict:
     return dict(
-        step=5,
-        t0_s=0.05,
-        t1_s=0.06,
+        **WINDOW.stamp,
         channel=rng.integers(0, 1024, n).astype(np.uint32),
         t_ms=np.sort(rng.uniform(0.0, 10.0, n)).astype(np.float32),
     )
@@ -68,9 +76,9 @@ def spike_batch_fields(n: int, rng: np.random.Generator) -> dict:
 
 def stimulation_fields(n: int, rng: np.random.Generator) -> dict:
     if n == 0:
-        return dict(step=5)
+        return dict(WINDOW.stamp)
     return dict(
-        step=5,
+        **WINDOW.stamp,
         channel=np.arange(n, dtype=np.uint32),
         amplitude_ua=rng.uniform(10, 50, n).astype(np.float32),
         width_ms=np.full(n, 0.2, dtype=np.float32),
@@ -81,7 +89,8 @@ def stimulation_fields(n: int, rng: np.random.Generator) -> dict:
 def sensor_reading_fields(n: int, rng: np.random.Generator) -> dict:
     return dict(
         step=5,
-        t_s=0.06,
+        run=WINDOW.run,
+        t_s=WINDOW.t1_s,
         ranges_m=rng.uniform(0.0, 0.3, n).astype(np.float32),
         pose=np.array([0.1, -0.2, 1.5]),
         contact=False,
@@ -89,7 +98,7 @@ def sensor_reading_fields(n: int, rng: np.random.Generator) -> dict:
 
 
 def motor_command_fields(n: int, rng: np.random.Generator) -> dict:
-    return dict(step=5, left_mps=0.1, right_mps=-0.05, v_mps=0.025, omega_rad_s=-2.8)
+    return dict(**WINDOW.stamp, left_mps=0.1, right_mps=-0.05, v_mps=0.025, omega_rad_s=-2.8)
 
 
 CASES = [  # (message type, a maker of its fields, size)
