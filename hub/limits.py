@@ -11,11 +11,11 @@ that asks for 1e6 µA gets nothing delivered rather than something else.
 
 from __future__ import annotations
 
-from collections import defaultdict, deque
+from collections import Counter, defaultdict, deque
 
 import numpy as np
 
-from hub.protocol import Description, MotorCommand, Stimulation
+from hub.protocol import SMALL_ARRAY, Description, MotorCommand, Stimulation
 
 # Pulses are counted over this trailing window for the per-channel rate limit.
 RATE_WINDOW_S = 1.0
@@ -55,24 +55,28 @@ class StimulationLimits:
         """Why ``stim`` may not be delivered, or None. Call :meth:`accept` if delivered."""
         if not stim.n_pulses:
             return None
+        small = stim.n_pulses <= SMALL_ARRAY  # plain Python beats numpy calls here
         if self.max_amplitude_ua is not None:
-            top = float(np.abs(stim.amplitude_ua).max())
+            amplitude = stim.amplitude_ua
+            top = max(map(abs, amplitude.tolist())) if small else float(np.abs(amplitude).max())
             if top > self.max_amplitude_ua:
                 return f"amplitude {top:g} uA exceeds max_amplitude_ua {self.max_amplitude_ua:g}"
         if self.max_width_ms is not None:
-            top = float(stim.width_ms.max())
+            top = max(stim.width_ms.tolist()) if small else float(stim.width_ms.max())
             if top > self.max_width_ms:
                 return f"width {top:g} ms exceeds max_width_ms {self.max_width_ms:g}"
         if self.max_pulse_hz is not None:
             allowed = self.max_pulse_hz * RATE_WINDOW_S
-            channels, counts = np.unique(stim.channel, return_counts=True)
             since = stim.t1_s - RATE_WINDOW_S
-            for channel, n in zip(channels.tolist(), counts.tolist(), strict=True):
+            for channel, n in Counter(stim.channel.tolist()).items():
                 recent = self._recent.get(channel)
-                before = sum(1 for t in recent if t > since) if recent else 0
-                if before + n > allowed:
+                if recent:  # times come in order: what left the window never comes back
+                    while recent and recent[0] <= since:
+                        recent.popleft()
+                    n += len(recent)
+                if n > allowed:
                     return (
-                        f"channel {channel}: {before + n} pulses in {RATE_WINDOW_S:g} s exceed "
+                        f"channel {channel}: {n} pulses in {RATE_WINDOW_S:g} s exceed "
                         f"max_pulse_hz {self.max_pulse_hz:g}"
                     )
         return None
@@ -81,10 +85,7 @@ class StimulationLimits:
         """Count ``stim``'s pulses towards the rate limit (it is being delivered)."""
         if self.max_pulse_hz is None or not stim.n_pulses:
             return
-        onsets_s = stim.t0_s + stim.onset_ms.astype(np.float64) / 1e3
-        since = stim.t1_s - RATE_WINDOW_S
-        for channel, t in zip(stim.channel.tolist(), onsets_s.tolist(), strict=True):
-            recent = self._recent[channel]
-            recent.append(t)
-            while recent and recent[0] <= since:
-                recent.popleft()
+        t0_s = stim.t0_s
+        recent = self._recent
+        for channel, onset_ms in zip(stim.channel.tolist(), stim.onset_ms.tolist(), strict=True):
+            recent[channel].append(t0_s + onset_ms / 1e3)
