@@ -37,8 +37,8 @@ from hub.analysis.bursts import BurstParams
 from hub.analysis.network_bursts import NetworkBurstParams
 from hub.bus import LOOP_PUBLISH, TELEMETRY_PUBLISH, open_session, payload_bytes
 from hub.config import ConfigError, ExperimentConfig
-from hub.limits import StimulationLimits, motor_violation
 from hub.live import BackgroundLiveBursts, LiveBursts
+from hub.policy import InputPolicy, SchemeError
 from hub.protocol import (
     OUTPUT_TYPE,
     ROLES,
@@ -54,8 +54,6 @@ from hub.protocol import (
     RunEnd,
     RunReply,
     RunStart,
-    SensorReading,
-    SpikeBatch,
     StepWindow,
     Stimulation,
 )
@@ -70,7 +68,6 @@ from hub.scheduling import (
     restore_placement,
     restore_threads,
 )
-from hub.schemes import SchemeContext, load_scheme
 
 log = logging.getLogger(__name__)
 
@@ -243,7 +240,7 @@ class Hub:
             if self._stop_reason:
                 outcome = "interrupted" if self._stop_reason == "interrupted" else "stopped"
                 reason = self._stop_reason
-        except (HubError, ConfigError) as exc:
+        except (HubError, ConfigError, SchemeError) as exc:
             outcome, reason = "fault", str(exc)
             log.error("%s", exc)
             self._record_event("fault", reason=reason)
@@ -330,7 +327,7 @@ class Hub:
         guard_s = LIVE_GUARD_SHARE * period_s
         # Each step's inputs are coded and encoded in the slack of the step before, so
         # that they leave the moment the step starts.
-        inputs = self._encoded(self._motor_for(0, None), self._stim_for(0, None))
+        inputs = self._encoded(self.inputs.motor_for(0, None), self.inputs.stim_for(0, None))
         for k in range(n):
             if not self._await_start(k, period_s):
                 return
@@ -346,7 +343,8 @@ class Hub:
             self.step_wall_s[k] = time.monotonic() - t0
             if k + 1 < n:
                 inputs = self._encoded(
-                    self._motor_for(k + 1, prev["culture"]), self._stim_for(k + 1, prev["body"])
+                    self.inputs.motor_for(k + 1, prev["culture"]),
+                    self.inputs.stim_for(k + 1, prev["body"]),
                 )
             self.late_steps += bool(late or self.lateness_s[k] > LATE_START_SHARE * period_s)
             self.k_done = k + 1
@@ -376,8 +374,8 @@ class Hub:
         with self.lock:
             self.expect = {"body": 0, "culture": 0}
             self._last_progress = time.monotonic()
-            self._send("body", self._motor_for(0, None))
-            self._send("culture", self._stim_for(0, None))
+            self._send("body", self.inputs.motor_for(0, None))
+            self._send("culture", self.inputs.stim_for(0, None))
             self.direct = True
         try:
             while True:
@@ -458,67 +456,11 @@ class Hub:
         self.expect[role] = k + 1
         if k + 1 < n and not self._stop_reason:
             if role == "culture":
-                self._send("body", self._motor_for(k + 1, reply))
+                self._send("body", self.inputs.motor_for(k + 1, reply))
             else:
-                self._send("culture", self._stim_for(k + 1, reply))
+                self._send("culture", self.inputs.stim_for(k + 1, reply))
         if role == "culture" and reply is not None and self.live is not None:
             self._live_in.put(reply)
-
-    def _motor_for(self, k: int, spikes: SpikeBatch | None) -> MotorCommand:
-        window = self._window(k)
-        if k == 0:
-            return MotorCommand.stop(window)
-        if spikes is not None:
-            motor = self._checked(self.decoder(spikes, window), MotorCommand, window)
-            why = motor_violation(motor, self.descriptions["body"])
-            if why is None:
-                self.last_motor = motor
-            else:  # refused, never clipped: the robot stops for this step
-                self._drop("decoding", "limit", f"step {k}: {why}")
-                self.last_motor = MotorCommand.stop(window)
-        elif self.cfg.policy.missing_spikes == "stop_robot":
-            self.last_motor = MotorCommand.stop(window)
-        else:  # hold
-            m = self.last_motor
-            self.last_motor = MotorCommand(
-                **window.stamp,
-                left_mps=m.left_mps,
-                right_mps=m.right_mps,
-                v_mps=m.v_mps,
-                omega_rad_s=m.omega_rad_s,
-            )
-        return self.last_motor
-
-    def _stim_for(self, k: int, sensors: SensorReading | None) -> Stimulation:
-        window = self._window(k)
-        if k == 0:
-            return Stimulation.none(window)
-        if sensors is not None:
-            self.last_sensors = sensors
-        elif self.cfg.policy.missing_sensors == "zero_stim" or self.last_sensors is None:
-            return Stimulation.none(window)
-        stim = self._checked(self.coder(self.last_sensors, window), Stimulation, window)
-        why = self.stim_limits.violation(stim)
-        if why is not None:  # refused, never clipped: no stimulation this step
-            self._drop("coding", "limit", f"step {k}: {why}")
-            return Stimulation.none(window)
-        self.stim_limits.accept(stim)
-        return stim
-
-    @staticmethod
-    def _checked(message, kind, window: StepWindow):
-        if (
-            not isinstance(message, kind)
-            or message.step != window.step
-            or message.run != window.run
-            or message.t0_s != window.t0_s
-            or message.t1_s != window.t1_s
-        ):
-            raise HubError(
-                f"scheme returned {message!r}, expected a {kind.__name__} for step "
-                f"{window.step} (window {window})"
-            )
-        return message
 
     def _work_live(self, *, flush: bool = False, pause: Callable[[], bool] | None = None) -> bool:
         """Lockstep: feed the live burst detector the spikes handed over (``_live_in``) once
@@ -961,21 +903,13 @@ class Hub:
 
     def _build_schemes(self) -> None:
         cfg = self.cfg
-        common = dict(
-            body=self.descriptions["body"],
-            culture=self.descriptions["culture"],
-            period_ms=cfg.loop.period_ms,
-            seed=cfg.experiment.seed,
+        self.inputs = InputPolicy(
+            cfg,
+            self.descriptions["body"],
+            self.descriptions["culture"],
+            self.run_id,
+            on_refused=lambda scheme, why: self._drop(scheme, "limit", why),
         )
-        self.coder = load_scheme(cfg.coding.scheme, "coding")(
-            SchemeContext(params=cfg.coding.params, section="coding", **common)
-        )
-        self.decoder = load_scheme(cfg.decoding.scheme, "decoding")(
-            SchemeContext(params=cfg.decoding.params, section="decoding", **common)
-        )
-        self.last_motor = MotorCommand.stop(self._window(0))
-        self.stim_limits = StimulationLimits(self.descriptions["culture"])
-        self.last_sensors: SensorReading | None = None
         if cfg.online.enabled:
             params = {}
             for name, kind in (("burst", BurstParams), ("network", NetworkBurstParams)):

@@ -1,0 +1,146 @@
+"""What the hub sends each step: the schemes' output, checked, or the policy's stand-in.
+
+Pure (no bus, no clock): given the step and the reply it depends on — or None when that
+reply is missing — :class:`InputPolicy` returns the next input. The body's motor command
+of step k is decoded from the culture's spikes of step k−1, the culture's stimulation of
+step k coded from the body's sensors of step k−1 (ARCHITECTURE.md, "The loop"); when the
+reply is missing, ``[policy]`` decides (``missing_spikes``: stop the robot or hold its
+last command; ``missing_sensors``: no stimulation or code the last reading again). A
+scheme's output over the endpoint's limits is refused whole (never clipped) and counted.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from collections.abc import Callable
+
+from hub.config import ExperimentConfig
+from hub.limits import StimulationLimits, motor_violation
+from hub.protocol import (
+    Description,
+    MotorCommand,
+    SensorReading,
+    SpikeBatch,
+    StepWindow,
+    Stimulation,
+)
+from hub.schemes import SchemeContext, load_scheme
+
+
+class SchemeError(RuntimeError):
+    """A coding or decoding scheme returned something other than the input asked for."""
+
+
+class InputPolicy:
+    """The inputs of each step of one run, from the schemes and the ``[policy]`` section.
+
+    Parameters
+    ----------
+    cfg : ExperimentConfig
+        The experiment (its ``coding``, ``decoding`` and ``policy`` sections).
+    body, culture : Description
+        What the endpoints described (schemes and limits are built on them).
+    run : str
+        The run id every input carries.
+    on_refused : callable, optional
+        Called with the scheme's name and why, for each output refused over a limit.
+
+    Attributes
+    ----------
+    refused : Counter
+        Scheme outputs refused over a limit, by scheme (``coding``, ``decoding``).
+    """
+
+    def __init__(
+        self,
+        cfg: ExperimentConfig,
+        body: Description,
+        culture: Description,
+        run: str,
+        on_refused: Callable[[str, str], None] | None = None,
+    ):
+        common = dict(
+            body=body, culture=culture, period_ms=cfg.loop.period_ms, seed=cfg.experiment.seed
+        )
+        self.coder = load_scheme(cfg.coding.scheme, "coding")(
+            SchemeContext(params=cfg.coding.params, section="coding", **common)
+        )
+        self.decoder = load_scheme(cfg.decoding.scheme, "decoding")(
+            SchemeContext(params=cfg.decoding.params, section="decoding", **common)
+        )
+        self.policy = cfg.policy
+        self.body = body
+        self.run = run
+        self.period_s = cfg.loop.period_ms / 1e3
+        self.stim_limits = StimulationLimits(culture)
+        self.last_motor = MotorCommand.stop(self.window(0))
+        self.last_sensors: SensorReading | None = None
+        self.refused: Counter[str] = Counter()
+        self.on_refused = on_refused
+
+    def window(self, k: int) -> StepWindow:
+        """Step ``k`` of this run."""
+        return StepWindow.of(self.run, k, self.period_s)
+
+    def motor_for(self, k: int, spikes: SpikeBatch | None) -> MotorCommand:
+        """The body's input of step ``k``, from the culture's spikes of step ``k``−1."""
+        window = self.window(k)
+        if k == 0:
+            return MotorCommand.stop(window)
+        if spikes is not None:
+            motor = _checked(self.decoder(spikes, window), MotorCommand, window)
+            why = motor_violation(motor, self.body)
+            if why is None:
+                self.last_motor = motor
+            else:  # refused, never clipped: the robot stops for this step
+                self._refuse("decoding", f"step {k}: {why}")
+                self.last_motor = MotorCommand.stop(window)
+        elif self.policy.missing_spikes == "stop_robot":
+            self.last_motor = MotorCommand.stop(window)
+        else:  # hold
+            m = self.last_motor
+            self.last_motor = MotorCommand(
+                **window.stamp,
+                left_mps=m.left_mps,
+                right_mps=m.right_mps,
+                v_mps=m.v_mps,
+                omega_rad_s=m.omega_rad_s,
+            )
+        return self.last_motor
+
+    def stim_for(self, k: int, sensors: SensorReading | None) -> Stimulation:
+        """The culture's input of step ``k``, from the body's sensors of step ``k``−1."""
+        window = self.window(k)
+        if k == 0:
+            return Stimulation.none(window)
+        if sensors is not None:
+            self.last_sensors = sensors
+        elif self.policy.missing_sensors == "zero_stim" or self.last_sensors is None:
+            return Stimulation.none(window)
+        stim = _checked(self.coder(self.last_sensors, window), Stimulation, window)
+        why = self.stim_limits.violation(stim)
+        if why is not None:  # refused, never clipped: no stimulation this step
+            self._refuse("coding", f"step {k}: {why}")
+            return Stimulation.none(window)
+        self.stim_limits.accept(stim)
+        return stim
+
+    def _refuse(self, scheme: str, detail: str) -> None:
+        self.refused[scheme] += 1
+        if self.on_refused is not None:
+            self.on_refused(scheme, detail)
+
+
+def _checked(message, kind, window: StepWindow):
+    if (
+        not isinstance(message, kind)
+        or message.step != window.step
+        or message.run != window.run
+        or message.t0_s != window.t0_s
+        or message.t1_s != window.t1_s
+    ):
+        raise SchemeError(
+            f"scheme returned {message!r}, expected a {kind.__name__} for step "
+            f"{window.step} (window {window})"
+        )
+    return message
