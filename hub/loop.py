@@ -40,10 +40,7 @@ from hub.config import ConfigError, ExperimentConfig
 from hub.live import BackgroundLiveBursts, LiveBursts
 from hub.policy import InputPolicy, SchemeError
 from hub.protocol import (
-    OUTPUT_TYPE,
     ROLES,
-    SMALL_ARRAY,
-    WINDOW_TOLERANCE_S,
     ControlReply,
     ControlRequest,
     Description,
@@ -58,6 +55,7 @@ from hub.protocol import (
     Stimulation,
 )
 from hub.record import Recorder, host, utc_now, versions, write_manifest
+from hub.replies import ReplyChecker
 from hub.scheduling import (
     Placement,
     Scheduling,
@@ -155,6 +153,7 @@ class Hub:
         self.run_id = uuid.uuid4().hex
         self.run_keys = {role: wire.new_key() for role in ROLES}
         self.period_s = cfg.loop.period_ms / 1e3
+        self.checker = ReplyChecker(self.run_id, self.period_s)
         self.state = "waiting"
         self.k = 0
         self.alive: set[tuple[str, str]] = set()
@@ -627,23 +626,10 @@ class Hub:
 
     def _classify_reply(self, role: str, raw: bytes, t_arrival: float) -> str:
         try:
-            message = OUTPUT_TYPE[role].decode(raw)
-            self._check_against_description(role, message)
+            message = self.checker.check(role, raw)
         except ProtocolError as exc:
             return self._drop(role, exc.kind, str(exc))
         step, expected = message.step, self.expect[role]
-        if message.run != self.run_id:
-            return self._drop(role, "foreign", f"reply of run {message.run!r}")
-        if role == "culture":
-            if (
-                abs(message.t0_s - step * self.period_s) > WINDOW_TOLERANCE_S
-                or abs(message.t1_s - (step + 1) * self.period_s) > WINDOW_TOLERANCE_S
-            ):
-                return self._drop(
-                    role, "window", f"spikes of step {step} over [{message.t0_s}, {message.t1_s})"
-                )
-        elif message.t_s > (step + 1) * self.period_s + WINDOW_TOLERANCE_S:
-            return self._drop(role, "window", f"reading of step {step} taken at {message.t_s} s")
         if self.state == "waiting":
             return self._drop(role, "early", f"reply for step {step} before the run started")
         if step == self.k and t_arrival > self.reply_deadline and step not in self.missed[role]:
@@ -661,29 +647,6 @@ class Hub:
         if step <= expected:
             return self._drop(role, "stale", f"reply for step {step} awaiting step {expected}")
         return self._drop(role, "future", f"reply for step {step} awaiting step {expected}")
-
-    def _check_against_description(self, role: str, message: Message) -> None:
-        desc = self.descriptions.get(role)
-        if desc is None:
-            return
-        if role == "body":
-            ranges = message.ranges_m
-            if ranges.size != self._n_sensors:
-                raise ProtocolError(
-                    "array", f"ranges_m has {ranges.size} values, body has {self._n_sensors}"
-                )
-            if ranges.size and max(ranges.tolist()) > self._max_range_m:
-                raise ProtocolError("range", f"ranges_m exceeds max_range_m {desc.max_range_m}")
-        elif message.channel.size:
-            channel = message.channel
-            if channel.size <= SMALL_ARRAY:  # plain Python beats numpy calls here
-                known = self._known_channels
-                ok = all(c in known for c in channel.tolist())
-            else:
-                known = self._known_channel
-                ok = channel.max() < known.size and known[channel].all()
-            if not ok:
-                raise ProtocolError("range", "spikes on channels the culture does not have")
 
     def _drop(self, role: str, kind: str, detail: str) -> str:
         """Count (and log once per kind) a dropped message; returns the record verdict."""
@@ -870,13 +833,7 @@ class Hub:
     def _take_description(self, desc: Description) -> None:
         """Keep an endpoint's description, and what its replies are checked against."""
         self.descriptions[desc.role] = desc
-        if desc.role == "culture":
-            self._known_channel = np.zeros(int(desc.channel.max(initial=0)) + 1, bool)
-            self._known_channel[desc.channel] = True
-            self._known_channels = frozenset(desc.channel.tolist())
-        else:
-            self._n_sensors = desc.n_sensors
-            self._max_range_m = desc.max_range_m * (1 + 1e-6)
+        self.checker.take_description(desc)
 
     @staticmethod
     def _steps_share(desc: Description, final: dict[str, dict]) -> dict:
