@@ -84,9 +84,14 @@ def run_once(mode: str, period_ms: float, steps: int, *extra: str) -> dict:
             result = Hub(cfg, run_dir=Path(tmp)).run()
         finally:
             stop_local_endpoints(procs)
+        endpoints = json.loads((Path(tmp) / "manifest.json").read_text())["endpoints"]
     if result.outcome != "completed":
         raise SystemExit(f"{mode} {period_ms} ms run failed: {result.reason}")
-    return result.timing
+    # CPU time per step of each process, all its threads: what bounds lockstep on few cores.
+    n = max(result.steps, 1)
+    cpu_us = {"hub": result.timing["hub_cpu_s"] / n * 1e6}
+    cpu_us.update({role: e["cpu_s"] / n * 1e6 for role, e in endpoints.items()})
+    return {**result.timing, "cpu_us_per_step": cpu_us}
 
 
 class MegabyteCulture(EchoCulture):
@@ -303,10 +308,13 @@ def main() -> None:
         print(
             f"lockstep      {n} steps: {lock['steps_per_s']:8.0f} steps/s  "
             f"step median {lock['step_ms_median']:.3f} ms  p99 {lock['step_ms_p99']:.3f} ms  "
-            f"({where if tag == 'placed' else 'wherever the OS puts them'})"
+            f"({where if tag == 'placed' else 'wherever the OS puts them'}); CPU per step "
+            + ", ".join(f"{k} {v:.0f} us" for k, v in lock["cpu_us_per_step"].items())
         )
         key = "lockstep_steps_per_s" if tag == "placed" else "lockstep_os_placement_steps_per_s"
         out[key] = round(lock["steps_per_s"], 1)
+        for who, us in lock["cpu_us_per_step"].items():
+            out[f"lockstep_{tag}_cpu_us_per_step_{who}"] = round(us, 1)
         if not placed:
             break
     out["lockstep_placement"] = where
