@@ -29,7 +29,6 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import numpy as np
 import zenoh
 
 from hub import wire
@@ -56,10 +55,10 @@ from hub.protocol import (
 )
 from hub.record import Recorder, host, utc_now, versions, write_manifest
 from hub.replies import ReplyChecker
+from hub.report import LoopTimes, counts, steps_share
 from hub.scheduling import (
     Placement,
     Scheduling,
-    available_cpus,
     check_cpus,
     place_threads,
     raise_threads,
@@ -160,7 +159,6 @@ class Hub:
         self.late: Counter[str] = Counter()
         self.missed: dict[str, set[int]] = defaultdict(set)
         self.dropped: dict[str, Counter[str]] = defaultdict(Counter)
-        self.late_steps = 0
         # Accepted replies not yet used, by role and step.
         self.pending: dict[str, dict[int, Message]] = {role: {} for role in ROLES}
         self.expect = {role: 0 for role in ROLES}  # the step whose reply each role owes
@@ -169,15 +167,11 @@ class Hub:
         self._stop_reason: str | None = None
         self._pause_started: float | None = None
         self._paused_s = 0.0
-        self._t_start = 0.0
         self._next_status = 0.0
         n = cfg.n_steps
-        self.lateness_s = np.full(n, np.nan)
-        self.step_wall_s = np.full(n, np.nan)
+        self.times = LoopTimes.for_run(cfg.loop.mode, cfg.loop.period_ms, n)
         self.recorder: Recorder | None = None
         self.live: LiveBursts | None = None
-        self.waiting_s = 0.0  # time the loop spent blocked, waiting for events
-        self.direct_busy_s = 0.0  # lockstep: time spent on replies in the threads they came on
         self.reply_deadline = math.inf  # realtime: replies arriving later are late
         self.scheduling: Scheduling | None = None  # realtime: what the hub's threads got
         self.placement = Placement()  # the CPUs the hub's threads are kept on (loop.cpus)
@@ -267,7 +261,7 @@ class Hub:
                     timing=timing,
                     counts=counts,
                     endpoints={
-                        r: {"kind": d.kind, "id": d.id, **self._steps_share(d, endpoint_stats)}
+                        r: {"kind": d.kind, "id": d.id, **steps_share(d, endpoint_stats)}
                         for r, d in self.descriptions.items()
                     },
                 )
@@ -288,9 +282,7 @@ class Hub:
         # collector, whose full passes would otherwise stall realtime steps.
         gc.collect()
         gc.freeze()
-        self._t_start = time.monotonic()
-        self._cpu_start_s = time.process_time()
-        self.waiting_s = self.direct_busy_s = 0.0
+        self.times.start()
         switch_s = sys.getswitchinterval()
         sys.setswitchinterval(GIL_SWITCH_S)
         try:
@@ -339,13 +331,15 @@ class Hub:
             if k == 0:  # every thread that carries replies has started by now
                 self.scheduling.include_new_threads()
             prev = {role: self.pending[role].pop(k, None) for role in ROLES}
-            self.step_wall_s[k] = time.monotonic() - t0
+            self.times.step_wall_s[k] = time.monotonic() - t0
             if k + 1 < n:
                 inputs = self._encoded(
                     self.inputs.motor_for(k + 1, prev["culture"]),
                     self.inputs.stim_for(k + 1, prev["body"]),
                 )
-            self.late_steps += bool(late or self.lateness_s[k] > LATE_START_SHARE * period_s)
+            self.times.late_steps += bool(
+                late or self.times.lateness_s[k] > LATE_START_SHARE * period_s
+            )
             self.k_done = k + 1
             if background is not None:
                 if prev["culture"] is not None:
@@ -417,7 +411,7 @@ class Hub:
             except BaseException as exc:  # the loop's thread raises it
                 self.direct, self._failure = False, exc
                 self.inbox.put(("wake",))
-            self.direct_busy_s += time.perf_counter() - t0
+            self.times.direct_busy_s += time.perf_counter() - t0
 
     def _advance(self, n: int) -> None:
         """Lockstep: send every input whose reply is in (unless paused or stopping), and
@@ -431,7 +425,7 @@ class Hub:
         done = min(self.expect.values())
         if done > self.k_done:
             now = time.monotonic()
-            self.step_wall_s[self.k_done : done] = (now - self._last_progress) / (
+            self.times.step_wall_s[self.k_done : done] = (now - self._last_progress) / (
                 done - self.k_done
             )
             self._last_progress = now
@@ -499,7 +493,7 @@ class Hub:
         return self._scheduled(k, period_s) + self.cfg.loop.deadline_s
 
     def _scheduled(self, k: int, period_s: float) -> float:
-        return self._t_start + self._paused_s + k * period_s
+        return self.times.t_start + self._paused_s + k * period_s
 
     def _await_start(self, k: int, period_s: float) -> bool:
         """Handle events until step k may start; False if the run must end."""
@@ -515,7 +509,7 @@ class Hub:
             target = self._scheduled(k, period_s) if realtime else now
             if now >= target:
                 if realtime:
-                    self.lateness_s[k] = now - target
+                    self.times.lateness_s[k] = now - target
                 return True
             self._next_event(target)
 
@@ -560,7 +554,7 @@ class Hub:
         except queue.Empty:
             return None
         finally:
-            self.waiting_s += time.perf_counter() - t0
+            self.times.waiting_s += time.perf_counter() - t0
             self._note_wake()
 
     def _note_wake(self) -> None:
@@ -835,16 +829,6 @@ class Hub:
         self.descriptions[desc.role] = desc
         self.checker.take_description(desc)
 
-    @staticmethod
-    def _steps_share(desc: Description, final: dict[str, dict]) -> dict:
-        """An endpoint's final counters, its CPU time made that of the steps alone (the
-        counters it described itself with at the start taken off)."""
-        out = dict(final.get(desc.role, {}))
-        start = (desc.counters or {}).get("cpu_s")
-        if isinstance(out.get("cpu_s"), float) and isinstance(start, float):
-            out["cpu_s"] = out["cpu_s"] - start
-        return out
-
     def _final_counters(self, session: zenoh.Session) -> dict[str, dict]:
         """Each endpoint's own counters at the end (drops, steps, busy time), if it answers."""
         out = {}
@@ -901,7 +885,7 @@ class Hub:
             self.recorder.event(name, **details)
 
     def _status(self) -> HubStatus:
-        wall = time.monotonic() - self._t_start if self._t_start else 0.0
+        wall = self.times.wall_s()
         done = getattr(self, "k_done", 0)
         return HubStatus(
             step=self.k,
@@ -915,7 +899,7 @@ class Hub:
             wall_s=wall,
             steps_per_s=done / wall if wall > 0 else 0.0,
             extra={
-                "late_steps": self.late_steps,
+                "late_steps": self.times.late_steps,
                 "bursts": self.live.bursts if self.live else 0,
                 "network_bursts": self.live.network_bursts if self.live else 0,
             },
@@ -928,7 +912,7 @@ class Hub:
     def _progress(self) -> Progress:
         s = self._status()
         return Progress(
-            s.step, self.cfg.n_steps, s.t_s, s.wall_s, s.steps_per_s, self.late_steps, s.state
+            s.step, self.cfg.n_steps, s.t_s, s.wall_s, s.steps_per_s, self.times.late_steps, s.state
         )
 
     # ================================================================ summaries
@@ -937,47 +921,8 @@ class Hub:
 
     def timing(self) -> dict:
         """Loop timing figures of the run so far (wall time, lateness, late steps)."""
-        n = self.k_done
-        wall = time.monotonic() - self._t_start if self._t_start else 0.0
-        out = {
-            "mode": self.cfg.loop.mode,
-            "period_ms": self.cfg.loop.period_ms,
-            "steps": n,
-            "wall_s": wall,
-            "steps_per_s": n / wall if wall > 0 else 0.0,
-            "x_realtime": n * self.cfg.loop.period_ms / 1e3 / wall if wall > 0 else 0.0,
-            "hub_busy_s": self._busy_s(wall),
-            "hub_cpu_s": time.process_time() - self._cpu_start_s if self._t_start else 0.0,
-            "late_steps": int(self.late_steps),
-            "late_share": self.late_steps / n if n else 0.0,
-        }
-        if self.scheduling is not None:
-            out["scheduling"] = self.scheduling.to_dict()
-        cpus = available_cpus()
-        if cpus is not None:
-            out["cpus"] = sorted(cpus)  # those the hub's process could run on
-        step_ms = self.step_wall_s[:n] * 1e3
-        if n:
-            out["step_ms_median"] = float(np.median(step_ms))
-            out["step_ms_p99"] = float(np.percentile(step_ms, 99))
-        late_ms = self.lateness_s[:n] * 1e3
-        if n and self.cfg.loop.mode == "realtime":
-            out["lateness_ms_median"] = float(np.nanmedian(late_ms))
-            out["lateness_ms_p99"] = float(np.nanpercentile(late_ms, 99))
-            out["lateness_ms_max"] = float(np.nanmax(late_ms))
-        return out
-
-    def _busy_s(self, wall_s: float) -> float:
-        """Time the hub spent on the steps: its loop thread's time not waiting, and in
-        lockstep the time spent on replies in the threads they came on."""
-        return max(wall_s - self.waiting_s, 0.0) + self.direct_busy_s
+        return self.times.report(self.k_done, self.scheduling)
 
     def counts(self) -> dict:
-        return {
-            "bursts_online": self.live.bursts if self.live else 0,
-            "spikes_not_analysed_online": self.live.skipped_spikes if self.live else 0,
-            "network_bursts_online": self.live.network_bursts if self.live else 0,
-            "late": dict(self.late),
-            "missing": {r: len(s) for r, s in self.missed.items() if s},
-            "dropped": {r: dict(c) for r, c in self.dropped.items()},
-        }
+        """Online bursts, late, missing and dropped messages so far."""
+        return counts(self.live, self.late, self.missed, self.dropped)

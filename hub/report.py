@@ -1,0 +1,115 @@
+"""What a run reports of itself: where its time went, and what it counted.
+
+Plain data, no bus: the schedulers write each step's wall time and lateness into
+:class:`LoopTimes`; :meth:`LoopTimes.report` and :func:`counts` make the manifest's
+``timing`` and ``counts`` entries; :func:`steps_share` an endpoint's own counters for the
+steps alone.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import Counter
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from hub.protocol import Description
+from hub.scheduling import Scheduling, available_cpus
+
+
+@dataclass
+class LoopTimes:
+    """The wall and CPU time of a run's steps.
+
+    Attributes
+    ----------
+    step_wall_s, lateness_s : float arrays, one value per step
+        How long each step took; in realtime, how late each step started (NaN: not yet).
+    late_steps : int
+        Steps that missed a reply's deadline or started late.
+    waiting_s : float
+        Time the loop's thread spent blocked, waiting for events.
+    direct_busy_s : float
+        Lockstep: time spent on replies in the threads they came on.
+    t_start, cpu_start_s : float
+        Monotonic and process CPU time when the steps began (``t_start`` 0: not yet).
+    """
+
+    mode: str
+    period_ms: float
+    step_wall_s: np.ndarray
+    lateness_s: np.ndarray
+    late_steps: int = 0
+    waiting_s: float = 0.0
+    direct_busy_s: float = 0.0
+    t_start: float = 0.0
+    cpu_start_s: float = field(default=0.0)
+
+    @classmethod
+    def for_run(cls, mode: str, period_ms: float, n_steps: int) -> LoopTimes:
+        return cls(mode, period_ms, np.full(n_steps, np.nan), np.full(n_steps, np.nan))
+
+    def start(self) -> None:
+        """The steps begin now."""
+        self.t_start = time.monotonic()
+        self.cpu_start_s = time.process_time()
+        self.waiting_s = self.direct_busy_s = 0.0
+
+    def wall_s(self) -> float:
+        """Wall time since the steps began (0 before)."""
+        return time.monotonic() - self.t_start if self.t_start else 0.0
+
+    def report(self, steps: int, scheduling: Scheduling | None) -> dict:
+        """Loop timing figures of the first ``steps`` steps (wall time, lateness, late steps)."""
+        n, wall = steps, self.wall_s()
+        out = {
+            "mode": self.mode,
+            "period_ms": self.period_ms,
+            "steps": n,
+            "wall_s": wall,
+            "steps_per_s": n / wall if wall > 0 else 0.0,
+            "x_realtime": n * self.period_ms / 1e3 / wall if wall > 0 else 0.0,
+            # the loop's thread's time not waiting, and in lockstep the replies' threads'
+            "hub_busy_s": max(wall - self.waiting_s, 0.0) + self.direct_busy_s,
+            "hub_cpu_s": time.process_time() - self.cpu_start_s if self.t_start else 0.0,
+            "late_steps": int(self.late_steps),
+            "late_share": self.late_steps / n if n else 0.0,
+        }
+        if scheduling is not None:
+            out["scheduling"] = scheduling.to_dict()
+        cpus = available_cpus()
+        if cpus is not None:
+            out["cpus"] = sorted(cpus)  # those the hub's process could run on
+        if n:
+            step_ms = self.step_wall_s[:n] * 1e3
+            out["step_ms_median"] = float(np.median(step_ms))
+            out["step_ms_p99"] = float(np.percentile(step_ms, 99))
+        if n and self.mode == "realtime":
+            late_ms = self.lateness_s[:n] * 1e3
+            out["lateness_ms_median"] = float(np.nanmedian(late_ms))
+            out["lateness_ms_p99"] = float(np.nanpercentile(late_ms, 99))
+            out["lateness_ms_max"] = float(np.nanmax(late_ms))
+        return out
+
+
+def counts(live, late: Counter, missed: dict[str, set[int]], dropped: dict[str, Counter]) -> dict:
+    """The manifest's ``counts``: online bursts, late, missing and dropped messages by role."""
+    return {
+        "bursts_online": live.bursts if live else 0,
+        "spikes_not_analysed_online": live.skipped_spikes if live else 0,
+        "network_bursts_online": live.network_bursts if live else 0,
+        "late": dict(late),
+        "missing": {r: len(s) for r, s in missed.items() if s},
+        "dropped": {r: dict(c) for r, c in dropped.items()},
+    }
+
+
+def steps_share(desc: Description, final: dict[str, dict]) -> dict:
+    """An endpoint's final counters, its CPU time made that of the steps alone (the
+    counters it described itself with at the start taken off)."""
+    out = dict(final.get(desc.role, {}))
+    start = (desc.counters or {}).get("cpu_s")
+    if isinstance(out.get("cpu_s"), float) and isinstance(start, float):
+        out["cpu_s"] = out["cpu_s"] - start
+    return out

@@ -1,0 +1,52 @@
+"""What a run reports of its timing and counts, from the figures the schedulers wrote."""
+
+from __future__ import annotations
+
+from collections import Counter
+
+import numpy as np
+import pytest
+
+from hub.protocol import Description
+from hub.report import LoopTimes, counts, steps_share
+
+
+def test_timing_covers_the_steps_done_only():
+    times = LoopTimes.for_run("realtime", 10.0, n_steps=100)
+    times.start()
+    times.step_wall_s[:4] = [0.001, 0.002, 0.003, 0.004]
+    times.lateness_s[:4] = [0.0, 0.0, 0.0005, 0.004]
+    times.late_steps = 1
+    out = times.report(steps=4, scheduling=None)
+    assert out["steps"] == 4 and out["late_share"] == 0.25
+    assert out["step_ms_median"] == pytest.approx(2.5)
+    assert out["lateness_ms_max"] == pytest.approx(4.0)
+    assert out["mode"] == "realtime" and out["wall_s"] > 0
+
+
+def test_a_run_that_never_stepped_reports_zeros():
+    out = LoopTimes.for_run("lockstep", 10.0, 10).report(steps=0, scheduling=None)
+    assert out["steps"] == out["steps_per_s"] == out["hub_cpu_s"] == 0
+    assert "step_ms_median" not in out and "lateness_ms_max" not in out
+
+
+def test_counts_give_missing_steps_by_role_and_drops_by_kind():
+    out = counts(
+        None, Counter(body=2), {"body": {3, 4}, "culture": set()}, {"culture": Counter(foreign=5)}
+    )
+    assert out["late"] == {"body": 2} and out["missing"] == {"body": 2}
+    assert out["dropped"] == {"culture": {"foreign": 5}} and out["bursts_online"] == 0
+
+
+def test_an_endpoints_cpu_time_is_that_of_the_steps_alone():
+    desc = Description(
+        role="culture",
+        id="0",
+        kind="t",
+        channel=np.arange(2),
+        x_um=np.zeros(2),
+        y_um=np.zeros(2),
+        counters={"cpu_s": 1.5},
+    )
+    out = steps_share(desc, {"culture": {"cpu_s": 4.0, "steps": 10}})
+    assert out == {"cpu_s": 2.5, "steps": 10}
