@@ -34,8 +34,9 @@ import zenoh
 from hub import wire
 from hub.analysis.bursts import BurstParams
 from hub.analysis.network_bursts import NetworkBurstParams
-from hub.bus import LOOP_PUBLISH, TELEMETRY_PUBLISH, open_session, payload_bytes
+from hub.bus import open_session, payload_bytes
 from hub.config import ConfigError, ExperimentConfig
+from hub.link import HubLink
 from hub.live import BackgroundLiveBursts, LiveBursts
 from hub.policy import InputPolicy, SchemeError
 from hub.protocol import (
@@ -151,6 +152,8 @@ class Hub:
         # of its own that seals what the hub and it send each other (hub/wire.py).
         self.run_id = uuid.uuid4().hex
         self.run_keys = {role: wire.new_key() for role in ROLES}
+        self.link: HubLink | None = None  # the hub's declarations, once the session opens
+        self.k_done = 0  # steps whose every reply is in (or stood in for)
         self.period_s = cfg.loop.period_ms / 1e3
         self.checker = ReplyChecker(self.run_id, self.period_s)
         self.state = "waiting"
@@ -704,59 +707,15 @@ class Hub:
     # ================================================================ set-up
 
     def _declare(self, session: zenoh.Session) -> None:
-        put = self.inbox.put
-        # One subscription for both replies: Zenoh gives each subscription its own Python
-        # thread, and two would hand the interpreter and the loop's lock back and forth
-        # every step (bench/loop.py: ~5 % fewer lockstep steps/s). Keys are told apart
-        # here; the hub's own publications are not delivered to it (remote origin only).
-        role_of = {key: role for role, key in self.output_key.items()}
-        # Replies are unsealed and reassembled with each endpoint's run key (one thread).
-        inboxes = {role: wire.Inbox(self.run_keys[role]) for role in ROLES}
-        abandoned = dict.fromkeys(ROLES, 0)
+        self.link = HubLink(session, self.keys, self.ids, self.run_keys, self._deliver)
 
-        def on_output(sample):
-            role = role_of.get(str(sample.key_expr))
-            if role is None:  # another endpoint's output, or someone's stimulation
-                return
-            inbox = inboxes[role]
-            try:
-                raw = inbox.feed(sample.payload, sample.attachment)
-            except wire.WireError as exc:
-                item = ("refused", role, payload_bytes(sample), exc.kind, str(exc), time.time_ns())
-            else:
-                if inbox.abandoned != abandoned[role]:
-                    abandoned[role] = inbox.abandoned
-                    put(("refused", role, b"", "frame", "an incomplete message", time.time_ns()))
-                if raw is None:  # more frames to come
-                    return
-                item = ("rx", role, raw, time.time_ns(), time.monotonic())
-            if self.direct:
-                self._on_reply_direct(item)
-            else:
-                put(item)
-
-        self.publishers = {
-            role: session.declare_publisher(key, **LOOP_PUBLISH)
-            for role, key in self.input_key.items()
-        }
-        self.outboxes = {
-            role: wire.Outbox(publisher, self.run_keys[role])
-            for role, publisher in self.publishers.items()
-        }
-        self.status_pub = session.declare_publisher(self.keys.hub_status, **TELEMETRY_PUBLISH)
-        # Zenoh undeclares what is garbage-collected: keep every declaration.
-        self._declared = [
-            session.declare_subscriber(
-                self.keys.outputs_all, on_output, allowed_origin=zenoh.Locality.REMOTE
-            ),
-            session.liveliness().declare_subscriber(
-                self.keys.alive_all,
-                lambda s: put(("alive", str(s.key_expr), s.kind == zenoh.SampleKind.PUT)),
-                history=True,
-            ),
-            session.declare_queryable(self.keys.hub_control, lambda q: put(("control", q))),
-            session.liveliness().declare_token(self.keys.alive("hub", "0")),
-        ]
+    def _deliver(self, item: tuple) -> None:
+        """An event from the bus: replies taken at once in lockstep steps, the rest queued
+        for the loop's thread."""
+        if self.direct and item[0] in ("rx", "refused"):
+            self._on_reply_direct(item)
+        else:
+            self.inbox.put(item)
 
     def _wait_for_endpoints(self) -> None:
         needed = {(role, i) for role, i in self.ids.items()}
@@ -777,7 +736,7 @@ class Hub:
         for role, i in self.ids.items():
             key = self.keys.describe(role, i)
             desc = None
-            for raw in wire.get(session, key, timeout_s=5.0):
+            for raw in self.link.query(key, timeout_s=5.0):
                 if self.recorder:
                     self.recorder.message("rx", key, raw)
                 try:
@@ -803,7 +762,7 @@ class Hub:
                 key=self.run_keys[role],
                 seed=cfg.experiment.seed,
             )
-            replies = wire.get(session, self.keys.run(role, i), start.encode(), timeout_s=5.0)
+            replies = self.link.query(self.keys.run(role, i), start.encode(), timeout_s=5.0)
             answers = []
             for raw in replies:
                 try:
@@ -822,7 +781,7 @@ class Hub:
         end = RunEnd(run=self.run_id, outcome=outcome).encode()
         for role, i in self.ids.items():
             if (role, i) in self.alive and role in self.descriptions:
-                wire.get(session, self.keys.run(role, i), end, timeout_s=1.0)
+                self.link.query(self.keys.run(role, i), end, timeout_s=1.0)
 
     def _take_description(self, desc: Description) -> None:
         """Keep an endpoint's description, and what its replies are checked against."""
@@ -835,7 +794,7 @@ class Hub:
         for role, i in self.ids.items():
             if (role, i) not in self.alive:
                 continue
-            for raw in wire.get(session, self.keys.describe(role, i), timeout_s=2.0):
+            for raw in self.link.query(self.keys.describe(role, i), timeout_s=2.0):
                 try:
                     out[role] = Description.decode(raw).counters or {}
                 except ProtocolError:
@@ -865,7 +824,7 @@ class Hub:
 
     def _send(self, role: str, message: Message, raw: bytes | None = None) -> None:
         raw = raw or message.encode()
-        self.outboxes[role].put(raw)
+        self.link.send(role, raw)
         self.last_sent[role] = message.step
         if self.recorder:
             self.recorder.message("tx", self.input_key[role], raw)
@@ -874,7 +833,7 @@ class Hub:
         """Whatever ended the run, leave the robot stopped."""
         # Sent whether or not the body looks alive: a frozen body gets it if it comes back
         # in time (it also stops itself: its input timeout, the hub's liveliness).
-        if getattr(self, "outboxes", None) and self.descriptions.get("body"):
+        if self.link is not None and self.descriptions.get("body"):
             self._send("body", MotorCommand.stop(self._window(self.last_sent.get("body", -1) + 1)))
 
     def _window(self, k: int) -> StepWindow:
@@ -886,7 +845,7 @@ class Hub:
 
     def _status(self) -> HubStatus:
         wall = self.times.wall_s()
-        done = getattr(self, "k_done", 0)
+        done = self.k_done
         return HubStatus(
             step=self.k,
             t_s=done * self.cfg.loop.period_ms / 1e3,
@@ -906,8 +865,8 @@ class Hub:
         )
 
     def _publish_status(self) -> None:
-        if hasattr(self, "status_pub"):
-            self.status_pub.put(self._status().encode())
+        if self.link is not None:
+            self.link.publish_status(self._status().encode())
 
     def _progress(self) -> Progress:
         s = self._status()
@@ -916,8 +875,6 @@ class Hub:
         )
 
     # ================================================================ summaries
-
-    k_done = 0
 
     def timing(self) -> dict:
         """Loop timing figures of the run so far (wall time, lateness, late steps)."""

@@ -1,0 +1,113 @@
+"""The hub's side of the bus: what it declares, sends and queries, and what it hears.
+
+A thin layer over one Zenoh session: the input publishers (each through a sealing
+:class:`~hub.wire.Outbox`), one subscription for every endpoint's output (unsealed and
+reassembled by a :class:`~hub.wire.Inbox` per endpoint), the liveliness of every
+participant, the control queryable, the status publisher and the hub's own liveliness
+token. What it hears becomes plain event tuples handed to ``deliver``::
+
+    ("rx", role, payload, t_wall_ns, t_monotonic)       # a reply, unsealed and whole
+    ("refused", role, payload, kind, detail, t_wall_ns)  # not its endpoint's, or broken
+    ("alive", key, present)                               # a liveliness token came or went
+    ("control", query)                                    # a query on hub/control
+
+The loop decides what the events mean; nothing here keeps loop state.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+
+import zenoh
+
+from hub import wire
+from hub.bus import LOOP_PUBLISH, TELEMETRY_PUBLISH, payload_bytes
+from hub.protocol import ROLES, Keys
+
+
+class HubLink:
+    """The hub's declarations on ``session`` for one run.
+
+    Parameters
+    ----------
+    session : zenoh.Session
+        The hub's session (it is the router).
+    keys : Keys
+        The session's key expressions.
+    ids : dict
+        Role → id of the body and culture of the run.
+    run_keys : dict
+        Role → that endpoint's run key (sealing both ways).
+    deliver : callable
+        Called with each event tuple, on Zenoh's threads (replies of one subscription come
+        on one thread, in order).
+    """
+
+    def __init__(
+        self,
+        session: zenoh.Session,
+        keys: Keys,
+        ids: dict[str, str],
+        run_keys: dict[str, bytes],
+        deliver: Callable[[tuple], None],
+    ):
+        self.session = session
+        # One subscription for both replies: Zenoh gives each subscription its own Python
+        # thread, and two would hand the interpreter and the loop's lock back and forth
+        # every step. Keys are told apart here; the hub's own publications are not
+        # delivered to it (remote origin only).
+        role_of = {keys.output(role, i): role for role, i in ids.items()}
+        inboxes = {role: wire.Inbox(run_keys[role]) for role in ROLES}
+        abandoned = dict.fromkeys(ROLES, 0)
+
+        def on_output(sample):
+            role = role_of.get(str(sample.key_expr))
+            if role is None:  # another endpoint's output, or someone's stimulation
+                return
+            inbox = inboxes[role]
+            try:
+                raw = inbox.feed(sample.payload, sample.attachment)
+            except wire.WireError as exc:
+                deliver(
+                    ("refused", role, payload_bytes(sample), exc.kind, str(exc), time.time_ns())
+                )
+                return
+            if inbox.abandoned != abandoned[role]:
+                abandoned[role] = inbox.abandoned
+                deliver(("refused", role, b"", "frame", "an incomplete message", time.time_ns()))
+            if raw is not None:  # else: more frames to come
+                deliver(("rx", role, raw, time.time_ns(), time.monotonic()))
+
+        self.outboxes = {
+            role: wire.Outbox(
+                session.declare_publisher(keys.input(role, i), **LOOP_PUBLISH), run_keys[role]
+            )
+            for role, i in ids.items()
+        }
+        self._status = session.declare_publisher(keys.hub_status, **TELEMETRY_PUBLISH)
+        # Zenoh undeclares what is garbage-collected: keep every declaration.
+        self._declared = [
+            session.declare_subscriber(
+                keys.outputs_all, on_output, allowed_origin=zenoh.Locality.REMOTE
+            ),
+            session.liveliness().declare_subscriber(
+                keys.alive_all,
+                lambda s: deliver(("alive", str(s.key_expr), s.kind == zenoh.SampleKind.PUT)),
+                history=True,
+            ),
+            session.declare_queryable(keys.hub_control, lambda q: deliver(("control", q))),
+            session.liveliness().declare_token(keys.alive("hub", "0")),
+        ]
+
+    def send(self, role: str, raw: bytes) -> None:
+        """Put an input to ``role``, sealed with its run key (framed if large)."""
+        self.outboxes[role].put(raw)
+
+    def publish_status(self, raw: bytes) -> None:
+        """Put a ``HubStatus`` for observers (newest wins; never blocks)."""
+        self._status.put(raw)
+
+    def query(self, key: str, payload: bytes | None = None, *, timeout_s: float) -> list[bytes]:
+        """The whole payloads of every reply to a query (``describe``, ``run``)."""
+        return wire.get(self.session, key, payload, timeout_s=timeout_s)
