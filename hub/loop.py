@@ -12,6 +12,12 @@ lockstep steps each reply is taken, and the input that depends on it sent, by th
 thread that received it, under the loop's lock (a hand-over to the loop's thread would
 put a thread wake-up on every step's critical path). Everything that touches the loop's
 state, recording included, holds that lock, so the loop keeps one order of events.
+
+The parts: :class:`Hub` here sets a run up (endpoints, descriptions, the run's
+announcement), handles events and closes up; the two schedulers are
+:mod:`hub.lockstep` and :mod:`hub.realtime`; what crosses the bus goes through
+:mod:`hub.link`; each step's inputs come from :mod:`hub.policy`, each reply is checked by
+:mod:`hub.replies`, and the run's figures are kept by :mod:`hub.report`.
 """
 
 from __future__ import annotations
@@ -37,7 +43,8 @@ from hub.analysis.network_bursts import NetworkBurstParams
 from hub.bus import open_session, payload_bytes
 from hub.config import ConfigError, ExperimentConfig
 from hub.link import HubLink
-from hub.live import BackgroundLiveBursts, LiveBursts
+from hub.live import LiveBursts
+from hub.lockstep import LockstepSteps
 from hub.policy import InputPolicy, SchemeError
 from hub.protocol import (
     ROLES,
@@ -52,8 +59,8 @@ from hub.protocol import (
     RunReply,
     RunStart,
     StepWindow,
-    Stimulation,
 )
+from hub.realtime import RealtimeSteps
 from hub.record import Recorder, host, utc_now, versions, write_manifest
 from hub.replies import ReplyChecker
 from hub.report import LoopTimes, counts, steps_share
@@ -69,11 +76,6 @@ from hub.scheduling import (
 
 log = logging.getLogger(__name__)
 
-# A realtime step whose start lags its schedule by more than this share of a
-# period is counted late (its window is visibly shortened).
-LATE_START_SHARE = 0.25
-# Realtime live analysis stops this share of a period before the next step's start.
-LIVE_GUARD_SHARE = 0.1
 # The live burst detector is fed this much simulated time at once (in realtime, on a
 # thread of its own).
 ONLINE_EVERY_MS = 100.0
@@ -121,7 +123,7 @@ class RunResult:
         return self.outcome in ("completed", "stopped", "interrupted")
 
 
-class Hub:
+class Hub(LockstepSteps, RealtimeSteps):
     """Runs one experiment: waits for its endpoints, steps the loop, records it.
 
     Parameters
@@ -305,179 +307,6 @@ class Hub:
         finally:
             sys.setswitchinterval(switch_s)
 
-    def _steps_realtime(self) -> None:
-        """Steps on a wall-clock schedule; a reply missing at its deadline is replaced by policy."""
-        live = self.live
-        background = BackgroundLiveBursts(live, self.scheduling) if live is not None else None
-        try:
-            self._steps_on_schedule(background)
-        finally:
-            if background is not None:
-                self._record_network_bursts(background.close())
-
-    def _steps_on_schedule(self, background: BackgroundLiveBursts | None) -> None:
-        period_s = self.cfg.loop.period_ms / 1e3
-        n = self.cfg.n_steps
-        guard_s = LIVE_GUARD_SHARE * period_s
-        # Each step's inputs are coded and encoded in the slack of the step before, so
-        # that they leave the moment the step starts.
-        inputs = self._encoded(self.inputs.motor_for(0, None), self.inputs.stim_for(0, None))
-        for k in range(n):
-            if not self._await_start(k, period_s):
-                return
-            self.k = k
-            self.expect = {"body": k, "culture": k}
-            t0 = time.monotonic()
-            for role in ROLES:
-                self._send(role, *inputs[role])
-            late = self._collect(k, self._deadline(k, period_s))
-            if k == 0:  # every thread that carries replies has started by now
-                self.scheduling.include_new_threads()
-            prev = {role: self.pending[role].pop(k, None) for role in ROLES}
-            self.times.step_wall_s[k] = time.monotonic() - t0
-            if k + 1 < n:
-                inputs = self._encoded(
-                    self.inputs.motor_for(k + 1, prev["culture"]),
-                    self.inputs.stim_for(k + 1, prev["body"]),
-                )
-            self.times.late_steps += bool(
-                late or self.times.lateness_s[k] > LATE_START_SHARE * period_s
-            )
-            self.k_done = k + 1
-            if background is not None:
-                if prev["culture"] is not None:
-                    # Analysis may use what is left of this step, not the next one's start.
-                    background.add(prev["culture"], self._scheduled(k + 1, period_s) - guard_s)
-                self._record_network_bursts(background.completed())
-            self._tick()
-
-    @staticmethod
-    def _encoded(motor: MotorCommand, stim: Stimulation) -> dict[str, tuple[Message, bytes]]:
-        return {"body": (motor, motor.encode()), "culture": (stim, stim.encode())}
-
-    def _steps_lockstep(self) -> None:
-        """As fast as the endpoints go, pipelined: each input of step k+1 leaves as soon as
-        the reply it depends on is in (the motor command when the culture's spikes of step
-        k arrive, the stimulation when the body's sensors of step k arrive), so neither
-        endpoint waits for the other's round trip. Every endpoint still gets exactly the
-        inputs of the Jacobi scheme, so results are those of a strict step-by-step loop.
-
-        Replies are taken in the threads they arrive on (:meth:`_on_reply_direct`); this
-        thread handles the other events, stands in by policy for replies that do not come
-        within ``reply_timeout_s``, publishes the status and runs the live analysis."""
-        n = self.cfg.n_steps
-        timeout_s = self.cfg.loop.reply_timeout_s
-        with self.lock:
-            self.expect = {"body": 0, "culture": 0}
-            self._last_progress = time.monotonic()
-            self._send("body", self.inputs.motor_for(0, None))
-            self._send("culture", self.inputs.stim_for(0, None))
-            self.direct = True
-        try:
-            while True:
-                with self.lock:
-                    if self._failure is not None:
-                        raise self._failure
-                    if self._stop_reason or self.k_done >= n:
-                        return
-                    now = time.monotonic()
-                    if self.state == "paused":
-                        self._last_progress = now
-                    elif now - self._last_progress >= timeout_s:
-                        self._stand_in(n)
-                    until = self._last_progress + timeout_s
-                # Analysis when nothing else waits, breaking off when something comes.
-                idle = self.live is not None and not self._has_event()
-                if idle and self._work_live(pause=self._has_event):
-                    continue
-                item = self._wait_event(until)
-                with self.lock:
-                    if item is not None:
-                        self._handle(item)
-                    self._advance(n)
-                    self._tick()
-        finally:
-            with self.lock:
-                self.direct = False
-            if self.live is not None:
-                self._work_live(flush=True)
-
-    def _on_reply_direct(self, item: tuple) -> None:
-        """A reply in lockstep, in the thread it came on: take it, send what it allows."""
-        t0 = time.perf_counter()
-        with self.lock:
-            if not self.direct:  # the steps ended meanwhile: the loop's thread decides
-                return self.inbox.put(item)
-            try:
-                self._handle(item)
-                self._advance(self.cfg.n_steps)
-            except BaseException as exc:  # the loop's thread raises it
-                self.direct, self._failure = False, exc
-                self.inbox.put(("wake",))
-            self.times.direct_busy_s += time.perf_counter() - t0
-
-    def _advance(self, n: int) -> None:
-        """Lockstep: send every input whose reply is in (unless paused or stopping), and
-        note the steps completed."""
-        if self.state != "running" or self._stop_reason:
-            return
-        for role in ("culture", "body"):
-            pending, expect = self.pending[role], self.expect
-            while expect[role] in pending:
-                self._pipeline(role, pending.pop(expect[role]), n)
-        done = min(self.expect.values())
-        if done > self.k_done:
-            now = time.monotonic()
-            self.times.step_wall_s[self.k_done : done] = (now - self._last_progress) / (
-                done - self.k_done
-            )
-            self._last_progress = now
-            self.k_done = self.k = done
-            if done >= n:
-                self.inbox.put(("wake",))
-
-    def _stand_in(self, n: int) -> None:
-        """Lockstep: no reply for ``reply_timeout_s``: the policy stands in for each reply
-        owed (an input that waits on another reply is not owed yet)."""
-        owed = [r for r in ROLES if self.last_sent.get(r, -1) >= self.expect[r] < n]
-        for role in owed:
-            self._miss(role, self.expect[role])
-            self._pipeline(role, None, n)
-        self._last_progress = time.monotonic()
-        self._advance(n)
-
-    def _pipeline(self, role: str, reply: Message | None, n: int) -> None:
-        """Take the reply of ``role`` for its expected step k; send the other side step k+1."""
-        k = self.expect[role]
-        self.expect[role] = k + 1
-        if k + 1 < n and not self._stop_reason:
-            if role == "culture":
-                self._send("body", self.inputs.motor_for(k + 1, reply))
-            else:
-                self._send("culture", self.inputs.stim_for(k + 1, reply))
-        if role == "culture" and reply is not None and self.live is not None:
-            self._live_in.put(reply)
-
-    def _work_live(self, *, flush: bool = False, pause: Callable[[], bool] | None = None) -> bool:
-        """Lockstep: feed the live burst detector the spikes handed over (``_live_in``) once
-        ONLINE_EVERY_MS of them are in (``flush``: whatever is in, to the end), breaking off
-        when ``pause()`` says so. Records each network burst completed. True if it worked."""
-        live = self.live
-        while True:
-            try:
-                live.add(self._live_in.get_nowait())
-            except queue.Empty:
-                break
-        if not (flush or live.due):
-            return False
-        done = live.finish() if flush else live.work(pause=pause)
-        with self.lock:
-            self._record_network_bursts(done)
-        return True
-
-    def _has_event(self) -> bool:
-        return not self.inbox.empty()
-
     def _record_network_bursts(self, done: list) -> None:
         for nb in done:
             self._record_event(
@@ -487,50 +316,6 @@ class Hub:
                 n_channels=len(nb.channels),
                 at_step=self.k,
             )
-
-    # ================================================================ timing
-
-    def _deadline(self, k: int, period_s: float) -> float:
-        if self.cfg.loop.mode == "lockstep":
-            return time.monotonic() + self.cfg.loop.reply_timeout_s
-        return self._scheduled(k, period_s) + self.cfg.loop.deadline_s
-
-    def _scheduled(self, k: int, period_s: float) -> float:
-        return self.times.t_start + self._paused_s + k * period_s
-
-    def _await_start(self, k: int, period_s: float) -> bool:
-        """Handle events until step k may start; False if the run must end."""
-        realtime = self.cfg.loop.mode == "realtime"
-        while True:
-            self._drain()
-            if self._stop_reason:
-                return False
-            if self.state == "paused":
-                self._next_event(time.monotonic() + 0.1)
-                continue
-            now = time.monotonic()
-            target = self._scheduled(k, period_s) if realtime else now
-            if now >= target:
-                if realtime:
-                    self.times.lateness_s[k] = now - target
-                return True
-            self._next_event(target)
-
-    def _collect(self, k: int, deadline: float) -> bool:
-        """Take in events until both replies of step k are in or the deadline passes.
-
-        Returns True if a reply missed its deadline (the policy stands in for it).
-        """
-        self.reply_deadline = deadline
-        while time.monotonic() < deadline and not all(k in self.pending[r] for r in ROLES):
-            self._next_event(deadline)
-        # Replies judged by when they arrived, not by when this thread got to them.
-        self._drain()
-        self.reply_deadline = math.inf
-        for role in ROLES:
-            if k not in self.pending[role] and k not in self.missed[role]:
-                self._miss(role, k)
-        return any(k not in self.pending[r] for r in ROLES)
 
     def _miss(self, role: str, k: int) -> None:
         """The reply of ``role`` for step ``k`` is missing: the policy stands in for it."""
