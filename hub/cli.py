@@ -4,6 +4,7 @@ neuvision run CONFIG          hub + every local endpoint, with progress; records
 neuvision hub CONFIG          the hub alone (endpoints started elsewhere)
 neuvision endpoint ROLE CONFIG   one endpoint (body or culture) of CONFIG
 neuvision record-info RUN_DIR    what a recorded run holds
+neuvision emulate khepera        a Khepera II emulator on a pseudo-terminal
 """
 
 from __future__ import annotations
@@ -85,6 +86,33 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("analyze", help="metrics, figures and report.html of a recorded run")
     p.add_argument("run_dir", type=Path)
     p.add_argument("--out", type=Path, help="output folder (default: the run folder)")
+    p = sub.add_parser(
+        "emulate",
+        help="emulate a device on this machine (a Khepera on a pseudo-terminal)",
+        description="Emulate a Khepera II: a pseudo-terminal that speaks its serial protocol, "
+        "answered by a simulated robot in a world, in real time. Prints the device path; "
+        "give it to an experiment as body.params.port (or use --link).",
+    )
+    p.add_argument("device", choices=("khepera",))
+    p.add_argument(
+        "--world", help="world file with the robot (default: khepera2 in the paper's arena)"
+    )
+    p.add_argument(
+        "--baud", type=int, help="take each exchange's byte time at this baud (default: no delay)"
+    )
+    p.add_argument("--stop-bits", type=int, choices=(1, 2), default=2, help="for the byte time")
+    p.add_argument("--link", help="also make this symlink to the device (removed at exit)")
+    p.add_argument(
+        "--garbage-every",
+        type=int,
+        default=0,
+        metavar="N",
+        help="fault: garbage before every N-th reply",
+    )
+    p.add_argument(
+        "--drop-every", type=int, default=0, metavar="N", help="fault: drop every N-th reply"
+    )
+    p.add_argument("--seed", type=int, default=0, help="range-finder noise of the world, if any")
     p = sub.add_parser("reproduce", help="run the paper's validation of the simulated culture")
     p.add_argument("--out", type=Path, help="output folder (default: a new run folder)")
     p.add_argument("--quick", action="store_true", help="a shortened version (for tests)")
@@ -122,13 +150,19 @@ def _one_line(exc: BaseException) -> str:
 
 
 def cmd_endpoint(args) -> int:
+    from hub.endpoint import DeviceFault
     from hub.launch import make_endpoint
     from hub.scheduling import endpoint_priority
 
     cfg = load_config(args.config, _overrides(args))
     priority = endpoint_priority(cfg.loop.mode, cfg.loop.realtime_priority)
     cpus = cfg.endpoint(args.role).cpus
-    return make_endpoint(cfg, args.role).serve(cfg.bus, realtime_priority=priority, cpus=cpus)
+    try:
+        endpoint = make_endpoint(cfg, args.role)
+        return endpoint.serve(cfg.bus, realtime_priority=priority, cpus=cpus)
+    except DeviceFault as exc:
+        print(f"neuvision: {args.role} device fault: {_one_line(exc)}", file=sys.stderr)
+        return EXIT_FAULT
 
 
 def cmd_hub(args, local: bool = False) -> int:
@@ -338,6 +372,27 @@ def cmd_reproduce(args) -> int:
     return EXIT_OK
 
 
+def cmd_emulate(args) -> int:
+    from adapters.khepera.emulator import (
+        DEFAULT_EMULATOR_WORLD,
+        KheperaEmulator,
+        run_until_signalled,
+    )
+    from adapters.khepera.link import BAUDS
+
+    if args.baud is not None and args.baud not in BAUDS:
+        raise InputError(f"--baud must be one of {BAUDS}, got {args.baud}")
+    emulator = KheperaEmulator(  # a bad world file: a config error naming the key
+        args.world or DEFAULT_EMULATOR_WORLD,
+        baud=args.baud,
+        stop_bits=args.stop_bits,
+        seed=args.seed,
+    )
+    emulator.faults.garbage_every, emulator.faults.drop_every = args.garbage_every, args.drop_every
+    run_until_signalled(emulator, link=args.link)
+    return EXIT_OK
+
+
 COMMANDS = {
     "run": cmd_run,
     "hub": cmd_hub,
@@ -346,6 +401,7 @@ COMMANDS = {
     "compare": cmd_compare,
     "analyze": cmd_analyze,
     "reproduce": cmd_reproduce,
+    "emulate": cmd_emulate,
 }
 
 if __name__ == "__main__":

@@ -63,6 +63,11 @@ from hub.scheduling import (
 log = logging.getLogger(__name__)
 
 
+class DeviceFault(Exception):
+    """A device endpoint's device failed (a serial link silent, a port gone): named, and
+    the endpoint's process ends with it (``neuvision endpoint``: one line, exit status 2)."""
+
+
 class RunRefused(Exception):
     """Raised by :meth:`Endpoint.start_run`: this endpoint cannot serve that run (why)."""
 

@@ -569,7 +569,26 @@ class Hub(LockstepSteps, RealtimeSteps):
                 self.link.query(self.keys.run(role, i), end, timeout_s=1.0)
 
     def _take_description(self, desc: Description) -> None:
-        """Keep an endpoint's description, and what its replies are checked against."""
+        """Keep an endpoint's description, and what its replies are checked against.
+
+        A real device (``realtime_only``) in a lockstep run is a fault before the run is
+        announced; one whose own cycle is longer than the period gets a warning.
+        """
+        who = f"{desc.role}/{desc.id} ({desc.kind})"
+        period_ms = self.cfg.loop.period_ms
+        if desc.realtime_only and self.cfg.loop.mode != "realtime":
+            raise HubError(
+                f"{who} is a real device: it runs in real time only and cannot take a "
+                f'lockstep run; set loop.mode = "realtime"'
+            )
+        if desc.cycle_ms is not None and desc.cycle_ms > period_ms:
+            warning = (
+                f"{who}: its own I/O cycle takes {desc.cycle_ms:.1f} ms, longer than the "
+                f"period of {period_ms:g} ms: each step gets its freshest reading, up to "
+                f"~{desc.cycle_ms:.0f} ms old (the readings' ages are recorded)"
+            )
+            log.warning("%s", warning)
+            self._record_event("warning", role=desc.role, id=desc.id, reason=warning)
         self.descriptions[desc.role] = desc
         self.checker.take_description(desc)
 

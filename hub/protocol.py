@@ -23,7 +23,7 @@ from typing import Any, ClassVar
 import msgpack
 import numpy as np
 
-SCHEMA_VERSION = 2
+SCHEMA_VERSION = 3
 ROLES = ("body", "culture")
 MAX_MESSAGE_BYTES = 64 * 1024 * 1024
 SMALL_ARRAY = 64
@@ -783,8 +783,10 @@ class Description(Message):
     simulated neurons ``cell_type``: 0 excitatory, 1 inhibitory) and the limits of
     the stimulation it takes (``max_amplitude_ua``, ``max_width_ms``, ``max_pulse_hz``
     per channel; :mod:`hub.limits`). A body lists its range finders and drive geometry
-    (``max_wheel_mps`` is its speed limit). ``counters`` reports what the endpoint has
-    dropped, by kind.
+    (``max_wheel_mps`` is its speed limit). A real device says it runs in real time only
+    (``realtime_only``: a lockstep run is refused) and how long its own I/O cycle takes
+    (``cycle_ms``: the hub warns when the period is shorter). ``counters`` reports what
+    the endpoint has dropped, by kind.
     """
 
     role: str
@@ -802,6 +804,8 @@ class Description(Message):
     max_amplitude_ua: float | None = None
     max_width_ms: float | None = None
     max_pulse_hz: float | None = None
+    realtime_only: bool | None = None
+    cycle_ms: float | None = None
     counters: dict | None = None
 
     SCHEMA = {
@@ -820,6 +824,8 @@ class Description(Message):
         "max_amplitude_ua": Scalar(float, min=0.0, optional=True),
         "max_width_ms": Scalar(float, min=0.0, optional=True),
         "max_pulse_hz": Scalar(float, min=0.0, optional=True),
+        "realtime_only": Scalar(bool, optional=True),
+        "cycle_ms": Scalar(float, min=0.0, optional=True),
         "counters": Mapping(optional=True),
     }
 

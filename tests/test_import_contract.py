@@ -11,8 +11,9 @@ not imports and are fine. The rules, from the bottom up:
   other -- except their ``endpoint.py``, which may import the hub's contract, endpoint base
   and config (``hub.protocol``, ``hub.endpoint``, ``hub.config``, ``hub.wire``);
 - ``hub``: no simulator, ``lab`` or ``adapters``; ``hub/cli.py``, the ``neuvision`` command,
-  may import ``lab``, whose commands it dispatches to;
-- ``adapters``: ``hub``, ``devices``, ``settings``, not the simulators or ``lab``;
+  may import ``lab`` and ``adapters``, whose commands it dispatches to;
+- ``adapters``: ``hub``, ``devices``, ``settings``, not the simulators or ``lab`` -- except
+  an emulator (``adapters/<device>/emulator.py``), a device played by a simulator;
 - ``lab``: anything but ``adapters``.
 """
 
@@ -76,10 +77,12 @@ def allowed(importer: str, imported: str) -> bool:
     if layer == "hub":
         if _within(importer, "hub.analysis"):
             return _within(imported, "hub.analysis", "settings", "devices")
-        if importer == "hub.cli" and target == "lab":
+        if importer == "hub.cli" and target in ("lab", "adapters"):
             return True
         return target in ("hub", "settings", "devices")
     if layer == "adapters":
+        if importer.endswith(".emulator") and target in SIMULATORS:
+            return True
         return target in ("hub", "settings", "devices")
     if layer == "lab":
         return target != "adapters"

@@ -18,6 +18,7 @@ import zenoh
 from hub import wire
 from hub.bus import open_session, payload_bytes
 from hub.protocol import (
+    SCHEMA_VERSION,
     ControlReply,
     ControlRequest,
     Description,
@@ -212,7 +213,7 @@ GARBAGE = [
     b"\xc1not msgpack",
     msgpack.packb([1, 2, 3]),
     msgpack.packb({"v": 99, "step": 5}),
-    msgpack.packb({"v": 2, "step": "five"}),
+    msgpack.packb({"v": SCHEMA_VERSION, "step": "five"}),
     msgpack.packb({"v": True, "step": 1, "left_mps": 0.0, "right_mps": 0.0}),
     os.urandom(64),
 ]

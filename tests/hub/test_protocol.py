@@ -12,6 +12,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from hub.protocol import (
+    SCHEMA_VERSION,
     SMALL_ARRAY,
     Array,
     ControlReply,
@@ -103,7 +104,7 @@ def test_arrays_travel_as_little_endian_bin_of_the_schema_dtype():
 
 def _raw(**fields):
     base = {
-        "v": 2,
+        "v": SCHEMA_VERSION,
         "step": 3,
         "run": RUN,
         "t_s": 0.03,
@@ -323,7 +324,7 @@ def test_valid_messages_decode_on_the_fast_path_and_re_encode_to_the_same_bytes(
 
 def _spikes(**fields):
     base = {
-        "v": 2,
+        "v": SCHEMA_VERSION,
         "step": 3,
         "run": RUN,
         "t0_s": 0.03,
@@ -337,7 +338,7 @@ def _spikes(**fields):
 
 def _pulses(**fields):
     base = {
-        "v": 2,
+        "v": SCHEMA_VERSION,
         "step": 3,
         "run": RUN,
         "t0_s": 0.03,
@@ -412,24 +413,34 @@ LONG = SMALL_ARRAY + 6  # past the plain-Python size: numpy reductions check the
         (Stimulation, _pulses(v=1), "version"),
         (
             MotorCommand,
-            msgpack.packb({"v": 2, "step": 0, **MOTOR_WINDOW, "left_mps": 0.0}),
+            msgpack.packb({"v": SCHEMA_VERSION, "step": 0, **MOTOR_WINDOW, "left_mps": 0.0}),
             "missing",
         ),
         (
             MotorCommand,
-            msgpack.packb({"v": 2, "step": 0, **MOTOR_WINDOW, "left_mps": 0, "right_mps": 1}),
+            msgpack.packb(
+                {"v": SCHEMA_VERSION, "step": 0, **MOTOR_WINDOW, "left_mps": 0, "right_mps": 1}
+            ),
             None,
         ),
         (
             MotorCommand,
-            msgpack.packb({"v": 2, "step": 0, **MOTOR_WINDOW, "left_mps": 0.0, "right_mps": 1e400}),
+            msgpack.packb(
+                {
+                    "v": SCHEMA_VERSION,
+                    "step": 0,
+                    **MOTOR_WINDOW,
+                    "left_mps": 0.0,
+                    "right_mps": 1e400,
+                }
+            ),
             "non_finite",
         ),
         (
             MotorCommand,
             msgpack.packb(
                 {
-                    "v": 2,
+                    "v": SCHEMA_VERSION,
                     "step": 0,
                     **MOTOR_WINDOW,
                     "left_mps": 0.0,
@@ -443,7 +454,7 @@ LONG = SMALL_ARRAY + 6  # past the plain-Python size: numpy reductions check the
             MotorCommand,
             msgpack.packb(
                 {
-                    "v": 2,
+                    "v": SCHEMA_VERSION,
                     "step": 0,
                     **MOTOR_WINDOW,
                     "left_mps": 0.0,
@@ -494,7 +505,7 @@ def test_the_fast_decoding_path_agrees_with_the_full_one_on_any_map(data):
                 fields["t_ms"] = np.sort(np.frombuffer(fields["t_ms"][: 4 * n], "<f4")).tobytes()
         some = st.sets(st.sampled_from(list(fields)), max_size=2)
         absent = data.draw(st.one_of(st.just(set()), st.just(set()), some), label="absent")
-        wire = {"v": 2} | {k: v for k, v in fields.items() if k not in absent}
+        wire = {"v": SCHEMA_VERSION} | {k: v for k, v in fields.items() if k not in absent}
 
         fast, full = _outcome(kind.from_dict, wire), _outcome(kind._from_dict_in_full, wire)
         assert fast == full

@@ -1,0 +1,276 @@
+"""An emulator of a Khepera II on a pseudo-terminal: the real protocol, a simulated robot.
+
+:class:`KheperaEmulator` opens a pseudo-terminal and answers the Khepera's serial protocol
+on it (``B D E G H N O L``; an unknown command gets ``Command not found``) from a robot
+driven in real time through a :mod:`sim_robot` world: wheel speeds in the robot's units,
+position counters in encoder pulses, proximity values from the IR response model. Anything
+that opens the device path with pyserial sees a Khepera. It is an **emulator**: the
+ambient light (``O``) is a constant, the IR values carry no noise floor, and the firmware's
+own processing time is not modelled; with ``baud`` set, each exchange takes the time its
+bytes take on a wire at that baud.
+
+Faults can be injected for tests (:class:`Faults`): garbage bytes before a reply, a reply
+dropped, a stall. ``neuvision emulate khepera`` runs one from the command line.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import os
+import select
+import threading
+import time
+import tty
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from adapters.khepera.link import byte_time_s
+from adapters.khepera.protocol import UNKNOWN_COMMAND_REPLY, parse_command, reply_line
+from devices import khepera
+from sim_robot import Arena
+from sim_robot.world import load_world
+
+log = logging.getLogger(__name__)
+
+#: the emulated robot's world unless another is given: the paper's arena, a Khepera II in it
+DEFAULT_EMULATOR_WORLD = (
+    Path(__file__).resolve().parents[2] / "configs" / "worlds" / "khepera2.toml"
+)
+#: what ``B`` answers: the emulator names itself instead of a BIOS version
+VERSION_FIELDS = ("nv-emulator-1", "6")
+#: what ``O`` answers for each sensor (no light model: a dim, uniform room)
+AMBIENT_VALUE = 450
+#: the physics advances by at most this much per substep (s)
+MAX_SUBSTEP_S = 0.01
+
+
+@dataclass
+class Faults:
+    """Faults to inject (tests; ``neuvision emulate khepera --garbage-every ...``).
+
+    One-shot counts are used up as they fire; ``*_every`` fire on every n-th reply.
+    """
+
+    garbage_next: int = 0  # replies preceded by garbage bytes
+    drop_next: int = 0  # replies not sent at all
+    garbage_every: int = 0
+    drop_every: int = 0
+    stall_until: float = 0.0  # time.monotonic() before which nothing is answered
+    fired: dict = field(default_factory=lambda: {"garbage": 0, "drop": 0, "stall": 0})
+
+
+class KheperaEmulator:
+    """A Khepera II answering on a pseudo-terminal, moving in a simulated world.
+
+    Parameters
+    ----------
+    world : str or Path
+        A world file with the robot to emulate (default: a Khepera II in the paper's arena).
+    baud : int or None
+        Emulated line speed: each exchange takes its bytes' time at this baud (None:
+        as fast as the pseudo-terminal goes).
+    stop_bits : int
+        For the byte time (a start bit, 8 data bits and these).
+    seed : int
+        Range-finder noise of the world, if it has any.
+
+    Attributes
+    ----------
+    path : str
+        The device path to open (``/dev/pts/N``).
+    commands : list of (float, bytes)
+        Every command line received, with its ``time.monotonic()``.
+    """
+
+    def __init__(
+        self,
+        world: str | Path = DEFAULT_EMULATOR_WORLD,
+        *,
+        baud: int | None = None,
+        stop_bits: int = 2,
+        seed: int = 0,
+    ):
+        self.arena = Arena(load_world(world), seed=seed)
+        self.byte_s = byte_time_s(baud, stop_bits) if baud else 0.0
+        self.faults = Faults()
+        self.commands: list[tuple[float, bytes]] = []
+        self.replies = 0
+        self.speed_units = (0, 0)
+        self.counters_pulses = np.zeros(2)
+        self.leds = [0, 0]
+        self._master, self._slave = os.openpty()
+        tty.setraw(self._slave)  # no line discipline: bytes pass as they are
+        self.path = os.ttyname(self._slave)
+        self._last_t = time.monotonic()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._lock = threading.Lock()
+
+    # ------------------------------------------------------------ running
+
+    def start(self) -> KheperaEmulator:
+        """Answer on a thread of its own; returns self."""
+        self._thread = threading.Thread(target=self.serve, name="khepera-emulator", daemon=True)
+        self._thread.start()
+        return self
+
+    def serve(self) -> None:
+        """Answer commands until :meth:`stop`."""
+        buffer = b""
+        while not self._stop.is_set():
+            ready, _, _ = select.select([self._master], [], [], 0.05)
+            if not ready:
+                continue
+            try:
+                chunk = os.read(self._master, 4096)
+            except OSError:  # the pseudo-terminal went away
+                return
+            buffer += chunk
+            while True:
+                end = min(
+                    (i for i in (buffer.find(b"\r"), buffer.find(b"\n")) if i >= 0), default=-1
+                )
+                if end < 0:
+                    break
+                line, buffer = buffer[:end], buffer[end + 1 :]
+                if line:
+                    self._answer(line)
+
+    def stop(self) -> None:
+        """Stop answering and close the pseudo-terminal."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=2.0)
+        for fd in (self._master, self._slave):
+            try:
+                os.close(fd)
+            except OSError:
+                pass
+
+    def __enter__(self) -> KheperaEmulator:
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+    # ------------------------------------------------------------ the robot
+
+    @property
+    def wheel_mps(self) -> tuple[float, float]:
+        unit = khepera.KHEPERA2_SPEED_UNIT_MPS
+        return (self.speed_units[0] * unit, self.speed_units[1] * unit)
+
+    def advance(self, now: float | None = None) -> None:
+        """Move the robot over the time passed since the last call, at its wheel speeds."""
+        with self._lock:
+            now = time.monotonic() if now is None else now
+            left = now - self._last_t
+            self._last_t = now
+            left_mps, right_mps = self.wheel_mps
+            self.counters_pulses += (
+                np.array([left_mps, right_mps]) * left / khepera.KHEPERA2_PULSE_M
+            )
+            while left > 1e-9:
+                dt = min(left, MAX_SUBSTEP_S)
+                self.arena.step(left_mps, right_mps, dt)
+                left -= dt
+
+    def _answer(self, line: bytes) -> None:
+        received = time.monotonic()
+        self.commands.append((received, line))
+        self.advance(received)
+        try:
+            letter, args = parse_command(line)
+            reply = self._reply(letter, args)
+        except (ValueError, UnicodeDecodeError):
+            reply = UNKNOWN_COMMAND_REPLY
+        faults = self.faults
+        if received < faults.stall_until:
+            faults.fired["stall"] += 1
+            return
+        self.replies += 1
+        if faults.drop_next or (faults.drop_every and self.replies % faults.drop_every == 0):
+            faults.drop_next = max(0, faults.drop_next - 1)
+            faults.fired["drop"] += 1
+            return
+        if faults.garbage_next or (
+            faults.garbage_every and self.replies % faults.garbage_every == 0
+        ):
+            faults.garbage_next = max(0, faults.garbage_next - 1)
+            faults.fired["garbage"] += 1
+            reply = b"\x8f#\xfe" + reply
+        if self.byte_s:
+            # the command's bytes and the reply's, as a wire at this baud would take them
+            lag_s = (len(line) + 1 + len(reply)) * self.byte_s - (time.monotonic() - received)
+            if lag_s > 0:
+                time.sleep(lag_s)
+        try:
+            os.write(self._master, reply)
+        except OSError:
+            pass
+
+    def _reply(self, letter: str, args: tuple[int, ...]) -> bytes:
+        limit = khepera.KHEPERA2_MAX_SPEED_UNITS
+        if letter == "B":
+            return reply_line("b", *VERSION_FIELDS)
+        if letter == "D" and len(args) == 2:
+            self.speed_units = tuple(int(np.clip(a, -limit, limit)) for a in args)
+            return reply_line("d")
+        if letter == "E":
+            return reply_line("e", *self.speed_units)
+        if letter == "G" and len(args) == 2:
+            self.counters_pulses[:] = args
+            return reply_line("g")
+        if letter == "H":
+            return reply_line("h", *(int(v) for v in np.trunc(self.counters_pulses)))
+        if letter == "N":
+            values = np.clip(np.rint(self.arena.read_ir()), 0, khepera.IR_MAX_VALUE)
+            return reply_line("n", *(int(v) for v in values))
+        if letter == "O":
+            return reply_line("o", *([AMBIENT_VALUE] * self.arena.body.n_sensors))
+        if letter == "L" and len(args) == 2 and args[0] in (0, 1):
+            led, action = args
+            self.leds[led] = 1 - self.leds[led] if action == 2 else int(action != 0)
+            return reply_line("l")
+        return UNKNOWN_COMMAND_REPLY
+
+
+def run_until_signalled(emulator: KheperaEmulator, *, link: str | None = None, report_s=5.0):
+    """Serve ``emulator`` until SIGINT/SIGTERM (``neuvision emulate khepera``).
+
+    Prints the device path on stdout first (a script reads it from there), then a status
+    line on stderr every ``report_s`` seconds. ``link``: a symlink made to the device path
+    (an experiment file can name a fixed port), removed at exit.
+    """
+    import signal
+    import sys
+
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    link_path = Path(link) if link else None
+    if link_path is not None:
+        if link_path.is_symlink():
+            link_path.unlink()
+        link_path.symlink_to(emulator.path)
+    print(emulator.path, flush=True)
+    where = f"{emulator.path}" + (f" (linked as {link_path})" if link_path else "")
+    print(f"neuvision: Khepera II emulator on {where}; Ctrl-C ends it", file=sys.stderr)
+    emulator.start()
+    try:
+        while not stop.wait(report_s):
+            x, y, th = emulator.arena.pose
+            left, right = emulator.speed_units
+            print(
+                f"neuvision: emulator: {len(emulator.commands)} commands, wheels "
+                f"{left:+d},{right:+d} units, pose x {x:+.3f} m y {y:+.3f} m "
+                f"heading {math.degrees(th):+.0f} deg",
+                file=sys.stderr,
+            )
+    finally:
+        emulator.stop()
+        if link_path is not None and link_path.is_symlink():
+            link_path.unlink()

@@ -1,0 +1,226 @@
+"""A real Khepera robot as the loop's body (``[body] kind = "khepera"``).
+
+Each step applies the hub's :class:`~hub.protocol.MotorCommand` (m/s → the robot's units,
+clamped to its limits, the clamp counted) and answers at once with the freshest reading of
+the serial thread (:mod:`adapters.khepera.driver`): IR distances through the calibration
+table, the odometry pose, ``t_s`` the run time the reading was taken and ``age_s`` its age.
+
+Parameters (``[body.params]``; docs in README "A real Khepera"):
+
+``port`` (required), ``baud`` (9600, 19200, 38400, 57600, 115200; default 9600), ``stop_bits``
+(1 or 2; default 2), ``timeout_s`` (one reply; default 0.25), ``silent_s`` (no valid reply
+for this long is a fault; default 1.0), ``watchdog_s`` (no motor command for this long stops
+the motors; default 0.5), ``dialect`` (``khepera2`` or ``khepera3``), ``ir_table_file`` (a
+lab's calibration, CSV ``distance_m,value``; default the published table), ``start_pose``
+(``[x_m, y_m, heading_deg]`` odometry starts from; default ``[0, 0, 0]``).
+
+A device runs in real time only: a lockstep run is refused, at ``neuvision run`` before
+anything starts and by the endpoint itself.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+
+import numpy as np
+
+from adapters.khepera.calibration import IRCalibration, Odometry
+from adapters.khepera.driver import KheperaDriver, WheelUnits
+from adapters.khepera.link import BAUDS, LinkFault, SerialLink, open_port
+from adapters.khepera.protocol import DIALECTS, ReplyError
+from devices import khepera
+from hub.config import ConfigError, EndpointSection, ExperimentConfig, check_value
+from hub.endpoint import Endpoint, RunRefused
+from hub.protocol import Description, MotorCommand, RunStart, SensorReading, StepWindow
+
+log = logging.getLogger(__name__)
+
+LOCKSTEP_REFUSAL = (
+    "a Khepera is a real device: it moves in real time and cannot wait for a lockstep "
+    'loop; set loop.mode = "realtime"'
+)
+DEFAULTS = {
+    "baud": 9600,
+    "stop_bits": 2,
+    "timeout_s": 0.25,
+    "silent_s": 1.0,
+    "watchdog_s": 0.5,
+    "dialect": "khepera2",
+    "ir_table_file": None,
+    "start_pose": [0.0, 0.0, 0.0],
+}
+
+
+class KheperaEndpoint(Endpoint):
+    """A Khepera II on a serial line, served as a body.
+
+    Parameters
+    ----------
+    driver : KheperaDriver
+        Connected (or connected by :meth:`warm_up`).
+    id : str
+        Which body this is on the bus.
+    start_pose : (x_m, y_m, heading_rad)
+        Where odometry starts each run.
+    """
+
+    role, kind = "body", "khepera"
+
+    def __init__(self, driver: KheperaDriver, id: str = "0", *, start_pose=(0.0, 0.0, 0.0)):
+        super().__init__(id, input_timeout_s=driver.watchdog_s)
+        self.driver = driver
+        self.start_pose = tuple(float(v) for v in start_pose)
+        driver.on_fault = self._on_fault
+
+    @classmethod
+    def check_config(cls, section: EndpointSection, cfg: ExperimentConfig) -> dict:
+        """Check ``[body.params]`` and the loop's mode without opening the port.
+
+        Raises
+        ------
+        ConfigError
+            Naming ``body.params.<key>``, or ``loop.mode`` for a lockstep run.
+        """
+        if cfg.loop.mode != "realtime":
+            raise ConfigError(f"loop.mode: {LOCKSTEP_REFUSAL}")
+        params = dict(section.params)
+        unknown = sorted(set(params) - set(DEFAULTS) - {"port"})
+        if unknown:
+            raise ConfigError(f"body.params: unknown key(s) {unknown} for kind khepera")
+        if "port" not in params:
+            raise ConfigError("body.params.port: the serial port of the robot is required")
+        out = {**DEFAULTS, **params}
+        out["port"] = check_value("body.params.port", str, out["port"])
+        baud = check_value("body.params.baud", int, out["baud"])
+        if baud not in BAUDS:
+            raise ConfigError(f"body.params.baud must be one of {BAUDS}, got {baud}")
+        if out["stop_bits"] not in (1, 2):
+            raise ConfigError(f"body.params.stop_bits must be 1 or 2, got {out['stop_bits']!r}")
+        for key in ("timeout_s", "silent_s", "watchdog_s"):
+            out[key] = check_value(f"body.params.{key}", float, out[key], gt=0)
+        if out["dialect"] not in DIALECTS:
+            raise ConfigError(f"body.params.dialect must be one of {DIALECTS}")
+        if out["dialect"] != "khepera2":
+            raise ConfigError(
+                "body.params.dialect: the khepera3 dialect is spoken by the protocol module "
+                "but its units and sensor placement are not confirmed; only khepera2 runs"
+            )
+        pose = out["start_pose"]
+        if not (isinstance(pose, list) and len(pose) == 3):
+            raise ConfigError("body.params.start_pose must be [x_m, y_m, heading_deg]")
+        out["start_pose"] = [
+            check_value(f"body.params.start_pose[{i}]", float, v) for i, v in enumerate(pose)
+        ]
+        if out["ir_table_file"] is not None:
+            IRCalibration.from_file(out["ir_table_file"])  # named ConfigError if bad
+        return out
+
+    @classmethod
+    def from_config(cls, section: EndpointSection, cfg: ExperimentConfig) -> KheperaEndpoint:
+        p = cls.check_config(section, cfg)
+        calibration = (
+            IRCalibration.from_file(p["ir_table_file"])
+            if p["ir_table_file"]
+            else IRCalibration.published()
+        )
+        port = open_port(
+            p["port"], baud=p["baud"], stop_bits=p["stop_bits"], timeout_s=p["timeout_s"]
+        )
+        link = SerialLink(
+            port, timeout_s=p["timeout_s"], silent_s=p["silent_s"], dialect=p["dialect"]
+        )
+        driver = KheperaDriver(
+            link,
+            units=KHEPERA2_UNITS,
+            calibration=calibration,
+            odometry=Odometry(khepera.KHEPERA2_PULSE_M, khepera.KHEPERA2_WHEEL_BASE_M),
+            watchdog_s=p["watchdog_s"],
+        )
+        x, y, heading_deg = p["start_pose"]
+        return cls(driver, section.id, start_pose=(x, y, math.radians(heading_deg)))
+
+    # ------------------------------------------------------------ the endpoint
+
+    def warm_up(self) -> None:
+        """Connect: the robot stopped, answering, its link's cycle timed."""
+        if self.driver.cycle_ms == 0.0:
+            self.driver.connect()
+            log.info(
+                "khepera on %s: serial cycle %.1f ms", self.driver.link.name, self.driver.cycle_ms
+            )
+
+    def describe(self) -> Description:
+        self.warm_up()
+        return Description(
+            role="body",
+            id=self.id,
+            kind=self.kind,
+            sensor_angles_rad=np.radians(khepera.KHEPERA2_SENSOR_FACINGS_DEG),
+            max_range_m=self.driver.calibration.max_range_m,
+            wheel_base_m=khepera.KHEPERA2_WHEEL_BASE_M,
+            radius_m=khepera.KHEPERA2_RADIUS_M,
+            max_wheel_mps=self.driver.units.max_mps,
+            realtime_only=True,
+            cycle_ms=self.driver.cycle_ms,
+        )
+
+    def description(self) -> Description:
+        desc = super().description()
+        desc.counters["device"] = self.driver.stats()
+        return desc
+
+    def start_run(self, run: RunStart) -> None:
+        if run.mode != "realtime":
+            raise RunRefused(LOCKSTEP_REFUSAL)
+        if self.driver.fault is not None:
+            raise RunRefused(f"the serial link failed: {self.driver.fault}")
+        try:
+            self.driver.reset(self.start_pose)
+        except (LinkFault, ReplyError) as exc:
+            raise RunRefused(f"the robot did not reset: {exc}") from None
+
+    def step(self, m: MotorCommand, window: StepWindow) -> SensorReading:
+        self.driver.command(m.left_mps, m.right_mps)
+        reading = self.driver.latest()
+        age_s = max(0.0, time.monotonic() - reading.t_mono_s)
+        self.driver.note_age(age_s)
+        return SensorReading(
+            step=m.step,
+            run=window.run,
+            # the input arrives as its window opens: the reading was taken age_s before
+            t_s=max(0.0, window.t0_s - age_s),
+            ranges_m=reading.ranges_m,
+            pose=reading.pose,
+            contact=False,  # a Khepera II has no contact sensor
+            age_s=age_s,
+        )
+
+    def make_safe(self) -> None:
+        """``D,0,0`` now (not at the next cycle)."""
+        try:
+            self.driver.stop_motors()
+        except (LinkFault, ReplyError) as exc:
+            log.error("could not stop the motors: %s", exc)
+
+    def close(self) -> None:
+        self.driver.close()
+
+    def _on_fault(self, exc: LinkFault) -> None:
+        """The link failed (the driver tried a last stop): stop serving, named as a fault."""
+        self.request_stop()
+
+    def serve(self, *args, **kwargs) -> int:
+        """:meth:`Endpoint.serve`; a link fault ends it with that fault raised."""
+        try:
+            status = super().serve(*args, **kwargs)
+        except BaseException:
+            self.driver.close()  # whatever ended it, the motors stop if the link allows
+            raise
+        if self.driver.fault is not None:
+            raise self.driver.fault
+        return status
+
+
+KHEPERA2_UNITS = WheelUnits(khepera.KHEPERA2_SPEED_UNIT_MPS, khepera.KHEPERA2_MAX_SPEED_UNITS)

@@ -1,0 +1,165 @@
+"""The serial link to a Khepera: one command, one checked reply, at the link's own pace.
+
+:class:`SerialLink` drains stale input before each command, waits for the reply and checks
+it (:func:`~adapters.khepera.protocol.parse_reply`). A truncated, garbled or out-of-order
+line is logged with its bytes, counted, and the link resynchronised (input drained, the
+command sent again); it is never parsed as data. A link with no valid reply for
+``silent_s`` is a fault (:class:`LinkFault`), and so is a port that fails.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections import Counter
+
+import serial
+
+from adapters.khepera.protocol import Reply, ReplyError, command, parse_reply
+from hub.endpoint import DeviceFault
+
+log = logging.getLogger(__name__)
+
+#: the bauds a Khepera II's jumpers select
+BAUDS = (9600, 19200, 38400, 57600, 115200)
+
+
+class LinkFault(DeviceFault):
+    """The serial link cannot be used: silent for too long, or the port failed."""
+
+
+def byte_time_s(baud: int, stop_bits: int = 2) -> float:
+    """Seconds one byte takes on the wire: a start bit, 8 data bits, the stop bits."""
+    return (1 + 8 + stop_bits) / baud
+
+
+class SerialLink:
+    """Commands and checked replies over one serial port (thread-safe).
+
+    Parameters
+    ----------
+    port : serial.Serial
+        Open, 8 data bits, no parity (:func:`open_port`).
+    timeout_s : float
+        How long to wait for one reply line.
+    silent_s : float
+        With no valid reply for this long the link is a fault.
+    dialect : str
+        ``khepera2`` or ``khepera3``.
+    tries : int
+        Attempts per command before its failure is handed to the caller.
+    """
+
+    def __init__(
+        self,
+        port: serial.Serial,
+        *,
+        timeout_s: float = 0.2,
+        silent_s: float = 1.0,
+        dialect: str = "khepera2",
+        tries: int = 3,
+    ):
+        self.port = port
+        self.port.timeout = timeout_s
+        self.timeout_s = timeout_s
+        self.silent_s = silent_s
+        self.dialect = dialect
+        self.tries = tries
+        self.counts: Counter[str] = Counter()  # replies, and faults by kind
+        self._lock = threading.Lock()
+        self._last_valid = time.monotonic()
+
+    @property
+    def name(self) -> str:
+        return str(self.port.port)
+
+    def transact(self, letter: str, *values: int) -> Reply:
+        """Send one command and return its checked reply.
+
+        Raises
+        ------
+        ReplyError
+            No valid reply in ``tries`` attempts (each failure counted and logged).
+        LinkFault
+            The port failed, or no valid reply came for ``silent_s``.
+        """
+        raw = command(letter, *values, dialect=self.dialect)
+        with self._lock:
+            error: ReplyError | None = None
+            for _ in range(self.tries):
+                try:
+                    reply = self._exchange(letter, raw)
+                except ReplyError as exc:
+                    error = exc
+                    self._note(exc)
+                    if time.monotonic() - self._last_valid > self.silent_s:
+                        raise LinkFault(
+                            f"serial link {self.name} silent: no valid reply for "
+                            f"{self.silent_s} s (last: {exc})"
+                        ) from None
+                    continue
+                self._last_valid = time.monotonic()
+                self.counts["replies"] += 1
+                return reply
+            raise error
+
+    def _exchange(self, letter: str, raw: bytes) -> Reply:
+        try:
+            stale = self.port.in_waiting
+            if stale:
+                junk = self.port.read(stale)
+                self.counts["stale_bytes"] += len(junk)
+                log.debug("drained %d stale bytes %r before %r", len(junk), junk, raw)
+            self.port.write(raw)
+            deadline = time.monotonic() + self.timeout_s
+            while True:
+                line = self.port.readline()
+                try:
+                    return parse_reply(letter, line, dialect=self.dialect)
+                except ReplyError as exc:
+                    # A late reply to an earlier command: its own reply may still follow.
+                    if exc.kind != "order" or time.monotonic() >= deadline:
+                        raise
+                    self._note(exc)
+        except (serial.SerialException, OSError) as exc:
+            raise LinkFault(f"serial link {self.name} failed: {exc}") from None
+
+    def _note(self, exc: ReplyError) -> None:
+        if exc.kind == "truncated" and not exc.line:
+            kind = "timeout"
+        else:
+            kind = exc.kind
+        self.counts[kind] += 1
+        log.warning("serial link %s: %s", self.name, exc)
+
+    def close(self) -> None:
+        try:
+            self.port.close()
+        except (serial.SerialException, OSError):
+            pass
+
+
+def open_port(
+    path: str, *, baud: int = 9600, stop_bits: int = 2, timeout_s: float = 0.2
+) -> serial.Serial:
+    """Open a Khepera's serial port: 8 data bits, no parity, no flow control.
+
+    Raises
+    ------
+    LinkFault
+        The port cannot be opened (named, with the system's reason).
+    """
+    try:
+        return serial.Serial(
+            path,
+            baudrate=baud,
+            bytesize=serial.EIGHTBITS,
+            parity=serial.PARITY_NONE,
+            stopbits=serial.STOPBITS_TWO if stop_bits == 2 else serial.STOPBITS_ONE,
+            timeout=timeout_s,
+            write_timeout=timeout_s,
+            exclusive=True,
+        )
+    except (serial.SerialException, OSError, ValueError) as exc:
+        raise LinkFault(f"cannot open serial port {path}: {exc}") from None
