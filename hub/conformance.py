@@ -127,6 +127,8 @@ class FakeHub:
             self.close()
             raise AssertionError(f"{type(endpoint).__name__} did not come up on the bus")
         self.description = self.describe()
+        # the mode runs are announced in: a real device takes realtime runs only
+        self.mode = "realtime" if self.description.realtime_only else "lockstep"
 
     def _serve(self):
         try:
@@ -165,7 +167,7 @@ class FakeHub:
             run=run or new_run_id(),
             period_ms=fields.pop("period_ms", PERIOD_MS),
             n_steps=fields.pop("n_steps", N_STEPS),
-            mode=fields.pop("mode", "lockstep"),
+            mode=fields.pop("mode", self.mode),
             start_unix_s=time.time(),
             deadline_ms=fields.pop("deadline_ms", PERIOD_MS),
             key=fields.pop("key", wire.new_key()),
@@ -397,6 +399,18 @@ def check_hub_vanishing_ends_the_run(factory: Factory) -> None:
         assert hub.counters().get("run", "") == "", "still in a run after the hub vanished"
 
 
+def check_lockstep_only_for_simulators(factory: Factory) -> None:
+    """A real device (``realtime_only``) refuses a lockstep run, saying why; any other
+    endpoint takes one."""
+    with served(factory) as hub:
+        reply = hub.start(mode="lockstep")
+        if hub.description.realtime_only:
+            assert not reply.ok and "real time" in reply.reason, f"lockstep: {reply}"
+            assert hub.start(mode="realtime").ok, "a realtime run refused"
+        else:
+            assert reply.ok, f"a lockstep run refused: {reply.reason}"
+
+
 def check_close_at_shutdown(factory: Factory) -> None:
     """A stop request ends ``serve`` with status 0 and calls ``close()`` once."""
     with served(factory) as hub:
@@ -414,6 +428,7 @@ CHECKS = (
     check_bad_inputs_are_dropped_and_counted,
     check_input_timeout_makes_safe,
     check_hub_vanishing_ends_the_run,
+    check_lockstep_only_for_simulators,
     check_close_at_shutdown,
 )
 

@@ -8,6 +8,7 @@ what they produce. So a record shows which step's output fed which step's input.
 
 from __future__ import annotations
 
+import dataclasses
 import time
 
 import numpy as np
@@ -72,6 +73,15 @@ class EchoBody(Endpoint):
             pose=np.array([m.step, m.left_mps, m.right_mps]),
             contact=False,
         )
+
+
+class DeviceBody(EchoBody):
+    """An echo body that describes itself as a real device with an 80 ms I/O cycle."""
+
+    kind = "test_device_body"
+
+    def describe(self):
+        return dataclasses.replace(super().describe(), realtime_only=True, cycle_ms=80.0)
 
 
 class EchoCulture(Endpoint):

@@ -48,7 +48,7 @@ class IRCalibration:
         return cls(khepera.KHEPERA2_IR_TABLE[1:])  # from 8 mm: nearer is not resolved
 
     @classmethod
-    def from_file(cls, path: str | Path, key: str = "body.params.ir_table") -> IRCalibration:
+    def from_file(cls, path: str | Path, key: str = "body.params.ir_table_file") -> IRCalibration:
         """A lab's own table: a CSV file with the header ``distance_m,value``.
 
         Raises

@@ -56,10 +56,13 @@ class Faults:
 
     garbage_next: int = 0  # replies preceded by garbage bytes
     drop_next: int = 0  # replies not sent at all
+    late_next: int = 0  # replies preceded by a late ``d`` reply (out of order)
     garbage_every: int = 0
     drop_every: int = 0
     stall_until: float = 0.0  # time.monotonic() before which nothing is answered
-    fired: dict = field(default_factory=lambda: {"garbage": 0, "drop": 0, "stall": 0})
+    fired: dict = field(
+        default_factory=lambda: {"garbage": 0, "drop": 0, "late": 0, "stall": 0}
+    )
 
 
 class KheperaEmulator:
@@ -202,6 +205,10 @@ class KheperaEmulator:
             faults.garbage_next = max(0, faults.garbage_next - 1)
             faults.fired["garbage"] += 1
             reply = b"\x8f#\xfe" + reply
+        if faults.late_next:
+            faults.late_next -= 1
+            faults.fired["late"] += 1
+            reply = reply_line("d") + reply
         if self.byte_s:
             # the command's bytes and the reply's, as a wire at this baud would take them
             lag_s = (len(line) + 1 + len(reply)) * self.byte_s - (time.monotonic() - received)

@@ -74,7 +74,7 @@ def parse_reply(letter: str, line: bytes, *, dialect: str = "khepera2") -> Reply
         The line is truncated, garbled, another command's reply or an unknown-command line.
     """
     letter = letter.upper()
-    if line == UNKNOWN_COMMAND_REPLY or line.strip() == b"":
+    if line == UNKNOWN_COMMAND_REPLY or (line and line.strip() == b""):
         raise ReplyError("refused", f"the robot does not know command {letter}", line)
     if not line.endswith(b"\r\n"):
         raise ReplyError("truncated", "no line end", line)

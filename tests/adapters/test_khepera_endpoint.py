@@ -1,0 +1,78 @@
+"""The Khepera endpoint keeps the contract, and refuses what a real robot cannot do."""
+
+from __future__ import annotations
+
+import pytest
+
+from adapters.khepera.emulator import KheperaEmulator
+from adapters.khepera.endpoint import KheperaEndpoint
+from hub import conformance
+from hub.config import ConfigError, load_config
+from tests.adapters.khepera_rig import make_endpoint
+
+HYBRID = "configs/hybrid_khepera.toml"
+
+
+@pytest.fixture
+def emulators():
+    started: list[KheperaEmulator] = []
+
+    def new() -> KheperaEmulator:
+        started.append(KheperaEmulator().start())
+        return started[-1]
+
+    yield new
+    for emulator in started:
+        emulator.stop()
+
+
+@pytest.mark.parametrize("check", conformance.CHECKS, ids=lambda c: c.__name__)
+def test_the_khepera_endpoint_keeps_the_contract(check, emulators):
+    check(lambda: make_endpoint(emulators(), watchdog_s=5.0))
+
+
+def test_it_describes_the_real_robot_and_its_measured_serial_cycle(emulators):
+    endpoint = make_endpoint(emulators())
+    try:
+        d = endpoint.describe()
+        assert d.kind == "khepera" and d.realtime_only
+        assert d.n_sensors == 8 and d.wheel_base_m == pytest.approx(0.053)
+        assert d.max_range_m == pytest.approx(0.1) and d.max_wheel_mps == pytest.approx(1.016)
+        assert d.cycle_ms > 0
+    finally:
+        endpoint.close()
+
+
+def config(*overrides):
+    return load_config(HYBRID, list(overrides))
+
+
+def check(cfg):
+    return KheperaEndpoint.check_config(cfg.body, cfg)
+
+
+def test_a_lockstep_run_with_a_khepera_is_refused_before_it_starts():
+    with pytest.raises(ConfigError, match=r"loop.mode: a Khepera is a real device.*realtime"):
+        check(config('loop.mode="lockstep"'))
+
+
+@pytest.mark.parametrize(
+    "override, named",
+    [
+        ("body.params.baud=9601", "body.params.baud must be one of"),
+        ("body.params.stop_bits=3", "body.params.stop_bits"),
+        ("body.params.watchdog_s=0", "body.params.watchdog_s"),
+        ("body.params.start_pose=[0, 0]", "body.params.start_pose"),
+        ('body.params.ir_table_file="nowhere.csv"', "body.params.ir_table_file"),
+        ("body.params.speed=3", r"unknown key\(s\) \['speed'\]"),
+        ('body.params.dialect="khepera3"', "body.params.dialect"),
+    ],
+)
+def test_bad_params_are_named_before_the_port_is_opened(override, named):
+    with pytest.raises(ConfigError, match=named):
+        check(config(override))
+
+
+def test_the_hybrid_experiment_file_checks_out():
+    params = check(config())
+    assert params["port"] == "/tmp/neuvision-khepera" and params["baud"] == 9600

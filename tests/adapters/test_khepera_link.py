@@ -1,0 +1,156 @@
+"""The adapter against the emulator through a real pseudo-terminal: replies, units, faults."""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+import pytest
+
+from adapters.khepera.emulator import KheperaEmulator
+from adapters.khepera.link import LinkFault
+from adapters.khepera.protocol import ReplyError
+from devices import khepera
+from tests.adapters.khepera_rig import make_driver, motor_commands, open_link
+from tests.harness import wait_for
+
+
+@pytest.fixture
+def emulator():
+    with KheperaEmulator() as emu:
+        yield emu
+
+
+def test_every_command_of_the_protocol_gets_its_reply_parsed(emulator):
+    link = open_link(emulator)
+    assert link.transact("B").fields[0].startswith("nv-emulator")
+    assert link.transact("D", 5, -5).fields == ()
+    assert link.transact("E").fields == (5, -5)
+    assert link.transact("G", 100, 200).fields == ()
+    left, right = link.transact("H").fields
+    assert left >= 100 and right <= 200  # counting on from where they were set
+    assert len(link.transact("N").fields) == 8
+    assert len(link.transact("O").fields) == 8
+    assert link.transact("L", 0, 1).fields == () and emulator.leds[0] == 1
+    with pytest.raises(ReplyError, match="refused"):
+        link.transact("Z")
+    assert link.counts["refused"] == link.tries
+    link.transact("D", 0, 0)
+
+
+def test_a_straight_run_of_known_speed_and_time_covers_the_expected_distance(emulator):
+    link = open_link(emulator)
+    link.transact("G", 0, 0)
+    link.transact("D", 10, 10)  # 10 units = 0.08 m/s
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < 1.0:
+        link.transact("N")  # the loop's traffic meanwhile
+    link.transact("D", 0, 0)
+    elapsed_s = time.monotonic() - t0
+    left, right = link.transact("H").fields
+    expected_m = 10 * khepera.KHEPERA2_SPEED_UNIT_MPS * elapsed_s
+    for pulses in (left, right):
+        assert pulses * khepera.KHEPERA2_PULSE_M == pytest.approx(expected_m, rel=0.05)
+
+
+def test_odometry_of_the_driver_follows_the_emulated_robot(emulator):
+    driver = make_driver(emulator, watchdog_s=5.0)
+    driver.connect()
+    driver.reset(emulator.arena.pose)
+    try:
+        start = np.array(emulator.arena.pose)
+        driver.command(0.06, 0.1)  # an arc
+        time.sleep(1.5)  # let it drive; what is compared is where it went
+        driver.command(0.0, 0.0)
+        wait_for(lambda: emulator.speed_units == (0, 0), 2.0)
+        first = driver.latest().t_mono_s
+        wait_for(lambda: driver.latest().t_mono_s > first + 0.05, 2.0)
+        true = np.array(emulator.arena.pose)
+        odo = driver.latest().pose
+        travelled_m = np.hypot(*(true[:2] - start[:2]))
+        assert travelled_m > 0.08
+        assert np.hypot(*(odo[:2] - true[:2])) < 0.05 * travelled_m
+        assert abs(math.remainder(odo[2] - true[2], 2 * math.pi)) < 0.05
+    finally:
+        driver.close()
+
+
+def test_ir_values_become_the_true_distance_through_the_calibration(emulator):
+    # The robot 30 mm (front sensors) from the arena's wall, facing it.
+    emulator.arena.reset((0.0, -0.5 + 0.025 + 0.03, -math.pi / 2))
+    driver = make_driver(emulator)
+    driver.connect()
+    try:
+        true_m = emulator.arena.read_sensors()
+        ranges = driver.latest().ranges_m
+        seen = true_m < 0.1
+        assert seen[[2, 3]].all()  # the two front sensors
+        np.testing.assert_allclose(ranges[seen], true_m[seen], atol=0.001)
+        np.testing.assert_allclose(ranges[~seen], 0.1, rtol=1e-6)  # beyond the table: nothing seen
+    finally:
+        driver.close()
+
+
+@pytest.mark.parametrize("fault, counted", [("garbage_next", "garbled"), ("drop_next", "timeout"),
+                                            ("late_next", "order")])  # fmt: skip
+def test_a_bad_reply_is_counted_and_the_link_resynchronised(emulator, fault, counted):
+    link = open_link(emulator, timeout_s=0.1)
+    link.transact("N")
+    setattr(emulator.faults, fault, 1)
+    assert len(link.transact("N").fields) == 8  # the next attempt, or the reply after
+    assert link.counts[counted] == 1
+    assert len(link.transact("H").fields) == 2  # and the link goes on in step
+
+
+def test_the_driver_rides_out_faults_and_keeps_reading(emulator):
+    driver = make_driver(emulator, timeout_s=0.1)
+    driver.connect()
+    try:
+        emulator.faults.garbage_next = 3
+        emulator.faults.drop_next = 2
+        wait_for(lambda: emulator.faults.fired["drop"] == 2, 5.0)
+        before = driver.latest().t_mono_s
+        wait_for(lambda: driver.latest().t_mono_s > before, 2.0)
+        counts = driver.stats()
+        assert counts["garbled"] == 3 and counts["timeout"] == 2
+        assert driver.fault is None
+    finally:
+        driver.close()
+
+
+def test_a_silent_link_is_a_fault_named_as_such(emulator):
+    faults = []
+    driver = make_driver(emulator, timeout_s=0.1, silent_s=0.5)
+    driver.on_fault = faults.append
+    driver.connect()
+    emulator.faults.stall_until = time.monotonic() + 60
+    wait_for(lambda: faults, 5.0)
+    assert isinstance(faults[0], LinkFault) and "silent" in str(faults[0])
+    driver.close()
+
+
+def test_the_watchdog_stops_the_motors_when_commands_stop(emulator):
+    driver = make_driver(emulator, watchdog_s=0.3)
+    driver.connect()
+    try:
+        commanded = time.monotonic()
+        driver.command(0.1, 0.1)
+        wait_for(lambda: emulator.speed_units == (12, 12), 2.0)
+        wait_for(lambda: emulator.speed_units == (0, 0), 2.0)
+        t_stop, line = motor_commands(emulator)[-1]
+        assert line == b"D,0,0"
+        assert 0.3 <= t_stop - commanded <= 0.3 + 2 * driver.cycle_ms / 1e3 + 0.05
+        assert driver.counts["watchdog_stops"] == 1
+    finally:
+        driver.close()
+
+
+def test_the_byte_time_of_the_chosen_baud_is_emulated():
+    with KheperaEmulator(baud=9600) as slow:
+        link = open_link(slow)
+        t0 = time.perf_counter()
+        link.transact("N")
+        elapsed_s = time.perf_counter() - t0
+    # "N\r" and "n,0,...,0\r\n" (19 bytes) at 11 bits per byte
+    assert elapsed_s >= 21 * 11 / 9600
