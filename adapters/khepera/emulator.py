@@ -60,9 +60,7 @@ class Faults:
     garbage_every: int = 0
     drop_every: int = 0
     stall_until: float = 0.0  # time.monotonic() before which nothing is answered
-    fired: dict = field(
-        default_factory=lambda: {"garbage": 0, "drop": 0, "late": 0, "stall": 0}
-    )
+    fired: dict = field(default_factory=lambda: {"garbage": 0, "drop": 0, "late": 0, "stall": 0})
 
 
 class KheperaEmulator:

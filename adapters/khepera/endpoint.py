@@ -12,7 +12,9 @@ Parameters (``[body.params]``; docs in README "A real Khepera"):
 for this long is a fault; default 1.0), ``watchdog_s`` (no motor command for this long stops
 the motors; default 0.5), ``dialect`` (``khepera2`` or ``khepera3``), ``ir_table_file`` (a
 lab's calibration, CSV ``distance_m,value``; default the published table), ``start_pose``
-(``[x_m, y_m, heading_deg]`` odometry starts from; default ``[0, 0, 0]``).
+(``[x_m, y_m, heading_deg]`` odometry starts from; default ``[0, 0, 0]``), ``world`` (a world
+file drawing the lab's arena: used only by the run's summary, for the trajectory figure and
+the arena metrics).
 
 A device runs in real time only: a lockstep run is refused, at ``neuvision run`` before
 anything starts and by the endpoint itself.
@@ -23,6 +25,7 @@ from __future__ import annotations
 import logging
 import math
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -50,6 +53,7 @@ DEFAULTS = {
     "dialect": "khepera2",
     "ir_table_file": None,
     "start_pose": [0.0, 0.0, 0.0],
+    "world": None,
 }
 
 
@@ -72,6 +76,7 @@ class KheperaEndpoint(Endpoint):
         super().__init__(id, input_timeout_s=driver.watchdog_s)
         self.driver = driver
         self.start_pose = tuple(float(v) for v in start_pose)
+        self._origin_s = math.inf  # run time 0 on time.monotonic()'s clock
         driver.on_fault = self._on_fault
 
     @classmethod
@@ -113,6 +118,9 @@ class KheperaEndpoint(Endpoint):
         out["start_pose"] = [
             check_value(f"body.params.start_pose[{i}]", float, v) for i, v in enumerate(pose)
         ]
+        world = out["world"]
+        if world is not None and not (isinstance(world, str) and Path(world).is_file()):
+            raise ConfigError(f"body.params.world: no world file {world!r}")
         if out["ir_table_file"] is not None:
             IRCalibration.from_file(out["ir_table_file"])  # named ConfigError if bad
         return out
@@ -176,21 +184,26 @@ class KheperaEndpoint(Endpoint):
             raise RunRefused(LOCKSTEP_REFUSAL)
         if self.driver.fault is not None:
             raise RunRefused(f"the serial link failed: {self.driver.fault}")
+        self._origin_s = math.inf
         try:
             self.driver.reset(self.start_pose)
         except (LinkFault, ReplyError) as exc:
             raise RunRefused(f"the robot did not reset: {exc}") from None
 
     def step(self, m: MotorCommand, window: StepWindow) -> SensorReading:
+        now = time.monotonic()
         self.driver.command(m.left_mps, m.right_mps)
         reading = self.driver.latest()
-        age_s = max(0.0, time.monotonic() - reading.t_mono_s)
+        age_s = max(0.0, now - reading.t_mono_s)
         self.driver.note_age(age_s)
+        # Run time 0 on this clock: an input arrives at its window's start or later, so the
+        # earliest estimate is the best; readings' run times then never go backwards.
+        self._origin_s = min(self._origin_s, now - window.t0_s)
+        t_s = min(max(0.0, reading.t_mono_s - self._origin_s), window.t1_s)
         return SensorReading(
             step=m.step,
             run=window.run,
-            # the input arrives as its window opens: the reading was taken age_s before
-            t_s=max(0.0, window.t0_s - age_s),
+            t_s=t_s,
             ranges_m=reading.ranges_m,
             pose=reading.pose,
             contact=False,  # a Khepera II has no contact sensor

@@ -76,3 +76,8 @@ def test_bad_params_are_named_before_the_port_is_opened(override, named):
 def test_the_hybrid_experiment_file_checks_out():
     params = check(config())
     assert params["port"] == "/tmp/neuvision-khepera" and params["baud"] == 9600
+
+
+def test_the_world_drawn_in_the_figures_must_exist():
+    with pytest.raises(ConfigError, match="body.params.world: no world file"):
+        check(config('body.params.world="nowhere.toml"'))

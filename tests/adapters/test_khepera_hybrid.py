@@ -1,0 +1,56 @@
+"""A hybrid realtime run: the emulated Khepera on a pseudo-terminal, the simulated culture."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+from adapters.khepera.emulator import KheperaEmulator
+from hub.protocol import SensorReading
+from hub.record import read_run
+
+pytestmark = pytest.mark.bus
+HYBRID = "configs/hybrid_khepera.toml"
+
+
+def hybrid_run(tmp_path, bus_overrides, *, baud, period_ms, duration_s):
+    with KheperaEmulator(baud=baud) as emulator:
+        sets = [*bus_overrides, f'body.params.port="{emulator.path}"', f"body.params.baud={baud}",
+                f"loop.period_ms={period_ms}"]  # fmt: skip
+        args = [sys.executable, "-m", "hub.cli", "run", HYBRID, "--quiet"]
+        args += ["--duration-s", str(duration_s), "--runs-dir", str(tmp_path)]
+        for item in sets:
+            args += ["--set", item]
+        done = subprocess.run(args, capture_output=True, text=True, timeout=duration_s + 120)
+    assert done.returncode == 0, done.stderr[-2000:]
+    (run_dir,) = tmp_path.iterdir()
+    return read_run(run_dir)
+
+
+@pytest.mark.parametrize("baud, period_ms", [(115200, 10.0)])
+def test_a_short_hybrid_run_completes_with_fresh_readings(tmp_path, bus_overrides, baud, period_ms):
+    record = hybrid_run(tmp_path, bus_overrides, baud=baud, period_ms=period_ms, duration_s=3.0)
+    readings = record.decoded(SensorReading, "rx")
+    assert len(readings) >= 290
+    ages_s = [r.age_s for r in readings]
+    assert all(a is not None and a >= 0 for a in ages_s)
+    t_s = [r.t_s for r in sorted(readings, key=lambda r: r.step)]
+    assert t_s == sorted(t_s)  # a reading's run time never goes backwards
+    assert all(r.t_s <= (r.step + 1) * period_ms / 1e3 + 1e-9 for r in readings)
+    device = record.manifest["endpoints"]["body"]["device"]
+    assert device["reading_age_ms_p99"] < 3 * device["cycle_ms_measured"] + period_ms
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("baud, period_ms", [(9600, 50.0), (115200, 10.0)])
+def test_a_20_s_hybrid_run_has_no_late_step(tmp_path, bus_overrides, baud, period_ms):
+    record = hybrid_run(tmp_path, bus_overrides, baud=baud, period_ms=period_ms, duration_s=20.0)
+    m = record.manifest
+    assert m["outcome"] == "completed" and m["steps"] == round(20_000 / period_ms)
+    assert sum(m["counts"]["late"].values()) == 0, m["counts"]
+    summary = json.loads((record.run_dir / "summary.json").read_text())
+    assert {"trajectory.png", "raster.png"} <= set(summary["figures"])
+    assert summary["behaviour"]["distance_m"] > 0.1  # the culture drove the robot

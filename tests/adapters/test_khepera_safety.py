@@ -1,0 +1,118 @@
+"""Whatever ends a run, the Khepera's motors stop: the hub killed, the adapter terminated,
+the robot's link gone. Real processes, real Zenoh on loopback, a real pseudo-terminal."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+from adapters.khepera.emulator import KheperaEmulator
+from hub.record import read_run
+from tests.adapters.khepera_rig import motor_commands
+from tests.harness import wait_for
+
+pytestmark = pytest.mark.bus
+HYBRID = "configs/hybrid_khepera.toml"
+WATCHDOG_S = 0.5
+
+
+def neuvision(*args, **popen) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", "hub.cli", *args], **popen)
+
+
+def sets(bus_overrides, port, *more) -> list[str]:
+    out = []
+    for item in [*bus_overrides, f'body.params.port="{port}"', *more]:
+        out += ["--set", item]
+    return out
+
+
+def moving(emulator) -> bool:
+    return emulator.speed_units != (0, 0)
+
+
+def end(*procs: subprocess.Popen) -> None:
+    for p in procs:
+        if p.poll() is None:
+            p.kill()
+        p.wait(timeout=10)
+
+
+@pytest.fixture
+def emulator():
+    with KheperaEmulator(baud=115200) as emu:
+        yield emu
+
+
+def test_the_hub_killed_mid_run_leaves_the_robot_stopped_within_the_watchdog(
+    emulator, bus_overrides, tmp_path
+):
+    args = sets(bus_overrides, emulator.path, 'body.launch="external"')
+    body = neuvision("endpoint", "body", HYBRID, *args, stderr=subprocess.DEVNULL)
+    hub = neuvision(
+        "run", HYBRID, "--quiet", "--duration-s", "60", "--runs-dir", str(tmp_path), *args,
+        stderr=subprocess.DEVNULL, start_new_session=True,
+    )  # fmt: skip
+    try:
+        wait_for(lambda: moving(emulator), 60.0)
+        os.killpg(hub.pid, signal.SIGKILL)  # the hub and its culture, at once
+        killed = time.monotonic()
+        wait_for(lambda: not moving(emulator), 5.0)
+        t_stop, line = motor_commands(emulator)[-1]
+        assert line == b"D,0,0"
+        assert t_stop - killed <= WATCHDOG_S + 0.2  # the watchdog, or the hub's liveliness
+        assert body.poll() is None  # the adapter lives on, idle, for the next run
+    finally:
+        end(hub, body)
+
+
+def test_sigterm_to_the_adapter_stops_the_motors_before_it_exits(emulator, bus_overrides, tmp_path):
+    args = sets(bus_overrides, emulator.path, 'body.launch="external"')
+    body = neuvision("endpoint", "body", HYBRID, *args, stderr=subprocess.DEVNULL)
+    hub = neuvision(
+        "run", HYBRID, "--quiet", "--duration-s", "60", "--runs-dir", str(tmp_path), *args,
+        stderr=subprocess.DEVNULL,
+    )  # fmt: skip
+    try:
+        wait_for(lambda: moving(emulator), 60.0)
+        n_before = len(emulator.commands)
+        body.send_signal(signal.SIGTERM)
+        assert body.wait(timeout=10) == 0
+        after = [line for _, line in list(emulator.commands)[n_before:] if line.startswith(b"D")]
+        assert after and after[-1] == b"D,0,0" and not moving(emulator)
+        assert hub.wait(timeout=30) == 2  # the hub ends the run: its body went away
+    finally:
+        end(hub, body)
+
+
+def test_the_robot_link_dying_mid_run_ends_the_run_as_a_fault_with_its_record(
+    bus_overrides, tmp_path
+):
+    emu = neuvision("emulate", "khepera", "--baud", "115200", stdout=subprocess.PIPE,
+                    stderr=subprocess.DEVNULL, text=True)  # fmt: skip
+    port = emu.stdout.readline().strip()
+    run = neuvision(
+        "run", HYBRID, "--quiet", "--duration-s", "60", "--runs-dir", str(tmp_path),
+        *sets(bus_overrides, port), stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        wait_for(lambda: any(tmp_path.glob("*/body.log")), 60.0)
+        body_log = next(tmp_path.glob("*/body.log"))
+        wait_for(lambda: "took run" in body_log.read_text(), 60.0)
+        time.sleep(1.0)  # a second of the run
+        emu.kill()
+        assert run.wait(timeout=30) == 2
+        stderr = run.stderr.read()
+        assert "run failed" in stderr and "body" in stderr
+        log = body_log.read_text()
+        assert "serial link" in log and "failed" in log
+        record = read_run(body_log.parent)
+        assert record.manifest["outcome"] == "fault"
+        assert record.manifest["steps"] > 0
+    finally:
+        end(run, emu)
