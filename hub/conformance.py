@@ -44,6 +44,7 @@ from hub.protocol import (
     Message,
     MotorCommand,
     RunEnd,
+    RunHold,
     RunReply,
     RunStart,
     SensorReading,
@@ -178,6 +179,9 @@ class FakeHub:
             self.run = start
             self.inbox.key = start.key
         return reply
+
+    def hold(self, hold: bool, run: str | None = None) -> RunReply:
+        return self._run_query(RunHold(run=run or self.run.run, hold=hold))
 
     def end(self, outcome: str = "completed") -> RunReply:
         reply = self._run_query(RunEnd(run=self.run.run, outcome=outcome))
@@ -389,6 +393,20 @@ def check_input_timeout_makes_safe(factory: Factory) -> None:
         _wait_for(lambda: hub.hooks.calls["make_safe"] > before, INPUT_TIMEOUT_S * 20)
 
 
+def check_pause_makes_safe(factory: Factory) -> None:
+    """A paused run (``RunHold``) makes the endpoint safe at once; another run's hold is
+    refused; after the resume the run goes on."""
+    with served(factory) as hub:
+        assert hub.start().ok
+        hub.step(0)
+        before = hub.hooks.calls["make_safe"]
+        assert hub.hold(True).ok
+        assert hub.hooks.calls["make_safe"] > before, "paused: not made safe"
+        assert not hub.hold(True, run=new_run_id()).ok, "another run's pause taken"
+        assert hub.hold(False).ok
+        hub.step(1)
+
+
 def check_hub_vanishing_ends_the_run(factory: Factory) -> None:
     """When the hub's liveliness token goes, the endpoint makes itself safe and is idle."""
     with served(factory) as hub:
@@ -427,6 +445,7 @@ CHECKS = (
     check_replies_carry_run_and_window,
     check_bad_inputs_are_dropped_and_counted,
     check_input_timeout_makes_safe,
+    check_pause_makes_safe,
     check_hub_vanishing_ends_the_run,
     check_lockstep_only_for_simulators,
     check_close_at_shutdown,

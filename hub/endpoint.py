@@ -8,7 +8,8 @@ rest (contract v2, docs/contract.md):
 - declares the ``describe`` and ``run`` queryables and then its liveliness token;
 - takes a run when the hub announces it (``RunStart``: run id, period, number of steps,
   the key this endpoint and the hub seal their messages with), refuses another run while
-  one is going, and ends it on ``RunEnd`` or when the hub's liveliness vanishes;
+  one is going, makes itself safe when the run is paused (``RunHold``), and ends it on
+  ``RunEnd`` or when the hub's liveliness vanishes;
 - receives each step's input, unseals and validates it, checks it against the run (step
   order, window) and against the endpoint's own limits, calls ``step`` with the input's
   window, and publishes the sealed output;
@@ -46,6 +47,7 @@ from hub.protocol import (
     Message,
     ProtocolError,
     RunEnd,
+    RunHold,
     RunReply,
     RunStart,
     StepWindow,
@@ -98,6 +100,7 @@ class Endpoint(abc.ABC):
         self.last_step = -1
         self.run: RunStart | None = None  # the run being served (None: idle)
         self.runs = 0  # runs taken since serving began
+        self.holds = 0  # pauses of the hub (each made the device safe)
         self.keys = Keys()
         self.scheduling = Scheduling("normal", reason="not serving")
         self._inbox = wire.Inbox()
@@ -188,6 +191,7 @@ class Endpoint(abc.ABC):
             "dropped": dict(self.dropped),
             "steps": self.steps,
             "runs": self.runs,
+            "holds": self.holds,
             "run": self.run.run if self.run else "",
             "busy_s": self.busy_s,
             "cpu_s": time.process_time(),  # the whole process, every thread
@@ -212,6 +216,14 @@ class Endpoint(abc.ABC):
             return RunReply(ok=False, run="", reason=str(exc))
         with self._lock:
             current = self.run
+            if isinstance(request, RunHold):
+                if current is None or current.run != request.run:
+                    return RunReply(ok=False, run=request.run, reason="not serving that run")
+                if request.hold:
+                    log.info("%s/%s: run %s paused", self.role, self.id, request.run)
+                    self.make_safe()
+                self.holds += int(request.hold)
+                return RunReply(ok=True, run=request.run)
             if isinstance(request, RunEnd):
                 if current is None or current.run != request.run:
                     return RunReply(ok=False, run=request.run, reason="not serving that run")

@@ -56,6 +56,7 @@ from hub.protocol import (
     MotorCommand,
     ProtocolError,
     RunEnd,
+    RunHold,
     RunReply,
     RunStart,
     StepWindow,
@@ -471,9 +472,11 @@ class Hub(LockstepSteps, RealtimeSteps):
             ok = self.state == "running"
             if ok:
                 self.state, self._pause_started = "paused", time.monotonic()
+                self._hold(True)
         elif request.cmd == "resume":
             ok = self.state == "paused"
             if ok:
+                self._hold(False)
                 self._paused_s += time.monotonic() - self._pause_started
                 self.state = "running"
         elif request.cmd == "stop":
@@ -484,6 +487,25 @@ class Hub(LockstepSteps, RealtimeSteps):
         if not ok:
             reason = f"cannot {request.cmd} while {self.state}"
         self._reply(query, ControlReply(ok=ok, state=self.state, reason=reason, data=data))
+
+    def _hold(self, hold: bool) -> None:
+        """Tell each endpoint the run is paused (it makes itself safe at once: the wheels
+        stop, nothing is delivered) or resumed; record who acknowledged."""
+        message = RunHold(run=self.run_id, hold=hold).encode()
+        taken = {}
+        for role, i in self.ids.items():
+            replies = self.link.query(self.keys.run(role, i), message, timeout_s=1.0)
+            answers = []
+            for raw in replies:
+                try:
+                    answers.append(RunReply.decode(raw))
+                except ProtocolError:
+                    continue
+            taken[role] = any(a.ok for a in answers)
+        self._record_event("hold" if hold else "unhold", **taken)
+        if not all(taken.values()):
+            log.warning("not every endpoint acknowledged the %s: %s",
+                        "pause" if hold else "resume", taken)  # fmt: skip
 
     def _reply(self, query, reply: ControlReply) -> None:
         query.reply(query.key_expr, reply.encode())
@@ -634,11 +656,33 @@ class Hub(LockstepSteps, RealtimeSteps):
             self.recorder.message("tx", self.input_key[role], raw)
 
     def _safe_stop_body(self) -> None:
-        """Whatever ended the run, leave the robot stopped."""
+        """Whatever ended the run, leave the robot stopped, and wait a little for the
+        body's reply to the stop: the proof that it was applied (recorded either way)."""
         # Sent whether or not the body looks alive: a frozen body gets it if it comes back
         # in time (it also stops itself: its input timeout, the hub's liveliness).
-        if self.link is not None and self.descriptions.get("body"):
-            self._send("body", MotorCommand.stop(self._window(self.last_sent.get("body", -1) + 1)))
+        if self.link is None or not self.descriptions.get("body"):
+            return
+        step = self.last_sent.get("body", -1) + 1
+        self._send("body", MotorCommand.stop(self._window(step)))
+        if self.state == "waiting":  # the run was never announced: nothing will answer
+            return
+        t0 = time.monotonic()
+        until = t0 + self.cfg.loop.final_stop_wait_s
+        try:
+            while step not in self.pending["body"] and time.monotonic() < until:
+                self._next_event(until)
+        except HubError:  # the body died meanwhile: it stops itself (input timeout, lease)
+            pass
+        seen = step in self.pending["body"]
+        self._record_event(
+            "final_stop", step=step, acknowledged=seen, wait_s=round(time.monotonic() - t0, 4)
+        )
+        if not seen:
+            log.warning(
+                "the body did not answer the final stop within %.2f s (loop.final_stop_wait_s);"
+                " it stops itself on its own input timeout",
+                self.cfg.loop.final_stop_wait_s,
+            )
 
     def _window(self, k: int) -> StepWindow:
         return StepWindow.of(self.run_id, k, self.period_s)

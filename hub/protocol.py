@@ -955,6 +955,17 @@ class RunEnd(Message):
 
 
 @dataclass(frozen=True, eq=False)
+class RunHold(Message):
+    """Hub → one endpoint, on its ``run`` key: the run is paused (``hold``: the endpoint
+    makes itself safe now: wheels stopped, nothing delivered) or resumed (contract v3)."""
+
+    run: str
+    hold: bool
+
+    SCHEMA = {"run": _RUN, "hold": Scalar(bool)}
+
+
+@dataclass(frozen=True, eq=False)
 class RunReply(Message):
     """An endpoint's answer to ``RunStart``/``RunEnd``: taken, or refused and why."""
 
@@ -965,10 +976,12 @@ class RunReply(Message):
     SCHEMA = {"ok": Scalar(bool), "run": _RUN, "reason": Scalar(str)}
 
 
-def decode_run_request(raw: bytes) -> RunStart | RunEnd:
-    """The payload of a query on a ``run`` key: a ``RunStart`` or a ``RunEnd``."""
+def decode_run_request(raw: bytes) -> RunStart | RunEnd | RunHold:
+    """The payload of a query on a ``run`` key: a ``RunStart``, ``RunEnd`` or ``RunHold``."""
     data = unpack_map(raw)
-    return (RunStart if "period_ms" in data else RunEnd).from_dict(data)
+    if "period_ms" in data:
+        return RunStart.from_dict(data)
+    return (RunHold if "hold" in data else RunEnd).from_dict(data)
 
 
 CONTROL_COMMANDS = ("status", "pause", "resume", "stop", "config")

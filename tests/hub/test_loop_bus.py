@@ -404,6 +404,47 @@ def test_pause_resume_stop_and_config_over_the_control_key(tmp_path, bus_overrid
         "config",
         "stop",
     ]
+    # The pause reached both endpoints at once (each made itself safe), and so did the resume.
+    holds = [(e.key, e.payload) for e in h.record.events if e.key in ("hold", "unhold")]
+    assert holds == [("hold", {"body": True, "culture": True}),
+                     ("unhold", {"body": True, "culture": True})]  # fmt: skip
+    assert h.record.manifest["endpoints"]["body"]["holds"] == 1
+    (final,) = [e.payload for e in h.record.events if e.key == "final_stop"]
+    assert final["acknowledged"]  # the body answered the final stop: it was applied
+
+
+def test_status_is_published_at_status_hz_in_lockstep_too(tmp_path, bus_overrides):
+    statuses: list[HubStatus] = []
+    with harness(
+        tmp_path, bus_overrides, "loop.status_hz=20", "experiment.duration_s=2",
+        "loop.period_ms=10", "body.params.delay_ms=5",
+    ) as h:  # fmt: skip
+        done = threading.Event()
+
+        def observer():  # connects once the hub listens
+            session = open_session(h.cfg.bus, listener=False)
+            keys = h.cfg.bus.keys
+            sub = session.declare_subscriber(
+                keys.hub_status,
+                lambda s: statuses.append((time.monotonic(), HubStatus.decode(payload_bytes(s)))),
+            )
+            done.wait(60)
+            sub.undeclare()
+            session.close()
+
+        thread = threading.Thread(target=observer)
+        thread.start()
+        try:
+            result = h.run()
+        finally:
+            done.set()
+            thread.join(timeout=30)
+    assert result.outcome == "completed"
+    assert result.timing["wall_s"] > 1.0  # 200 steps of a body that takes 5 ms each
+    seen = [t for t, s in statuses if s.state == "running" and s.mode == "lockstep"]
+    assert len(seen) >= 10
+    rate_hz = (len(seen) - 1) / (seen[-1] - seen[0])
+    assert 14 <= rate_hz <= 26  # 20 Hz asked, on a shared machine
 
 
 def test_a_missing_endpoint_is_named_after_the_wait(tmp_path, bus_overrides):

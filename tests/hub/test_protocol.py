@@ -24,6 +24,7 @@ from hub.protocol import (
     Potentials,
     ProtocolError,
     RunEnd,
+    RunHold,
     RunStart,
     SensorReading,
     SpikeBatch,
@@ -85,6 +86,7 @@ EXAMPLES = [
     ),
     ControlRequest(cmd="pause"),
     ControlReply(ok=True, state="paused", data={"step": 3}),
+    RunHold(run=RUN, hold=True),
 ]
 
 
@@ -623,3 +625,8 @@ def test_a_bad_run_announcement_is_refused_with_its_kind(fields, kind):
     with pytest.raises(ProtocolError) as err:
         _run_start(**fields)
     assert err.value.kind == kind
+
+
+def test_a_run_request_is_told_apart_by_its_fields():
+    assert isinstance(decode_run_request(RunHold(run=RUN, hold=False).encode()), RunHold)
+    assert isinstance(decode_run_request(RunEnd(run=RUN, outcome="completed").encode()), RunEnd)
