@@ -179,6 +179,7 @@ class Hub(LockstepSteps, RealtimeSteps):
         self.recorder: Recorder | None = None
         self.live: LiveBursts | None = None
         self.reply_deadline = math.inf  # realtime: replies arriving later are late
+        self._final_step = -1  # the step of the body's final stop, once sent
         self.scheduling: Scheduling | None = None  # realtime: what the hub's threads got
         self.placement = Placement()  # the CPUs the hub's threads are kept on (loop.cpus)
         # Lockstep: replies are taken in the threads they arrive on while ``direct``.
@@ -413,6 +414,9 @@ class Hub(LockstepSteps, RealtimeSteps):
         except ProtocolError as exc:
             return self._drop(role, exc.kind, str(exc))
         step, expected = message.step, self.expect[role]
+        if role == "body" and step == self._final_step:  # the answer to the final stop
+            self.pending[role][step] = message
+            return "final"
         if self.state == "waiting":
             return self._drop(role, "early", f"reply for step {step} before the run started")
         if step == self.k and t_arrival > self.reply_deadline and step not in self.missed[role]:
@@ -662,7 +666,7 @@ class Hub(LockstepSteps, RealtimeSteps):
         # in time (it also stops itself: its input timeout, the hub's liveliness).
         if self.link is None or not self.descriptions.get("body"):
             return
-        step = self.last_sent.get("body", -1) + 1
+        step = self._final_step = self.last_sent.get("body", -1) + 1
         self._send("body", MotorCommand.stop(self._window(step)))
         if self.state == "waiting":  # the run was never announced: nothing will answer
             return

@@ -9,8 +9,9 @@ first a header map, then one list per message or event::
 
 where direction is ``tx`` (sent), ``rx`` (received and used by the loop),
 ``late`` (valid, but arrived after its deadline: real data the loop did not
-use) or ``drop`` (received and dropped: malformed, stale, duplicate, future,
-foreign).
+use), ``drop`` (received and dropped: malformed, stale, duplicate, future,
+foreign) or ``final`` (the body's answer to the hub's final stop, after the run's last
+step: the proof the stop was applied, not the run's data).
 
 A dropped payload is anyone's to send (a stranger can fill the disk), so it is stored
 capped (format version 2): its payload field is a map, not bytes::
@@ -59,7 +60,8 @@ MANIFEST_FILE = "manifest.json"
 FORMAT = "neuvision-record"
 FORMAT_VERSION = 2
 READABLE_VERSIONS = (1, 2)
-DIRECTIONS = ("tx", "rx", "late", "drop", "ev")
+# "final": the body's answer to the hub's final stop, after the run's last step
+DIRECTIONS = ("tx", "rx", "late", "drop", "ev", "final")
 # What the analysis reads as the culture's and body's real output.
 DATA_DIRECTIONS = ("rx", "late")
 WRITE_BUFFER_BYTES = 1 << 20

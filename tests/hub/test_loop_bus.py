@@ -42,8 +42,12 @@ def test_lockstep_keeps_the_step_order_with_one_step_of_latency(tmp_path, bus_ov
     motors, stims = h.sent(MotorCommand), h.sent(Stimulation)
     sensors, spikes = h.received(SensorReading), h.received(SpikeBatch)
     assert sorted(sensors) == sorted(stims) == sorted(spikes) == list(range(50))
-    # Whatever ends a run, the hub's last word to the body is "stop".
+    # Whatever ends a run, the hub's last word to the body is "stop" -- and the body's reply
+    # to it (step 50, wheels at 0) says it applied it.
     assert sorted(motors) == list(range(51)) and motors[50] == MotorCommand.stop(motors[50].window)
+    assert sorted(sensors) == list(range(50))
+    (final,) = h.record.decoded(SensorReading, "final")  # kept apart from the run's data
+    assert final.step == 50 and tuple(final.pose) == (50, 0.0, 0.0)
     # Step 0: zero motion, no stimulation.
     assert motors[0].left_mps == motors[0].right_mps == 0 and stims[0].n_pulses == 0
     for k in range(1, 50):
