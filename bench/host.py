@@ -13,14 +13,14 @@ exit that stops them first.
 
 from __future__ import annotations
 
-import ctypes
 import os
 import signal
 import subprocess
 import sys
 from dataclasses import dataclass
 
-_PR_SET_PDEATHSIG = 1
+from hub.launch import die_with_parent
+
 _children: list[subprocess.Popen] = []
 
 
@@ -61,17 +61,9 @@ class StealMeter:
         self.stop()
 
 
-def _die_with_parent() -> None:  # runs in the child between fork and exec
-    try:
-        libc = ctypes.CDLL(None, use_errno=True)
-        libc.prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
-    except (OSError, AttributeError):
-        pass
-
-
 def child_popen(cmd: list[str], **kwargs) -> subprocess.Popen:
     """``subprocess.Popen`` of a child that is sent SIGTERM if this process dies."""
-    popen = subprocess.Popen(cmd, preexec_fn=_die_with_parent, **kwargs)
+    popen = subprocess.Popen(cmd, preexec_fn=die_with_parent, **kwargs)
     _children.append(popen)
     return popen
 

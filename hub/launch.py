@@ -16,6 +16,7 @@ opens its own Zenoh session: a process that has a session must never fork).
 
 from __future__ import annotations
 
+import ctypes
 import dataclasses
 import importlib
 import os
@@ -29,6 +30,8 @@ from pathlib import Path
 
 from hub.config import ConfigError, EndpointSection, ExperimentConfig
 from hub.endpoint import Endpoint
+
+_PR_SET_PDEATHSIG = 1
 
 ENDPOINT_KINDS = {
     "sim_robot": "sim_robot.endpoint:ArenaEndpoint",
@@ -113,6 +116,16 @@ class LocalProcess:
     log_path: Path | None
 
 
+def die_with_parent() -> None:
+    """Ask the kernel to send this process SIGTERM when its parent dies, even by SIGKILL
+    (``PR_SET_PDEATHSIG``; Linux). Runs in a child between fork and exec."""
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
+    except (OSError, AttributeError):
+        pass
+
+
 def start_local_endpoints(
     config_path: str | None, overrides: list[str], cfg: ExperimentConfig, log_dir: Path | None
 ) -> list[LocalProcess]:
@@ -135,6 +148,8 @@ def start_local_endpoints(
             stdout=out,
             stderr=subprocess.STDOUT,
             start_new_session=True,  # Ctrl-C goes to the runner, which stops us in order
+            # A runner killed outright: its endpoints end too (a body stops its motors).
+            preexec_fn=die_with_parent,
             env={**os.environ, "PYTHONUNBUFFERED": "1"},
         )
         if log_path:

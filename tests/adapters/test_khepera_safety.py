@@ -43,6 +43,23 @@ def end(*procs: subprocess.Popen) -> None:
         p.wait(timeout=10)
 
 
+def children(pid: int) -> list[int]:
+    """The child processes of ``pid`` (Linux ``/proc``)."""
+    out = []
+    for task in os.listdir(f"/proc/{pid}/task"):
+        with open(f"/proc/{pid}/task/{task}/children") as f:
+            out += [int(c) for c in f.read().split()]
+    return out
+
+
+def gone(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().split(")")[-1].split()[0] == "Z"  # a zombie has ended
+    except FileNotFoundError:
+        return True
+
+
 @pytest.fixture
 def emulator():
     with KheperaEmulator(baud=115200) as emu:
@@ -116,3 +133,28 @@ def test_the_robot_link_dying_mid_run_ends_the_run_as_a_fault_with_its_record(
         assert record.manifest["steps"] > 0
     finally:
         end(run, emu)
+
+
+def test_the_runner_killed_outright_takes_its_local_endpoints_with_it(
+    emulator, bus_overrides, tmp_path
+):
+    run = neuvision(
+        "run", HYBRID, "--quiet", "--duration-s", "60", "--runs-dir", str(tmp_path),
+        *sets(bus_overrides, emulator.path), stderr=subprocess.DEVNULL,
+    )  # fmt: skip
+    endpoints = []
+    try:
+        wait_for(lambda: moving(emulator), 60.0)
+        endpoints = children(run.pid)
+        assert len(endpoints) == 2
+        run.kill()
+        killed = time.monotonic()
+        wait_for(lambda: not moving(emulator), 5.0)
+        assert motor_commands(emulator)[-1][1] == b"D,0,0"
+        assert time.monotonic() - killed <= WATCHDOG_S + 0.2
+        wait_for(lambda: all(gone(p) for p in endpoints), 15.0)  # none left behind
+    finally:
+        end(run)
+        for pid in endpoints:
+            if not gone(pid):
+                os.kill(pid, signal.SIGKILL)
