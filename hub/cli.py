@@ -13,7 +13,6 @@ import argparse
 import json
 import logging
 import os
-import signal
 import sys
 import time
 from pathlib import Path
@@ -166,75 +165,20 @@ def cmd_endpoint(args) -> int:
 
 
 def cmd_hub(args, local: bool = False) -> int:
-    from hub.bus import free_tcp_port
-    from hub.launch import (
-        start_local_endpoints,
-        stop_local_endpoints,
-        watch_local_endpoints,
+    from lab.experiment import run_experiment
+
+    result = run_experiment(
+        args.config,
+        _overrides(args),
+        local=local,
+        progress=None if args.quiet else ProgressBar(),
+        announce=lambda line: print(f"neuvision: {line}", file=sys.stderr),
     )
-    from hub.loop import Hub
-    from hub.record import new_run_dir
-    from hub.scheduling import check_cpus
-
-    overrides = _overrides(args)
-    cfg = load_config(args.config, overrides)
-    if local and all(cfg.endpoint(r).launch == "local" for r in ("body", "culture")):
-        # Everything on this machine: a free loopback port keeps parallel runs apart.
-        overrides.append(f'bus.listen=["tcp/127.0.0.1:{free_tcp_port()}"]')
-        cfg = load_config(args.config, overrides)
-    check_cpus("loop.cpus", cfg.loop.cpus)
-    for role in ("body", "culture"):
-        if local and cfg.endpoint(role).launch == "local":
-            check_cpus(f"{role}.cpus", cfg.endpoint(role).cpus)
-    # Every endpoint's kind and params are checked here, before a folder or a process
-    # exists; the manifest records them resolved (culture and world contents included).
-    cfg = cfg.resolved()
-    _check_hub_sections(cfg)
-    run_dir = new_run_dir(cfg.experiment.runs_dir, cfg.experiment.name)
-    print(f"neuvision: run folder {run_dir}", file=sys.stderr)
-    procs = start_local_endpoints(args.config, overrides, cfg, run_dir) if local else []
-    bar = None if args.quiet else ProgressBar()
-    hub = Hub(cfg, run_dir=run_dir, progress=bar)
-    previous = signal.signal(signal.SIGINT, lambda *_: hub.request_stop("interrupted"))
-    signal.signal(signal.SIGTERM, lambda *_: hub.request_stop("interrupted"))
-    watching = watch_local_endpoints(procs, hub.request_stop)
-    try:
-        result = hub.run()
-    finally:
-        watching.set()
-        signal.signal(signal.SIGINT, previous)
-        if bar:
-            bar.close()
-        codes = stop_local_endpoints(procs)
-    for role, code in codes.items():
-        if code != 0:
-            print(f"neuvision: {role} endpoint exited with status {code}", file=sys.stderr)
-    if result.outcome != "fault":
-        from lab.postrun import after_run
-
-        after_run(result, cfg)
     print(_result_line(result), file=sys.stderr)
     if result.outcome == "fault":
         print(f"neuvision: run failed: {result.reason}", file=sys.stderr)
         return EXIT_FAULT
     return EXIT_INTERRUPTED if result.outcome == "interrupted" else EXIT_OK
-
-
-def _check_hub_sections(cfg) -> None:
-    """What the hub can check of its own sections before the endpoints describe
-    themselves: the schemes import, the online detectors' parameters are valid."""
-    from hub.analysis.bursts import BurstParams
-    from hub.analysis.network_bursts import NetworkBurstParams
-    from hub.schemes import load_scheme
-
-    load_scheme(cfg.coding.scheme, "coding")
-    load_scheme(cfg.decoding.scheme, "decoding")
-    if cfg.online.enabled:
-        for name, kind in (("burst", BurstParams), ("network", NetworkBurstParams)):
-            try:
-                kind(**getattr(cfg.online, name))
-            except (TypeError, ValueError) as exc:
-                raise ConfigError(f"online.{name}: {exc}") from None
 
 
 def cmd_run(args) -> int:

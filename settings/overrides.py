@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import json
+import math
 import tomllib
+from pathlib import PurePath
 from typing import Any
 
 from settings.errors import ConfigError
@@ -15,6 +18,28 @@ def parse_value(text: str) -> Any:
         return tomllib.loads(f"x = {text}")["x"]
     except tomllib.TOMLDecodeError:
         return text
+
+
+def format_value(value: Any) -> str:
+    """The TOML text of a value, for a ``key=value`` override (:func:`parse_value`'s
+    inverse): numbers, booleans, strings, paths, lists and tables of them."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, int | float):
+        if math.isnan(value):
+            return "nan"
+        return repr(value) if math.isfinite(value) else ("inf" if value > 0 else "-inf")
+    if isinstance(value, str | PurePath):
+        return json.dumps(str(value))  # a TOML basic string
+    if isinstance(value, list | tuple):
+        return "[" + ", ".join(format_value(v) for v in value) + "]"
+    if isinstance(value, dict):
+        return (
+            "{"
+            + ", ".join(f"{json.dumps(str(k))} = {format_value(v)}" for k, v in value.items())
+            + "}"
+        )
+    raise ConfigError(f"{value!r} ({type(value).__name__}) cannot be a setting's value")
 
 
 def parse_override(item: str) -> tuple[str, Any]:

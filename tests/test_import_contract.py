@@ -14,7 +14,8 @@ not imports and are fine. The rules, from the bottom up:
   may import ``lab`` and ``adapters``, whose commands it dispatches to;
 - ``adapters``: ``hub``, ``devices``, ``settings``, not the simulators or ``lab`` -- except
   an emulator (``adapters/<device>/emulator.py``), a device played by a simulator;
-- ``lab``: anything but ``adapters``.
+- ``lab``: anything but ``adapters``;
+- ``neuvision`` (the Python API): anything.
 """
 
 from __future__ import annotations
@@ -25,7 +26,9 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
-PACKAGES = ("settings", "devices", "hub", "sim_network", "sim_robot", "adapters", "lab")
+PACKAGES = (
+    "settings", "devices", "hub", "sim_network", "sim_robot", "adapters", "lab", "neuvision",
+)  # fmt: skip
 SIMULATORS = ("sim_network", "sim_robot")
 ENDPOINT_MAY_IMPORT = ("hub.protocol", "hub.endpoint", "hub.config", "hub.wire")
 
@@ -86,6 +89,8 @@ def allowed(importer: str, imported: str) -> bool:
         return target in ("hub", "settings", "devices")
     if layer == "lab":
         return target != "adapters"
+    if layer == "neuvision":  # the Python API: the top, re-exporting lab and hub
+        return True
     raise AssertionError(f"no rule for the layer {layer!r}")
 
 

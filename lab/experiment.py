@@ -1,0 +1,320 @@
+"""Experiments from Python: load a file, change keys, run, and get arrays back.
+
+The same run as ``neuvision run`` (the hub in this process, each local endpoint a process
+of its own, everything recorded and summarised), for notebooks and scripts::
+
+    from neuvision import Experiment
+
+    exp = Experiment("configs/closed_loop.toml", {"experiment.duration_s": 5})
+    exp.set("experiment.seed", 3)
+    run = exp.run(runs_dir="runs")
+    channel, t_ms = run.spikes
+    t_s, poses = run.trajectory
+    run.summary["behaviour"]["distance_m"]
+
+A coding or decoding scheme may be a plain function of the caller's
+(``exp.use_coding(my_coder, gain=2.0)``): the hub runs in this process and imports it
+from its module, ``__main__`` included. :meth:`Run.open` reads any run folder.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import signal
+import threading
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from hub.config import ConfigError, ExperimentConfig, load_config
+from hub.protocol import MotorCommand, SensorReading, Stimulation
+from hub.record import MANIFEST_FILE, RunRecord, read_run
+from settings.overrides import format_value
+
+log = logging.getLogger(__name__)
+
+
+def run_experiment(
+    config: str | Path | None,
+    overrides: list[str],
+    *,
+    local: bool = True,
+    progress=None,
+    announce: Callable[[str], None] = lambda line: None,
+    install_signals: bool = True,
+):
+    """Run one experiment: check it, start its local endpoints, run the hub, summarise.
+
+    What ``neuvision run`` (``local``) and ``neuvision hub`` do. Every key is checked
+    before a folder or a process exists.
+
+    Parameters
+    ----------
+    config : path or None
+        The experiment file (None: the defaults).
+    overrides : list of str
+        ``key=value`` items, as ``--set`` takes them.
+    local : bool
+        Start the ``launch = "local"`` endpoints (else they are started elsewhere).
+    progress : optional
+        The hub's progress display (``hub.cli.ProgressBar``).
+    announce : callable
+        Called with each line a user should see (the run folder, endpoint exits).
+    install_signals : bool
+        SIGINT/SIGTERM end the run as ``interrupted`` (main thread only).
+
+    Returns
+    -------
+    hub.loop.RunResult
+
+    Raises
+    ------
+    ConfigError
+        Naming the key, before anything starts.
+    """
+    from hub.bus import free_tcp_port
+    from hub.launch import start_local_endpoints, stop_local_endpoints, watch_local_endpoints
+    from hub.loop import Hub
+    from hub.record import new_run_dir
+    from hub.scheduling import check_cpus
+    from lab.postrun import after_run
+
+    overrides = list(overrides)
+    cfg = load_config(config, overrides)
+    if local and all(cfg.endpoint(r).launch == "local" for r in ("body", "culture")):
+        # Everything on this machine: a free loopback port keeps parallel runs apart.
+        overrides.append(f'bus.listen=["tcp/127.0.0.1:{free_tcp_port()}"]')
+        cfg = load_config(config, overrides)
+    check_cpus("loop.cpus", cfg.loop.cpus)
+    for role in ("body", "culture"):
+        if local and cfg.endpoint(role).launch == "local":
+            check_cpus(f"{role}.cpus", cfg.endpoint(role).cpus)
+    # Every endpoint's kind and params are checked here, before a folder or a process
+    # exists; the manifest records them resolved (culture and world contents included).
+    cfg = cfg.resolved()
+    check_hub_sections(cfg)
+    run_dir = new_run_dir(cfg.experiment.runs_dir, cfg.experiment.name)
+    announce(f"run folder {run_dir}")
+    procs = start_local_endpoints(config, overrides, cfg, run_dir) if local else []
+    hub = Hub(cfg, run_dir=run_dir, progress=progress)
+    signals = install_signals and threading.current_thread() is threading.main_thread()
+    if signals:
+        previous = {
+            sig: signal.signal(sig, lambda *_: hub.request_stop("interrupted"))
+            for sig in (signal.SIGINT, signal.SIGTERM)
+        }
+    watching = watch_local_endpoints(procs, hub.request_stop)
+    try:
+        result = hub.run()
+    finally:
+        watching.set()
+        if signals:
+            for sig, handler in previous.items():
+                signal.signal(sig, handler)
+        if progress is not None:
+            progress.close()
+        codes = stop_local_endpoints(procs)
+    for role, code in codes.items():
+        if code != 0:
+            announce(f"{role} endpoint exited with status {code}")
+    if result.outcome != "fault":
+        after_run(result, cfg)
+    return result
+
+
+def check_hub_sections(cfg: ExperimentConfig) -> None:
+    """What the hub can check of its own sections before the endpoints describe
+    themselves: the schemes import, the online detectors' parameters are valid."""
+    from hub.analysis.bursts import BurstParams
+    from hub.analysis.network_bursts import NetworkBurstParams
+    from hub.schemes import load_scheme
+
+    load_scheme(cfg.coding.scheme, "coding")
+    load_scheme(cfg.decoding.scheme, "decoding")
+    if cfg.online.enabled:
+        for name, kind in (("burst", BurstParams), ("network", NetworkBurstParams)):
+            try:
+                kind(**getattr(cfg.online, name))
+            except (TypeError, ValueError) as exc:
+                raise ConfigError(f"online.{name}: {exc}") from None
+
+
+@dataclass
+class Experiment:
+    """An experiment file with changes, ready to run.
+
+    Parameters
+    ----------
+    config : path, optional
+        The experiment file (TOML); None: the defaults (a simulated closed loop).
+    overrides : dict, optional
+        ``{"dotted.key": value}`` changes, checked at once.
+
+    Raises
+    ------
+    ConfigError
+        A bad file or key: the message names it.
+    """
+
+    config: str | Path | None = None
+    overrides: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self):
+        self.overrides = dict(self.overrides)
+        self.cfg  # noqa: B018 -- checked now, not at run time
+
+    @property
+    def cfg(self) -> ExperimentConfig:
+        """The experiment as it would run (validated)."""
+        return load_config(self.config, self._items())
+
+    def set(self, key: str, value) -> Experiment:
+        """Change one key (``"loop.period_ms"``, ``"culture.params.config"``); checked now."""
+        before = dict(self.overrides)
+        self.overrides[key] = value
+        try:
+            self.cfg  # noqa: B018
+        except ConfigError:
+            self.overrides = before
+            raise
+        return self
+
+    def use_coding(self, scheme: Callable | str, **params) -> Experiment:
+        """Code sensors into stimulation with ``scheme`` (a function or ``module:name``)."""
+        return self._use("coding", scheme, params)
+
+    def use_decoding(self, scheme: Callable | str, **params) -> Experiment:
+        """Decode spikes into motion with ``scheme`` (a function or ``module:name``)."""
+        return self._use("decoding", scheme, params)
+
+    def _use(self, section: str, scheme, params: dict) -> Experiment:
+        if callable(scheme):
+            scheme = f"{scheme.__module__}:{scheme.__qualname__}"
+        self.set(f"{section}.scheme", scheme)
+        return self.set(f"{section}.params", params)
+
+    def _items(self) -> list[str]:
+        return [f"{k}={format_value(v)}" for k, v in self.overrides.items()]
+
+    def run(self, runs_dir: str | Path | None = None, *, progress: bool = False) -> Run:
+        """Run it (the mode is the file's ``loop.mode``) and return the recorded run.
+
+        ``runs_dir`` overrides ``experiment.runs_dir``; ``progress`` shows the progress bar
+        on stderr. A scheme given as a function of ``__main__`` runs in the hub's process
+        (this one); the endpoints are processes of their own.
+        """
+        items = self._items()
+        if runs_dir is not None:
+            items.append(f"experiment.runs_dir={format_value(str(runs_dir))}")
+        bar = None
+        if progress:
+            from hub.cli import ProgressBar
+
+            bar = ProgressBar()
+        result = run_experiment(
+            self.config, items, progress=bar, announce=lambda line: log.info("%s", line)
+        )
+        if result.run_dir is None:
+            raise RuntimeError(f"the run left no record ({result.outcome}: {result.reason})")
+        return Run.open(result.run_dir)
+
+
+class Run:
+    """A recorded run, as arrays (times in the run's time).
+
+    Parameters
+    ----------
+    run_dir : path
+        A run folder (``manifest.json`` and ``record.nvrec``).
+    """
+
+    def __init__(self, run_dir: str | Path):
+        self.run_dir = Path(run_dir)
+        if not (self.run_dir / MANIFEST_FILE).is_file():
+            raise FileNotFoundError(f"{self.run_dir} is not a run folder (no {MANIFEST_FILE})")
+        self._record: RunRecord | None = None
+
+    @classmethod
+    def open(cls, run_dir: str | Path) -> Run:
+        return cls(run_dir)
+
+    def __repr__(self) -> str:
+        return f"Run({str(self.run_dir)!r}, outcome={self.outcome!r}, steps={self.steps})"
+
+    @property
+    def record(self) -> RunRecord:
+        """The whole record (every message and event): :class:`hub.record.RunRecord`."""
+        if self._record is None:
+            self._record = read_run(self.run_dir)
+        return self._record
+
+    @property
+    def manifest(self) -> dict:
+        return self.record.manifest
+
+    @property
+    def outcome(self) -> str:
+        return self.manifest.get("outcome", "")
+
+    @property
+    def steps(self) -> int:
+        return int(self.manifest.get("steps") or 0)
+
+    @property
+    def summary(self) -> dict:
+        """``summary.json`` (empty if the run has none: a run that faulted)."""
+        path = self.run_dir / "summary.json"
+        return json.loads(path.read_text()) if path.is_file() else {}
+
+    @property
+    def spikes(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(channel, t_ms)`` of every recorded spike, in time order."""
+        channel, t_ms = self.record.spikes()
+        order = np.argsort(t_ms, kind="stable")
+        return channel[order], t_ms[order]
+
+    @property
+    def trajectory(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(t_s[n], pose[n, 3])``: the body's poses (x_m, y_m, heading_rad), in time order."""
+        t_s, poses = self.record.trajectory()
+        order = np.argsort(t_s, kind="stable")
+        return t_s[order], poses[order]
+
+    @property
+    def sensors(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(t_s[n], ranges_m[n, sensors])``: the body's range readings, in time order."""
+        readings = sorted(self.record.decoded(SensorReading, "rx", "late"), key=_by_step)
+        t_s = np.array([r.t_s for r in readings], dtype=np.float64)
+        n = readings[0].ranges_m.size if readings else 0
+        return t_s, np.array([r.ranges_m for r in readings], dtype=np.float64).reshape(-1, n)
+
+    @property
+    def motor(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(t_s[n], wheels_mps[n, 2])``: the wheel speeds sent, from each step's start."""
+        commands = sorted(self.record.decoded(MotorCommand, "tx"), key=_by_step)
+        t_s = np.array([m.t0_s for m in commands], dtype=np.float64)
+        wheels = np.array([(m.left_mps, m.right_mps) for m in commands], dtype=np.float64)
+        return t_s, wheels.reshape(-1, 2)
+
+    @property
+    def stimulation(self) -> dict[str, np.ndarray]:
+        """Every pulse sent: ``t_ms`` (onset, run time), ``channel``, ``amplitude_ua``,
+        ``width_ms``; in time order."""
+        stims = self.record.decoded(Stimulation, "tx")
+        parts = {"t_ms": [], "channel": [], "amplitude_ua": [], "width_ms": []}
+        for s in stims:
+            parts["t_ms"].append(s.t0_s * 1e3 + np.asarray(s.onset_ms, dtype=np.float64))
+            parts["channel"].append(np.asarray(s.channel))
+            parts["amplitude_ua"].append(np.asarray(s.amplitude_ua, dtype=np.float64))
+            parts["width_ms"].append(np.asarray(s.width_ms, dtype=np.float64))
+        out = {k: np.concatenate(v) if v else np.zeros(0) for k, v in parts.items()}
+        order = np.argsort(out["t_ms"], kind="stable")
+        return {k: v[order] for k, v in out.items()}
+
+
+def _by_step(message) -> int:
+    return message.step

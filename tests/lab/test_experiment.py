@@ -1,0 +1,52 @@
+"""The Python API: experiments changed by key and checked at once; runs read as arrays."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from hub.protocol import MotorCommand, SensorReading, SpikeBatch, Stimulation
+from neuvision import ConfigError, Experiment, Run
+
+CONFIG = "configs/closed_loop.toml"
+
+
+def test_a_bad_change_is_named_and_leaves_the_experiment_as_it_was():
+    exp = Experiment(CONFIG, {"experiment.duration_s": 1.0})
+    with pytest.raises(ConfigError, match="loop.period_ms must be >= 0.1"):
+        exp.set("loop.period_ms", 0.0)
+    assert exp.overrides == {"experiment.duration_s": 1.0}
+    assert exp.set("loop.period_ms", 5.0).cfg.loop.period_ms == 5.0
+
+
+def test_a_bad_file_or_key_fails_when_the_experiment_is_made(tmp_path):
+    with pytest.raises(ConfigError, match="not found"):
+        Experiment(tmp_path / "nowhere.toml")
+    with pytest.raises(ConfigError, match="loop.mode"):
+        Experiment(CONFIG, {"loop.mode": "sometimes"})
+
+
+def test_a_folder_that_is_not_a_run_is_named(tmp_path):
+    with pytest.raises(FileNotFoundError, match="not a run folder"):
+        Run.open(tmp_path)
+
+
+@pytest.mark.bus
+def test_a_run_gives_the_records_data_as_arrays_in_time_order(tmp_path):
+    run = Experiment(CONFIG, {"experiment.duration_s": 1.0}).run(runs_dir=tmp_path)
+    rec = run.record
+    assert run.outcome == "completed" and run.steps == 100
+    channel, t_ms = run.spikes
+    assert channel.size == sum(b.channel.size for b in rec.decoded(SpikeBatch, "rx"))
+    assert np.all(np.diff(t_ms) >= 0)
+    t_s, poses = run.trajectory
+    assert poses.shape == (100, 3) and np.all(np.diff(t_s) > 0)
+    t_s, ranges = run.sensors
+    assert ranges.shape == (100, rec.descriptions()["body"].n_sensors)
+    assert len(rec.decoded(SensorReading, "rx")) == 100
+    t_s, wheels = run.motor
+    assert wheels.shape == (len(rec.decoded(MotorCommand, "tx")), 2)  # the final stop too
+    assert np.all(wheels[-1] == 0)
+    pulses = run.stimulation
+    assert pulses["t_ms"].size == sum(s.n_pulses for s in rec.decoded(Stimulation, "tx"))
+    assert run.summary["outcome"] == "completed"
