@@ -9,7 +9,12 @@ It reads the record with ``hub.record.read_run`` and uses, from it:
   channel ids are mapped to indices ``0..n-1`` in the order of the description;
 - the sent ``Stimulation`` messages: each distinct pulse onset
   ``step * loop.period_ms + onset_ms`` is one stimulus of the PSTH (pulses into several
-  channels at the same time count once);
+  channels at the same time count once) -- unless the stimuli come closer together than the
+  PSTH's window (a closed loop stimulating every step): then no PSTH, and
+  ``psth_not_computed`` says why;
+- in a closed loop (a body with poses), the loop figure (``loop.png``: sensor ranges,
+  pulses, the Center of Activity, wheel commands on one time axis) and the map of the
+  stimulation sites (``stimulation_sites.png``);
 - the body's poses: the behaviour metrics of ``lab.behaviour`` (``body_*``; arena metrics
   and the trajectory picture when the run's world is known);
 - the manifest's config and timing, shown in the report.
@@ -26,9 +31,11 @@ from hub.analysis.figures import FORMATS, plot_all
 from hub.analysis.metrics import AnalysisParams, analyze
 from hub.analysis.report import write_report
 from hub.analysis.spikes import AnalysisInputError
+from hub.decoding import WINDOW_MS
 from hub.protocol import SpikeBatch, Stimulation
 from hub.record import DATA_DIRECTIONS, read_run
 from lab.behaviour import behaviour_metrics, world_of
+from lab.loop_figure import loop_series, plot_loop, plot_stimulation_sites
 from sim_robot.render import save_trajectory
 
 ANALYSIS_DIR = "analysis"
@@ -58,6 +65,21 @@ def stimulus_onsets_ms(stimulations) -> tuple[np.ndarray, np.ndarray]:
     if not onsets or not sum(o.size for o in onsets):
         return np.empty(0), np.empty(0, np.uint32)
     return np.unique(np.concatenate(onsets)), np.unique(np.concatenate(chans))
+
+
+def psth_applies(stim_ms: np.ndarray | None, params: AnalysisParams) -> str:
+    """Why no PSTH is computed (empty: it is): stimuli closer together than the PSTH's
+    window (a closed loop stimulates every step) make every response overlap the next."""
+    if stim_ms is None or stim_ms.size < 2:
+        return ""
+    window_ms = params.psth_window_ms[1] - params.psth_window_ms[0]
+    median_ms = float(np.median(np.diff(stim_ms)))
+    if median_ms >= window_ms:
+        return ""
+    return (
+        f"stimuli every {median_ms:g} ms (median), closer than the PSTH window of "
+        f"{window_ms:g} ms: their responses overlap"
+    )
 
 
 def _culture_arrays(culture, channel: np.ndarray):
@@ -149,12 +171,18 @@ def analyze_run(run_dir, out_dir=None, params: AnalysisParams | None = None) -> 
         stim_ms, stim_ids = stimulus_onsets_ms(stimulations)
         if stim_ms.size == 0:
             stim_ms = None
+    n_stimuli = int(stim_ms.size) if stim_ms is not None else 0
+    psth_note = psth_applies(stim_ms, params)
+    if psth_note:  # stimuli closer than the PSTH's window: responses overlap, no PSTH
+        stim_ms = None
 
     result = analyze(
         index, t_ms, n_channels, t_start_ms, t_stop_ms, cell_type, x_um, y_um, stim_ms, params
     )
     metrics = dict(result.metrics)
-    metrics["n_stimuli"] = int(stim_ms.size) if stim_ms is not None else 0
+    metrics["n_stimuli"] = n_stimuli
+    if psth_note:
+        metrics["psth_not_computed"] = psth_note
     metrics["n_unknown_channel_spikes"] = int((~keep).sum())
 
     stim_channels = None
@@ -166,6 +194,11 @@ def analyze_run(run_dir, out_dir=None, params: AnalysisParams | None = None) -> 
     name = manifest.get("name") or run_dir.name
     title = f"{name} (seed {manifest.get('seed')})"
     figures += _trajectory(rec, config, out, title, metrics)
+    if rec.trajectory()[0].size > 1:  # a closed loop: a body in it
+        window_ms = (config.get("decoding", {}).get("params") or {}).get("window_ms", WINDOW_MS)
+        series = loop_series(rec, ca_window_ms=float(window_ms))
+        figures += plot_loop(series, out / "loop", title=title, ca_window_ms=float(window_ms))
+        figures += plot_stimulation_sites(rec, series, out / "stimulation_sites")
 
     metrics_path = out / METRICS_FILE
     metrics_path.write_text(json.dumps(metrics, indent=2))

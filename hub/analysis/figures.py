@@ -119,6 +119,13 @@ def plot_raster(
             for s, e in zip(network_bursts.start_ms, network_bursts.end_ms, strict=True):
                 if e >= lo and s <= hi:  # an edge line keeps short bursts visible when zoomed out
                     ax.axvspan(s / 1000.0, e / 1000.0, fc=NB_SHADE, ec=NB_SHADE, alpha=0.35, lw=0.8)
+            # A marker above each burst: visible at any time scale (a 50 ms burst is a
+            # hairline in a 60 s raster).
+            mid_s = (np.asarray(network_bursts.start_ms) + np.asarray(network_bursts.end_ms)) / 2e3
+            shown = mid_s[(mid_s >= lo / 1e3) & (mid_s <= hi / 1e3)]
+            top = (ch.max() if ch.size else 1) * 1.04 + 1
+            ax.plot(shown, np.full(shown.size, top), ls="none", marker="v", ms=6,
+                    color=NB_SHADE, mec="0.3", mew=0.5, clip_on=False)  # fmt: skip
         colors = _type_colors(ch, cell_type)
         # dense rasters (long records) use pixel markers: faster and less over-plotting
         marker, size = ("|", 2.0) if t.size < 200_000 else (",", 1.0)
@@ -138,7 +145,7 @@ def plot_raster(
         ax.set_xlim(lo / 1000.0, hi / 1000.0 if hi > lo else lo / 1000.0 + 1.0)
         ax.set_xlabel("time (s)")
         ax.set_ylabel("channel")
-        ax.set_title("Raster (red excitatory, blue inhibitory; shaded: network bursts)")
+        ax.set_title("Raster (red excitatory, blue inhibitory; shaded and ▼: network bursts)")
 
     return _render(draw, out, figsize=(10.0, 5.0), formats=formats)
 
