@@ -50,3 +50,17 @@ def test_a_run_gives_the_records_data_as_arrays_in_time_order(tmp_path):
     pulses = run.stimulation
     assert pulses["t_ms"].size == sum(s.n_pulses for s in rec.decoded(Stimulation, "tx"))
     assert run.summary["outcome"] == "completed"
+
+
+@pytest.mark.bus
+def test_an_experiment_copied_elsewhere_runs_from_any_folder(tmp_path, monkeypatch):
+    import shutil
+
+    mine = tmp_path / "myexp"
+    shutil.copytree("configs", mine)
+    (tmp_path / "elsewhere").mkdir()
+    monkeypatch.chdir(tmp_path / "elsewhere")
+    run = Experiment("../myexp/closed_loop.toml", {"experiment.duration_s": 0.5}).run()
+    assert run.outcome == "completed" and run.steps == 50
+    assert run.run_dir.resolve().parent == tmp_path / "elsewhere" / "runs"  # from here
+    assert run.manifest["config"]["culture"]["params"]["config"]["layout"]["rows"] == 32
