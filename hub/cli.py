@@ -1,7 +1,7 @@
-"""The ``neuvision`` command line.
+"""neuvision: run closed-loop experiments between a spiking culture and a robot.
 
-neuvision run CONFIG          hub + every local endpoint, with progress; records the run
-neuvision hub CONFIG          the hub alone (endpoints started elsewhere)
+neuvision run CONFIG             hub + every local endpoint, with progress; records the run
+neuvision hub CONFIG             the hub alone (endpoints started elsewhere)
 neuvision endpoint ROLE CONFIG   one endpoint (body or culture) of CONFIG
 neuvision record-info RUN_DIR    what a recorded run holds
 neuvision emulate khepera        a Khepera II emulator on a pseudo-terminal
@@ -61,20 +61,50 @@ def _add_config_args(p: argparse.ArgumentParser, *, shortcuts: bool = True) -> N
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="neuvision", description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(
+        prog="neuvision",
+        description="Closed-loop experiments between a spiking culture (simulated, or a real "
+        "one on an MEA) and a robot (simulated, or a real Khepera), looped by a hub over Zenoh. "
+        "Every run is recorded in a folder of its own.",
+        epilog="Start with: neuvision run configs/closed_loop.toml  (the paper's closed loop, "
+        "60 s). 'neuvision COMMAND --help' for each command; the README for the rest. "
+        "Exit status: 0 done, 2 fault, 3 bad input, 130 interrupted.",
+    )
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     sub = parser.add_subparsers(dest="command", required=True)
-    p = sub.add_parser("run", help="run an experiment: hub and local endpoints")
+    p = sub.add_parser(
+        "run",
+        help="run an experiment: hub and local endpoints",
+        description="Run an experiment: the hub in this process, each local endpoint "
+        '(launch = "local") as a process of its own, a progress line, and a run folder '
+        "(record, manifest, summary, figures). Ctrl-C ends it cleanly.",
+    )
     _add_config_args(p)
     p.add_argument("--quiet", action="store_true", help="no progress bar")
-    p = sub.add_parser("hub", help="run the hub alone")
+    p = sub.add_parser(
+        "hub",
+        help="run the hub alone (endpoints started elsewhere)",
+        description="Run only the hub of an experiment: its endpoints are started elsewhere "
+        "(neuvision endpoint ROLE CONFIG, on this or another machine) and found on the bus "
+        "session. Records the run as 'run' does.",
+    )
     _add_config_args(p)
     p.add_argument("--quiet", action="store_true", help="no progress bar")
-    p = sub.add_parser("endpoint", help="serve one endpoint of a config")
-    p.add_argument("role", choices=("body", "culture"))
+    p = sub.add_parser(
+        "endpoint",
+        help="serve one endpoint of a config",
+        description="Serve the body or the culture of an experiment on the bus until "
+        "stopped (SIGINT/SIGTERM), for a hub started with 'neuvision hub'.",
+    )
+    p.add_argument("role", choices=("body", "culture"), help="which endpoint of CONFIG")
     _add_config_args(p, shortcuts=False)
-    p = sub.add_parser("record-info", help="summarise a recorded run")
-    p.add_argument("run_dir")
+    p = sub.add_parser(
+        "record-info",
+        help="summarise a recorded run",
+        description="What a run folder's record holds: messages by kind and verdict, events, "
+        "the manifest's outcome (JSON on stdout).",
+    )
+    p.add_argument("run_dir", help="a run folder")
     p = sub.add_parser("compare", help="run conditions over several seeds and compare them")
     p.add_argument("configs", nargs="+", help="experiment files, one per condition")
     p.add_argument("--seeds", type=int, default=8, help="seeds 1..N per condition (default 8)")
@@ -82,8 +112,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", type=Path, help="folder for the comparison (default: a new one)")
     p.add_argument("--duration-s", type=float, help="experiment.duration_s for every run")
     p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override for every run")
-    p = sub.add_parser("analyze", help="metrics, figures and report.html of a recorded run")
-    p.add_argument("run_dir", type=Path)
+    p = sub.add_parser(
+        "analyze",
+        help="metrics, figures and report.html of a recorded run",
+        description="Analyse a recorded run: firing and burst statistics of the culture, "
+        "network bursts, Center of Activity trajectories, the PSTH when stimuli are far enough "
+        "apart, and for a closed loop the loop figure and the stimulation sites. Writes "
+        "metrics.json, figures and report.html.",
+    )
+    p.add_argument("run_dir", type=Path, help="a run folder")
     p.add_argument("--out", type=Path, help="output folder (default: the run folder)")
     p = sub.add_parser(
         "emulate",

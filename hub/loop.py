@@ -530,8 +530,19 @@ class Hub(LockstepSteps, RealtimeSteps):
 
     def _wait_for_endpoints(self) -> None:
         needed = {(role, i) for role, i in self.ids.items()}
-        deadline = time.monotonic() + self.cfg.loop.wait_timeout_s
+        start = time.monotonic()
+        deadline = start + self.cfg.loop.wait_timeout_s
+        next_note = start
         while not needed <= self.alive:
+            if time.monotonic() >= next_note:  # say at once what is awaited, then every 5 s
+                waiting = ", ".join(f"{r}/{i}" for r, i in sorted(needed - self.alive))
+                log.info(
+                    "waiting for %s on session %r (%.0f s of %g s): each builds its model "
+                    "before it appears; a simulator's first run also compiles its kernels",
+                    waiting, self.cfg.bus.session, time.monotonic() - start,
+                    self.cfg.loop.wait_timeout_s,
+                )  # fmt: skip
+                next_note += 5.0
             if self._stop_reason:
                 raise HubError(f"stopped while waiting for endpoints ({self._stop_reason})")
             if time.monotonic() >= deadline:
