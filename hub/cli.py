@@ -17,6 +17,7 @@ import sys
 import time
 from pathlib import Path
 
+from hub.bus import BusError
 from hub.config import ConfigError, load_config
 from hub.logs import install_log_cap
 
@@ -176,6 +177,9 @@ def main(argv: list[str] | None = None) -> int:
     except InputError as exc:
         print(f"neuvision: {_one_line(exc)}", file=sys.stderr)
         return EXIT_CONFIG
+    except BusError as exc:  # a port taken, a router unreachable: one line, no traceback
+        print(f"neuvision: {_one_line(exc)}", file=sys.stderr)
+        return EXIT_FAULT
 
 
 def _one_line(exc: BaseException) -> str:

@@ -317,17 +317,22 @@ class RunRecord:
         return {d.role: d for d in self.decoded(Description, "rx")}
 
     def spikes(self) -> tuple[np.ndarray, np.ndarray]:
-        """All received spikes as ``(channel uint32, t_ms float64 absolute)``."""
+        """All received spikes as ``(channel uint32, t_ms float64 absolute)``, in time order.
+
+        The record holds replies in the order they arrived, which need not be the steps'
+        (a late batch, two endpoints' threads): the order is made here, for every reader.
+        """
         batches = self.decoded(SpikeBatch, *DATA_DIRECTIONS)
         if not batches:
             return np.zeros(0, np.uint32), np.zeros(0, np.float64)
         channel = np.concatenate([b.channel for b in batches])
         t_ms = np.concatenate([b.t0_s * 1e3 + b.t_ms.astype(np.float64) for b in batches])
-        return channel, t_ms
+        order = np.argsort(t_ms, kind="stable")
+        return channel[order], t_ms[order]
 
     def trajectory(self) -> tuple[np.ndarray, np.ndarray]:
-        """Received body poses as ``(t_s[n], pose[n, 3])``."""
-        readings = self.decoded(SensorReading, *DATA_DIRECTIONS)
+        """Received body poses as ``(t_s[n], pose[n, 3])``, in step order."""
+        readings = sorted(self.decoded(SensorReading, *DATA_DIRECTIONS), key=lambda r: r.step)
         t_s = np.array([r.t_s for r in readings], dtype=np.float64)
         poses = np.array([r.pose for r in readings], dtype=np.float64).reshape(-1, 3)
         return t_s, poses

@@ -4,9 +4,13 @@
 1..8, each run a whole ``neuvision run`` in its own process group (so runs go
 side by side, each with its own free port), up to ``--jobs`` at once. It then
 reads every run's ``summary.json`` and writes, into the comparison folder:
-``compare.json`` (every run's metrics, and mean ± s.d. per condition),
-``compare.md`` (the table), and ``trajectories.png``/``.svg`` (all paths, one
-row per condition).
+``compare.json`` (every run's metrics, mean ± s.d. per condition, the tests),
+``compare.md`` (the tables: mean ± s.d. with n, every failed run with its reason,
+each seed's values, and a two-sided permutation test of each metric between the
+first condition and each other), and ``trajectories.png``/``.svg`` (all paths,
+one row per condition). A run that failed is never dropped silently: it is listed
+with its exit status and last error line, and ``neuvision compare`` exits with
+status 2.
 """
 
 from __future__ import annotations
@@ -26,6 +30,7 @@ from hub.config import load_config
 from hub.record import new_run_dir, read_run
 from lab.behaviour import world_of
 from lab.postrun import SUMMARY_FILE
+from lab.stats import permutation_test
 from sim_robot.render import draw_world
 
 # Behaviour metrics shown in the table, in order, with how to print them.
@@ -49,6 +54,7 @@ class Job:
     popen: subprocess.Popen | None = None
     run_dir: Path | None = None
     status: int | None = None
+    reason: str = ""
 
 
 def compare(
@@ -79,7 +85,15 @@ def compare(
         ``conditions``, ``stats`` (per condition and metric: mean, s.d., n), ``runs``,
         ``figures`` and ``out_dir``; also written as ``compare.json``.
     """
-    names = [load_config(c, list(overrides)).experiment.name for c in configs]
+    cfgs = [load_config(c, list(overrides)) for c in configs]
+    names = [cfg.experiment.name for cfg in cfgs]
+    external = [n for n, cfg in zip(names, cfgs, strict=True)
+                if any(cfg.endpoint(r).launch != "local" for r in ("body", "culture"))]  # fmt: skip
+    if external and (jobs or 0) != 1:
+        # Their hubs listen where their external endpoints look: one at a time.
+        print(f"neuvision: {', '.join(external)} has endpoints started elsewhere, on the "
+              "config's bus address: runs one at a time", file=sys.stderr)  # fmt: skip
+        jobs = 1
     if len(set(names)) != len(names):
         raise SystemExit(f"conditions need distinct experiment.name values, got {names}")
     out_dir = out_dir or new_run_dir("runs", "compare-" + "-vs-".join(names))
@@ -126,9 +140,13 @@ def _run_all(queue: list[Job], jobs: int, overrides: list[str]) -> None:
                 job.status = job.popen.returncode
                 folders = [p for p in job.runs_dir.iterdir() if p.is_dir()]
                 job.run_dir = folders[0] if folders else None
+                if job.status != 0:
+                    job.reason = f"exit status {job.status}: {_last_error(job)}"
+                elif job.run_dir is None or not (job.run_dir / SUMMARY_FILE).exists():
+                    job.reason = "no summary.json was written"
                 print(
                     f"[{done}/{len(queue)}] {job.name} seed {job.seed}: "
-                    + ("completed" if job.status == 0 else f"FAILED (status {job.status})"),
+                    + (f"FAILED ({job.reason})" if job.reason else "completed"),
                     file=sys.stderr,
                     flush=True,
                 )
@@ -140,11 +158,23 @@ def _run_all(queue: list[Job], jobs: int, overrides: list[str]) -> None:
         raise
 
 
+def _last_error(job: Job) -> str:
+    """The line of a failed run's log that says why (its last ``neuvision:`` or error line)."""
+    try:
+        lines = (job.runs_dir / "run.log").read_text(errors="replace").splitlines()
+    except OSError:
+        return "no log"
+    lines = [line.strip() for line in lines if line.strip()]
+    for line in reversed(lines):
+        if "failed" in line or "error" in line.lower() or line.startswith("neuvision:"):
+            return line[:300]
+    return lines[-1][:300] if lines else "an empty log"
+
+
 def _summary(job: Job) -> dict | None:
-    if job.status != 0 or job.run_dir is None:
+    if job.reason or job.run_dir is None:
         return None
-    path = job.run_dir / SUMMARY_FILE
-    return json.loads(path.read_text()) if path.exists() else None
+    return json.loads((job.run_dir / SUMMARY_FILE).read_text())
 
 
 def _tabulate(queue: list[Job], names: list[str]) -> dict:
@@ -154,13 +184,34 @@ def _tabulate(queue: list[Job], names: list[str]) -> dict:
         for job in (j for j in queue if j.name == name):
             summary = _summary(job)
             entry = {"seed": job.seed, "run_dir": str(job.run_dir), "ok": summary is not None}
+            if not entry["ok"]:
+                entry["reason"] = job.reason or "no summary"
             if summary:
                 entry["behaviour"] = summary.get("behaviour", {})
                 entry["x_realtime"] = summary["timing"].get("x_realtime")
                 rows.append(entry["behaviour"])
             runs.append({"condition": name, **entry})
         stats[name] = {key: _stats([r[key] for r in rows if key in r]) for key, _, _ in METRICS}
-    return {"conditions": names, "stats": stats, "runs": runs}
+    return {"conditions": names, "stats": stats, "runs": runs, "tests": _tests(runs, names)}
+
+
+def _values(runs: list[dict], name: str, key: str) -> list[float]:
+    return [r["behaviour"][key] for r in runs
+            if r["condition"] == name and r["ok"] and key in r.get("behaviour", {})]  # fmt: skip
+
+
+def _tests(runs: list[dict], names: list[str]) -> list[dict]:
+    """A permutation test of each metric: the first condition against each other one."""
+    out = []
+    for other in names[1:]:
+        for key, _, _ in METRICS:
+            a, b = _values(runs, names[0], key), _values(runs, other, key)
+            if not a or not b:
+                continue
+            p, method = permutation_test(a, b)
+            out.append({"metric": key, "a": names[0], "b": other, "n_a": len(a), "n_b": len(b),
+                        "p_value": p, "method": method})  # fmt: skip
+    return out
 
 
 def _stats(values: list[float]) -> dict:
@@ -200,6 +251,26 @@ def format_table(result: dict, names: list[str]) -> str:
                 sd = "" if s["sd"] is None else " ± " + fmt.format(s["sd"])
                 cells.append(fmt.format(s["mean"]) + sd + f" (n={s['n']})")
         lines.append(f"| {label} | " + " | ".join(cells) + " |")
+    failed = [r for r in result["runs"] if not r["ok"]]
+    lines += ["", f"**Failed runs: {len(failed)}**" + (" (none)" if not failed else "")]
+    if failed:
+        lines += ["", "| condition | seed | reason |", "|---|---|---|"]
+        lines += [f"| {r['condition']} | {r['seed']} | {r['reason']} |" for r in failed]
+    lines += ["", "Each seed (— : the run failed, or has no such metric):", ""]
+    lines += ["| condition | seed | " + " | ".join(label for _, label, _ in METRICS) + " |"]
+    lines += ["|---|---|" + "---|" * len(METRICS)]
+    for r in sorted(result["runs"], key=lambda r: (names.index(r["condition"]), r["seed"])):
+        b = r.get("behaviour", {})
+        cells = [fmt.format(b[key]) if key in b else "—" for key, _, fmt in METRICS]
+        lines.append(f"| {r['condition']} | {r['seed']} | " + " | ".join(cells) + " |")
+    if result.get("tests"):
+        lines += ["", "Two-sided permutation test of the difference of means "
+                  f"({result['tests'][0]['method']}):", ""]  # fmt: skip
+        lines += ["| metric | conditions | n | p |", "|---|---|---|---|"]
+        labels = {key: label for key, label, _ in METRICS}
+        for t in result["tests"]:
+            lines.append(f"| {labels[t['metric']]} | {t['a']} vs {t['b']} | "
+                         f"{t['n_a']} vs {t['n_b']} | {t['p_value']:.4f} |")  # fmt: skip
     return "\n".join(lines)
 
 
@@ -212,7 +283,7 @@ def _draw(queue: list[Job], names: list[str], out_dir: Path) -> list[Path]:
             ax = axes[row][col]
             ax.set_axis_off()
             job = next(j for j in queue if j.name == name and j.seed == seed)
-            if job.status != 0 or job.run_dir is None:
+            if job.reason or job.run_dir is None:
                 ax.set_title(f"{name} s{seed}: failed", fontsize=7)
                 continue
             rec = read_run(job.run_dir)

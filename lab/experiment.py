@@ -122,7 +122,14 @@ def run_experiment(
         if code != 0:
             announce(f"{role} endpoint exited with status {code}")
     if result.outcome != "fault":
-        after_run(result, cfg)
+        try:
+            summary = after_run(result, cfg)
+        except Exception as exc:  # the run is recorded whatever its summary does
+            log.exception("the summary of %s failed", result.run_dir)
+            announce(f"the run's summary failed ({type(exc).__name__}: {exc}); its record is whole")
+        else:
+            for failure in summary.get("failures", []):
+                announce(f"summary: {failure['part']} failed: {failure['error']}")
     return result
 
 
@@ -273,16 +280,12 @@ class Run:
     @property
     def spikes(self) -> tuple[np.ndarray, np.ndarray]:
         """``(channel, t_ms)`` of every recorded spike, in time order."""
-        channel, t_ms = self.record.spikes()
-        order = np.argsort(t_ms, kind="stable")
-        return channel[order], t_ms[order]
+        return self.record.spikes()
 
     @property
     def trajectory(self) -> tuple[np.ndarray, np.ndarray]:
-        """``(t_s[n], pose[n, 3])``: the body's poses (x_m, y_m, heading_rad), in time order."""
-        t_s, poses = self.record.trajectory()
-        order = np.argsort(t_s, kind="stable")
-        return t_s[order], poses[order]
+        """``(t_s[n], pose[n, 3])``: the body's poses (x_m, y_m, heading_rad), in step order."""
+        return self.record.trajectory()
 
     @property
     def sensors(self) -> tuple[np.ndarray, np.ndarray]:

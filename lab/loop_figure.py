@@ -70,9 +70,7 @@ def _center_of_activity(rec: RunRecord, culture, window_ms: float):
     empty = (np.zeros(0), np.zeros(0), np.zeros(0))
     if culture is None or culture.x_um is None:
         return empty
-    channel, t_ms = rec.spikes()
-    order = np.argsort(t_ms, kind="stable")
-    channel, t_ms = channel[order], t_ms[order]
+    channel, t_ms = rec.spikes()  # in time order
     ids = np.asarray(culture.channel, np.int64)
     sort = np.argsort(ids)
     pos = np.minimum(np.searchsorted(ids[sort], channel), ids.size - 1)

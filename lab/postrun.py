@@ -8,6 +8,9 @@ computed from the record, so a summary always describes what was recorded:
 - the behaviour metrics of any body that recorded its poses (``lab.behaviour``), with the
   arena metrics and ``trajectory.png``/``.svg`` when its world is known;
 - ``raster.png``/``.svg`` of the culture's activity when spikes were recorded.
+
+A part that fails (a figure, say) is named in ``summary.json`` and in the manifest
+(``postrun_failures``); the rest is written, and the run keeps its outcome.
 """
 
 from __future__ import annotations
@@ -16,11 +19,9 @@ import json
 import logging
 from pathlib import Path
 
-import numpy as np
-
 from hub.analysis.figures import plot_raster
 from hub.protocol import Stimulation
-from hub.record import read_run
+from hub.record import read_run, write_manifest
 from lab.behaviour import behaviour_metrics, world_of
 from sim_robot.render import save_trajectory
 
@@ -52,6 +53,10 @@ def after_run(result, cfg) -> dict:
 def summarize_run(run_dir: str | Path) -> dict:
     """Write ``summary.json`` and the pictures of a recorded run.
 
+    Each part (behaviour, trajectory, raster) is done on its own: one that fails is named
+    in the summary's ``failures`` and in the manifest's ``postrun_failures`` (with its
+    error) and logged, and the rest is still written. A completed run keeps its summary.
+
     Parameters
     ----------
     run_dir : str or Path
@@ -62,7 +67,7 @@ def summarize_run(run_dir: str | Path) -> dict:
     dict
         What ``summary.json`` holds: name, seed, outcome, steps, simulated time, timing,
         counts, ``behaviour`` (`lab.behaviour.behaviour_metrics`, when poses were recorded),
-        ``spikes``, ``stimulation_pulses`` and the ``figures`` written.
+        ``spikes``, ``stimulation_pulses``, the ``figures`` written and ``failures``.
     """
     run_dir = Path(run_dir)
     rec = read_run(run_dir)
@@ -78,27 +83,46 @@ def summarize_run(run_dir: str | Path) -> dict:
         "timing": m.get("timing", {}),
         "counts": m.get("counts", {}),
         "figures": [],
+        "failures": [],
     }
+
+    def attempt(part: str, work) -> None:
+        try:
+            work()
+        except Exception as exc:  # a figure must not cost the run its summary
+            log.warning("summary of %s: %s failed: %r", run_dir.name, part, exc)
+            summary["failures"].append({"part": part, "error": f"{type(exc).__name__}: {exc}"})
+
     t_s, poses = rec.trajectory()
+    title = f"{m.get('name')} (seed {m.get('seed')})"
     if len(t_s) > 1:
-        world = world_of(config)
-        body = rec.descriptions().get("body")
-        summary["behaviour"] = behaviour_metrics(t_s, poses, world, body)
-        title = f"{m.get('name')} (seed {m.get('seed')})"
-        for suffix in (".png", ".svg") if world is not None else ():
-            path = save_trajectory(world, t_s, poses, run_dir / f"trajectory{suffix}", title=title)
-            summary["figures"].append(path.name)
-    channel, t_ms = rec.spikes()
+
+        def behaviour():
+            world = world_of(config)
+            body = rec.descriptions().get("body")
+            summary["behaviour"] = behaviour_metrics(t_s, poses, world, body)
+            for suffix in (".png", ".svg") if world is not None else ():
+                path = save_trajectory(
+                    world, t_s, poses, run_dir / f"trajectory{suffix}", title=title
+                )
+                summary["figures"].append(path.name)
+
+        attempt("behaviour and trajectory", behaviour)
+    channel, t_ms = rec.spikes()  # in time order
+    summary["spikes"] = int(channel.size)
     if channel.size:
-        order = np.argsort(t_ms, kind="stable")  # late batches may arrive out of order
-        channel, t_ms = channel[order], t_ms[order]
-        culture = rec.descriptions().get("culture")
-        cell_type = culture.cell_type if culture is not None else None
-        paths = plot_raster(channel, t_ms, run_dir / "raster", cell_type=cell_type)
-        summary["figures"] += [Path(p).name for p in paths]
-        summary["spikes"] = int(channel.size)
+
+        def raster():
+            culture = rec.descriptions().get("culture")
+            cell_type = culture.cell_type if culture is not None else None
+            paths = plot_raster(channel, t_ms, run_dir / "raster", cell_type=cell_type)
+            summary["figures"] += [Path(p).name for p in paths]
+
+        attempt("raster", raster)
     summary["stimulation_pulses"] = _pulse_count(rec)
     (run_dir / SUMMARY_FILE).write_text(json.dumps(summary, indent=2))
+    if summary["failures"]:
+        write_manifest(run_dir, {**m, "postrun_failures": summary["failures"]})
     return summary
 
 

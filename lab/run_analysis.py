@@ -158,9 +158,8 @@ def analyze_run(run_dir, out_dir=None, params: AnalysisParams | None = None) -> 
 
     batches = rec.decoded(SpikeBatch, *DATA_DIRECTIONS)
     t_start_ms, t_stop_ms = _span_ms(batches, manifest, period_ms)
-    channel, t_ms = rec.spikes()
-    order = np.argsort(t_ms, kind="stable")  # late batches may arrive out of order
-    channel, t_ms = channel[order].astype(np.int64), t_ms[order]
+    channel, t_ms = rec.spikes()  # in time order
+    channel = channel.astype(np.int64)
     culture = rec.descriptions().get("culture")
     index, keep, n_channels, cell_type, x_um, y_um = _culture_arrays(culture, channel)
     index, t_ms = index[keep], t_ms[keep]

@@ -2,6 +2,8 @@
 
 import json
 
+import pytest
+
 from lab.compare import Job, _tabulate, format_table
 from lab.postrun import SUMMARY_FILE
 
@@ -28,3 +30,19 @@ def test_metrics_are_averaged_over_the_runs_that_have_them(tmp_path):
     assert result["stats"]["real"]["obstacle_entries"] == {"mean": None, "sd": None, "n": 0}
     table = format_table(result, ["sim", "real"])
     assert "| obstacle entries | 3.00 ± 1.41 (n=2) | — |" in table
+
+
+def test_a_failed_run_is_listed_with_its_reason_and_the_conditions_are_tested(tmp_path):
+    queue = [_job(tmp_path, "a", s, {"distance_m": float(s)}) for s in (1, 2, 3)]
+    queue += [_job(tmp_path, "b", s, {"distance_m": 10.0 + s}) for s in (1, 2, 3)]
+    queue[4].reason = "exit status 2: neuvision: run failed: culture/0 died at step 7"
+    result = _tabulate(queue, ["a", "b"])
+    assert [r["seed"] for r in result["runs"] if not r["ok"]] == [2]
+    table = format_table(result, ["a", "b"])
+    assert "**Failed runs: 1**" in table
+    assert "| b | 2 | exit status 2: neuvision: run failed: culture/0 died at step 7 |" in table
+    assert "| b | 2 | — |" in table  # its row in the per-seed table
+    (test,) = result["tests"]
+    assert (test["metric"], test["n_a"], test["n_b"]) == ("distance_m", 3, 2)
+    assert test["p_value"] == pytest.approx(0.1)  # only the observed one of C(5, 3) = 10 splits
+    assert "| distance (m) | a vs b | 3 vs 2 | 0.1000 |" in table
