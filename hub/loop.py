@@ -722,7 +722,7 @@ class Hub(LockstepSteps, RealtimeSteps):
             steps_per_s=done / wall if wall > 0 else 0.0,
             extra={
                 "late_steps": self.times.late_steps,
-                "bursts": self.live.bursts if self.live else 0,
+                "single_channel_bursts": self.live.bursts if self.live else 0,
                 "network_bursts": self.live.network_bursts if self.live else 0,
             },
         )

@@ -96,7 +96,7 @@ class LoopTimes:
 def counts(live, late: Counter, missed: dict[str, set[int]], dropped: dict[str, Counter]) -> dict:
     """The manifest's ``counts``: online bursts, late, missing and dropped messages by role."""
     return {
-        "bursts_online": live.bursts if live else 0,
+        "single_channel_bursts_online": live.bursts if live else 0,
         "spikes_not_analysed_online": live.skipped_spikes if live else 0,
         "network_bursts_online": live.network_bursts if live else 0,
         "late": dict(late),

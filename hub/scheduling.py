@@ -81,7 +81,10 @@ def raise_threads(priority: int) -> Scheduling:
     with what to undo in :func:`restore_threads`.
     """
     if priority <= 0:
-        return Scheduling("normal", reason="loop.realtime_priority is 0")
+        return Scheduling(
+            "normal",
+            reason="no real-time priority asked: a lockstep run, or loop.realtime_priority = 0",
+        )
     if not hasattr(os, "sched_setscheduler"):
         return Scheduling("normal", reason="this platform has no SCHED_FIFO")
     got = Scheduling("fifo", priority)

@@ -13,6 +13,8 @@ import html
 import json
 from pathlib import Path
 
+from hub.analysis.glossary import FIGURES, METRICS, TIMING
+from hub.analysis.glossary import metric as glossary_entry
 from hub.analysis.spikes import AnalysisInputError
 
 _MIME = {".png": "image/png", ".svg": "image/svg+xml"}
@@ -25,6 +27,7 @@ td.num { text-align: right; font-variant-numeric: tabular-nums; }
 pre { background: #f6f6f6; padding: 0.8em; overflow-x: auto; font-size: 0.85em; }
 figure { margin: 1em 0; } figure img { max-width: 100%; border: 1px solid #ddd; }
 figcaption { font-size: 0.85em; color: #555; }
+td.def { font-size: 0.85em; color: #555; }
 """
 
 
@@ -36,13 +39,17 @@ def _fmt(value) -> str:
     return html.escape(str(value))
 
 
-def _table(rows: dict) -> str:
-    body = "".join(
-        f"<tr><th style='text-align:left'>{html.escape(str(k))}</th>"
-        f"<td class='num'>{_fmt(v)}</td></tr>"
-        for k, v in rows.items()
-    )
-    return f"<table>{body}</table>"
+def _table(rows: dict, glossary: dict) -> str:
+    """Label (with unit) | value | definition, one row per key (the key in a tooltip)."""
+    body = []
+    for k, v in rows.items():
+        label, definition = glossary_entry(str(k), glossary)
+        body.append(
+            f"<tr><th style='text-align:left' title='{html.escape(str(k))}'>"
+            f"{html.escape(label)}</th><td class='num'>{_fmt(v)}</td>"
+            f"<td class='def'>{html.escape(definition)}</td></tr>"
+        )
+    return f"<table>{''.join(body)}</table>"
 
 
 def _pick_figures(figures) -> list[Path]:
@@ -79,6 +86,9 @@ def write_report(
     figures : paths of PNG/SVG figure files, embedded in the given order.
     timing : optional mapping (e.g. wall time, steps, late replies) shown as a table.
     summary : optional preformatted text (e.g. a markdown table) shown first.
+
+    Metrics and timing are shown with their labels, units and definitions, figures with
+    their captions (:mod:`hub.analysis.glossary`).
     """
     out = Path(path)
     parts = [
@@ -91,18 +101,19 @@ def write_report(
         parts += ["<h2>Summary</h2>", f"<pre>{html.escape(summary)}</pre>"]
     parts += [
         "<h2>Metrics</h2>",
-        _table(metrics),
+        _table(metrics, METRICS),
     ]
     if timing:
-        parts += ["<h2>Timing</h2>", _table(timing)]
+        parts += ["<h2>Timing</h2>", _table(timing, TIMING)]
     parts.append("<h2>Figures</h2>")
     for fig in _pick_figures(figures):
         data = base64.b64encode(fig.read_bytes()).decode("ascii")
         mime = _MIME[fig.suffix.lower()]
         name = html.escape(fig.stem)
+        caption = html.escape(FIGURES.get(fig.stem, fig.stem))
         parts.append(
             f"<figure><img alt='{name}' src='data:{mime};base64,{data}'>"
-            f"<figcaption>{name}</figcaption></figure>"
+            f"<figcaption><b>{name}</b>: {caption}</figcaption></figure>"
         )
     cfg = json.dumps(config, indent=2, sort_keys=True, default=str)
     parts += ["<h2>Configuration</h2>", f"<pre>{html.escape(cfg)}</pre>", "</body></html>"]

@@ -116,7 +116,7 @@ def test_the_hub_reports_live_bursts_in_its_status():
         hub._live_in.put(batch)  # as the lockstep hub hands each step's spikes over
     hub._work_live(flush=True)
     assert hub._status().extra["network_bursts"] == 1
-    assert hub.counts()["bursts_online"] == 3
+    assert hub.counts()["single_channel_bursts_online"] == 3
 
 
 def test_live_analysis_can_be_switched_off_and_its_parameters_are_checked():

@@ -35,7 +35,9 @@ def test_counts_give_missing_steps_by_role_and_drops_by_kind():
         None, Counter(body=2), {"body": {3, 4}, "culture": set()}, {"culture": Counter(foreign=5)}
     )
     assert out["late"] == {"body": 2} and out["missing"] == {"body": 2}
-    assert out["dropped"] == {"culture": {"foreign": 5}} and out["bursts_online"] == 0
+    assert (
+        out["dropped"] == {"culture": {"foreign": 5}} and out["single_channel_bursts_online"] == 0
+    )
 
 
 def test_an_endpoints_cpu_time_is_that_of_the_steps_alone():

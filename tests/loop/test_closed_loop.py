@@ -69,7 +69,7 @@ def test_the_closed_loop_run_leaves_a_record_a_summary_and_pictures(tmp_path, bu
     bursts = detect_bursts(*rec.spikes())
     n_channels = rec.descriptions()["culture"].channel.size
     network = detect_network_bursts(bursts, n_channels, NetworkBurstParams())
-    assert rec.manifest["counts"]["bursts_online"] == len(bursts) > 0
+    assert rec.manifest["counts"]["single_channel_bursts_online"] == len(bursts) > 0
     assert rec.manifest["counts"]["network_bursts_online"] == len(network)
     assert len([e for e in rec.events if e.key == "network_burst"]) == len(network)
 
