@@ -5,6 +5,7 @@ neuvision hub CONFIG             the hub alone (endpoints started elsewhere)
 neuvision endpoint ROLE CONFIG   one endpoint (body or culture) of CONFIG
 neuvision record-info RUN_DIR    what a recorded run holds
 neuvision emulate khepera        a Khepera II emulator on a pseudo-terminal
+neuvision export RUN_DIR --nwb F  a recorded run as an NWB file
 """
 
 from __future__ import annotations
@@ -123,6 +124,16 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("run_dir", type=Path, help="a run folder")
     p.add_argument("--out", type=Path, help="output folder (default: the run folder)")
+    p = sub.add_parser(
+        "export",
+        help="a recorded run as an NWB file",
+        description="Write a recorded run as an NWB file (Neurodata Without Borders): spikes "
+        "as units with their electrodes' positions, every pulse sent, the robot's pose, "
+        "sensor ranges and motor commands, the experiment file and the manifest (needs pynwb: "
+        "pip install 'neuvision[nwb]').",
+    )
+    p.add_argument("run_dir", type=Path, help="a run folder")
+    p.add_argument("--nwb", type=Path, required=True, metavar="FILE", help="the NWB file to write")
     p = sub.add_parser(
         "emulate",
         help="emulate a device on this machine (a Khepera on a pseudo-terminal)",
@@ -357,6 +368,18 @@ def cmd_reproduce(args) -> int:
     return EXIT_OK
 
 
+def cmd_export(args) -> int:
+    from lab.export_nwb import ExportError, export_nwb
+
+    run_dir = _run_folder(args.run_dir)
+    try:
+        path = export_nwb(run_dir, args.nwb)
+    except ExportError as exc:
+        raise InputError(str(exc)) from None
+    print(f"neuvision: {run_dir} written to {path}", file=sys.stderr)
+    return EXIT_OK
+
+
 def cmd_emulate(args) -> int:
     from adapters.khepera.emulator import (
         DEFAULT_EMULATOR_WORLD,
@@ -387,6 +410,7 @@ COMMANDS = {
     "analyze": cmd_analyze,
     "reproduce": cmd_reproduce,
     "emulate": cmd_emulate,
+    "export": cmd_export,
 }
 
 if __name__ == "__main__":
