@@ -7,9 +7,11 @@ defaults are what they are (scouting off, explicit loopback endpoints, 1 s lease
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import socket
+import time
 
 # Zenoh's threads are configured per process, from this variable, when the first session
 # opens. One network-receive thread, not two: with two, each arriving message wakes both
@@ -75,14 +77,50 @@ class BusError(RuntimeError):
     """The bus could not be joined; the message says where and why."""
 
 
-def open_session(bus: BusSection, *, listener: bool) -> zenoh.Session:
-    """Open a Zenoh session for one participant (caller must close it)."""
-    try:
-        return zenoh.open(zenoh_config(bus, listener=listener))
-    except zenoh.ZError as exc:
-        where = ", ".join(bus.listen if listener else (bus.connect or bus.listen))
-        verb = "listen on" if listener else "reach the hub at"
-        raise BusError(f"cannot {verb} {where}: {exc}") from None
+#: an endpoint tries to reach its hub for this long at a time, saying so between tries
+CONNECT_TRY_S = 2.0
+
+
+def open_session(bus: BusSection, *, listener: bool, on_wait=None) -> zenoh.Session:
+    """Open a Zenoh session for one participant (caller must close it).
+
+    An endpoint (``listener`` False) whose hub is not up yet keeps trying for
+    ``bus.connect_timeout_s``, calling ``on_wait(where, waited_s)`` before each new try
+    (to tell the user where it is trying).
+
+    Raises
+    ------
+    BusError
+        The hub's address cannot be listened on, or the hub was not reached in time: one
+        line naming the address.
+    """
+    where = ", ".join(bus.listen if listener else (bus.connect or bus.listen))
+    if listener:
+        try:
+            return zenoh.open(zenoh_config(bus, listener=True))
+        except zenoh.ZError as exc:
+            raise BusError(f"cannot listen on {where}: {_first_line(exc)}") from None
+    start = time.monotonic()
+    while True:
+        waited_s = time.monotonic() - start
+        left_s = bus.connect_timeout_s - waited_s
+        try_bus = dataclasses.replace(bus, connect_timeout_s=max(min(CONNECT_TRY_S, left_s), 0.1))
+        try:
+            return zenoh.open(zenoh_config(try_bus, listener=False))
+        except zenoh.ZError as exc:
+            if time.monotonic() - start >= bus.connect_timeout_s:
+                raise BusError(
+                    f"cannot reach the hub at {where} within {bus.connect_timeout_s:g} s "
+                    f"(bus.connect_timeout_s): {_first_line(exc)}"
+                ) from None
+            if on_wait is not None:
+                on_wait(where, time.monotonic() - start)
+
+
+def _first_line(exc: BaseException) -> str:
+    """Zenoh's message without the source location it appends."""
+    text = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+    return text.split(" at /")[0]
 
 
 def free_tcp_port(host: str = "127.0.0.1") -> int:

@@ -43,7 +43,23 @@ def _overrides(args) -> list[str]:
         value = getattr(args, flag, None)
         if value is not None:
             items.append(f"{key}={json.dumps(value)}")
+    if getattr(args, "connect", None):
+        items.append(f"bus.connect={json.dumps([_address(args.connect, args)])}")
+    if getattr(args, "listen", None):
+        items.append(f"bus.listen={json.dumps([_address(args.listen, args)])}")
     return items
+
+
+def _address(text: str, args) -> str:
+    """``HOST[:PORT]`` (or a Zenoh locator) as a Zenoh locator; the port defaults to the
+    config's ``bus.listen`` port."""
+    if "/" in text:
+        return text  # already a locator: tcp/10.0.0.2:7447, tls/...
+    host, _, port = text.rpartition(":") if text.count(":") == 1 else (text, "", "")
+    if not port:
+        listen = load_config(args.config, list(args.set or [])).bus.listen
+        port = listen[0].rsplit(":", 1)[-1] if listen else "7447"
+    return f"tcp/{host}:{port}"
 
 
 def _add_config_args(p: argparse.ArgumentParser, *, shortcuts: bool = True) -> None:
@@ -87,10 +103,15 @@ def build_parser() -> argparse.ArgumentParser:
         "hub",
         help="run the hub alone (endpoints started elsewhere)",
         description="Run only the hub of an experiment: its endpoints are started elsewhere "
-        "(neuvision endpoint ROLE CONFIG, on this or another machine) and found on the bus "
-        "session. Records the run as 'run' does.",
+        "(neuvision endpoint ROLE CONFIG --connect HOST, on this or another machine) and "
+        "found on the bus session. Records the run as 'run' does.",
     )
     _add_config_args(p)
+    p.add_argument(
+        "--listen",
+        metavar="ADDR[:PORT]",
+        help="where to listen for endpoints (bus.listen), e.g. 0.0.0.0:7447 for other hosts",
+    )
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p = sub.add_parser(
         "endpoint",
@@ -100,6 +121,13 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("role", choices=("body", "culture"), help="which endpoint of CONFIG")
     _add_config_args(p, shortcuts=False)
+    p.add_argument(
+        "--connect",
+        metavar="HOST[:PORT]",
+        help="where the hub listens (bus.connect; the port defaults to bus.listen's)",
+    )
+    p.add_argument("--session", help="bus.session")
+    p.add_argument("--once", action="store_true", help="exit when the first run ends")
     p = sub.add_parser(
         "record-info",
         help="summarise a recorded run",
@@ -210,7 +238,7 @@ def cmd_endpoint(args) -> int:
     cpus = cfg.endpoint(args.role).cpus
     try:
         endpoint = make_endpoint(cfg, args.role)
-        return endpoint.serve(cfg.bus, realtime_priority=priority, cpus=cpus)
+        return endpoint.serve(cfg.bus, realtime_priority=priority, cpus=cpus, once=args.once)
     except DeviceFault as exc:
         print(f"neuvision: {args.role} device fault: {_one_line(exc)}", file=sys.stderr)
         return EXIT_FAULT

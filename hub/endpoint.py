@@ -65,6 +65,35 @@ from hub.scheduling import (
 log = logging.getLogger(__name__)
 
 
+def _host() -> dict:
+    import os
+    import platform
+    import socket
+    from importlib.metadata import PackageNotFoundError, version
+
+    def installed(package: str) -> str:
+        try:
+            return version(package)
+        except PackageNotFoundError:
+            return "absent"
+
+    return {
+        "hostname": socket.gethostname(),
+        "pid": os.getpid(),
+        "platform": platform.platform(),
+        "python": platform.python_version(),
+        "neuvision": installed("neuvision"),
+        "eclipse-zenoh": installed("eclipse-zenoh"),
+    }
+
+
+_HOST = _host()
+
+
+class _StoppedWaiting(Exception):
+    """Asked to stop while still waiting for the hub."""
+
+
 class DeviceFault(Exception):
     """A device endpoint's device failed (a serial link silent, a port gone): named, and
     the endpoint's process ends with it (``neuvision endpoint``: one line, exit status 2)."""
@@ -112,6 +141,7 @@ class Endpoint(abc.ABC):
         self._stop = threading.Event()
         self._session = None
         self._telemetry: dict = {}
+        self._once = False  # serve(once=True): stop when the first run ends
 
     # ------------------------------------------------------------ for subclasses
 
@@ -200,6 +230,8 @@ class Endpoint(abc.ABC):
         cpus = available_cpus()
         if cpus is not None:
             counters["cpus"] = sorted(cpus)  # those this process could run on
+        counters["host"] = _HOST  # where it runs: the manifest names every participant
+        counters["unix_time_s"] = time.time()  # the hub estimates the clock offset
         return dataclasses.replace(self._description(), counters=counters)
 
     def _description(self) -> Description:
@@ -249,12 +281,14 @@ class Endpoint(abc.ABC):
             return RunReply(ok=True, run=request.run)
 
     def _end_run(self, why: str) -> None:
-        """Back to idle; the device made safe (under the lock)."""
+        """Back to idle; the device made safe (under the lock). With ``once``: stop."""
         log.info("%s/%s: run %s ended: %s", self.role, self.id, self.run.run, why)
         self.run = None
         self._owed.clear()
         self._inbox.key = None
         self.end_run()
+        if self._once:
+            self._stop.set()
 
     def on_hub_gone(self) -> None:
         """The hub's liveliness vanished: the run ends here and now, the device made safe."""
@@ -368,6 +402,14 @@ class Endpoint(abc.ABC):
 
     # ------------------------------------------------------------ serving
 
+    def _waiting(self, where: str, waited_s: float) -> None:
+        if self._stop.is_set():
+            raise _StoppedWaiting  # nothing was opened: a clean stop
+        log.info(
+            "%s/%s: waiting for the hub at %s (%.0f s so far): is it started?",
+            self.role, self.id, where, waited_s,
+        )  # fmt: skip
+
     def request_stop(self) -> None:
         """Ask :meth:`serve` to return (thread-safe; used by signal handlers)."""
         self._stop.set()
@@ -379,14 +421,17 @@ class Endpoint(abc.ABC):
         install_signals: bool = True,
         realtime_priority: int = 0,
         cpus: Sequence[int] = (),
+        once: bool = False,
     ) -> int:
         """Serve on the bus until stopped; return the exit status (0 on a clean stop).
 
-        ``realtime_priority`` > 0 puts this process's threads under ``SCHED_FIFO`` at that
-        priority once warmed up (see :mod:`hub.scheduling`; refused: ordinary scheduling).
-        ``cpus`` keeps the process's threads on those CPUs (``<role>.cpus``; empty: the
-        OS decides).
+        An endpoint serves one run after another (each ``RunStart`` resets it); with
+        ``once`` it returns when its first run ends. ``realtime_priority`` > 0 puts this
+        process's threads under ``SCHED_FIFO`` at that priority once warmed up (see
+        :mod:`hub.scheduling`; refused: ordinary scheduling). ``cpus`` keeps the process's
+        threads on those CPUs (``<role>.cpus``; empty: the OS decides).
         """
+        self._once = once
         if install_signals:
             for sig in (signal.SIGINT, signal.SIGTERM):
                 signal.signal(sig, lambda *_: self.request_stop())
@@ -397,7 +442,13 @@ class Endpoint(abc.ABC):
         try:
             self._description()  # described once: what inputs are checked against
             self.warm_up()  # so that the first realtime steps are not late
-            session = self._session = open_session(bus, listener=False)
+            where = ", ".join(bus.connect or bus.listen)
+            log.info("%s/%s: connecting to the hub at %s", self.role, self.id, where)
+            session = self._session = open_session(bus, listener=False, on_wait=self._waiting)
+        except _StoppedWaiting:
+            restore_placement(placement)
+            self.close()
+            return 0
         except BaseException:
             restore_placement(placement)
             raise

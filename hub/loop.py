@@ -170,6 +170,7 @@ class Hub(LockstepSteps, RealtimeSteps):
         self.expect = {role: 0 for role in ROLES}  # the step whose reply each role owes
         self.last_sent: dict[str, int] = {}
         self.descriptions: dict[str, Description] = {}
+        self.participants: dict[str, dict] = {}  # each endpoint's host, clock offset
         self._stop_reason: str | None = None
         self._pause_started: float | None = None
         self._paused_s = 0.0
@@ -268,7 +269,12 @@ class Hub(LockstepSteps, RealtimeSteps):
                     timing=timing,
                     counts=counts,
                     endpoints={
-                        r: {"kind": d.kind, "id": d.id, **steps_share(d, endpoint_stats)}
+                        r: {
+                            "kind": d.kind,
+                            "id": d.id,
+                            **self.participants.get(r, {}),
+                            **steps_share(d, endpoint_stats),
+                        }
                         for r, d in self.descriptions.items()
                     },
                 )
@@ -558,7 +564,10 @@ class Hub(LockstepSteps, RealtimeSteps):
         for role, i in self.ids.items():
             key = self.keys.describe(role, i)
             desc = None
-            for raw in self.link.query(key, timeout_s=5.0):
+            t0 = time.time()
+            replies = self.link.query(key, timeout_s=5.0)
+            t1 = time.time()
+            for raw in replies:
                 if self.recorder:
                     self.recorder.message("rx", key, raw)
                 try:
@@ -567,6 +576,16 @@ class Hub(LockstepSteps, RealtimeSteps):
                     raise HubError(f"{role}/{i} sent an invalid description: {exc}") from None
             if desc is None or desc.role != role or desc.id != i:
                 raise HubError(f"{role}/{i} did not describe itself on {key}")
+            counters = desc.counters or {}
+            their_time = counters.get("unix_time_s")
+            self.participants[role] = {
+                "host": counters.get("host", {}),
+                # their clock minus ours, at the middle of the query (± half its round trip)
+                "clock_offset_ms": (their_time - (t0 + t1) / 2) * 1e3
+                if isinstance(their_time, float)
+                else None,
+                "describe_round_trip_ms": (t1 - t0) * 1e3,
+            }
             self._take_description(desc)
             self._record_event("described", role=role, id=i, kind=desc.kind)
 
