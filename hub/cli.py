@@ -4,7 +4,7 @@ neuvision run CONFIG             hub + every local endpoint, with progress; reco
 neuvision hub CONFIG             the hub alone (endpoints started elsewhere)
 neuvision endpoint ROLE CONFIG   one endpoint (body or culture) of CONFIG
 neuvision record-info RUN_DIR    what a recorded run holds
-neuvision emulate khepera        a Khepera II emulator on a pseudo-terminal
+neuvision emulate khepera|intan  a Khepera II on a pseudo-terminal, an Intan RHX on TCP
 neuvision export RUN_DIR --nwb F  a recorded run as an NWB file
 """
 
@@ -165,11 +165,18 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser(
         "emulate",
         help="emulate a device on this machine (a Khepera on a pseudo-terminal)",
-        description="Emulate a Khepera II: a pseudo-terminal that speaks its serial protocol, "
-        "answered by a simulated robot in a world, in real time. Prints the device path; "
-        "give it to an experiment as body.params.port (or use --link).",
+        description="Emulate a device. khepera: a pseudo-terminal that speaks a Khepera II's "
+        "serial protocol, answered by a simulated robot in a world, in real time; prints the "
+        "device path (give it as body.params.port, or use --link). intan: the Intan RHX "
+        "software's TCP command and spike ports on loopback, answered by a simulated culture "
+        "seen through its virtual MEA, in real time.",
     )
-    p.add_argument("device", choices=("khepera",))
+    p.add_argument("device", choices=("khepera", "intan"))
+    p.add_argument(
+        "--culture", help="intan: the culture file behind the MEA (default culture_1024.toml)"
+    )
+    p.add_argument("--command-port", type=int, default=5000, help="intan: RHX command port")
+    p.add_argument("--spike-port", type=int, default=5002, help="intan: RHX spike port")
     p.add_argument(
         "--world", help="world file with the robot (default: khepera2 in the paper's arena)"
     )
@@ -416,6 +423,17 @@ def cmd_emulate(args) -> int:
     )
     from adapters.khepera.link import BAUDS
 
+    if args.device == "intan":
+        from adapters.mea.emulator import DEFAULT_CULTURE, IntanEmulator, run_until_signalled
+
+        emulator = IntanEmulator(
+            args.culture or DEFAULT_CULTURE,
+            seed=args.seed or 1,
+            command_port=args.command_port,
+            spike_port=args.spike_port,
+        )
+        run_until_signalled(emulator)
+        return EXIT_OK
     if args.baud is not None and args.baud not in BAUDS:
         raise InputError(f"--baud must be one of {BAUDS}, got {args.baud}")
     emulator = KheperaEmulator(  # a bad world file: a config error naming the key

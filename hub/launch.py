@@ -1,7 +1,7 @@
 """Making endpoints from a config, and running them as local processes.
 
 An endpoint's ``kind`` in the experiment file is either a registered short name
-(``sim_robot``, ``sim_network``, ``khepera``) or ``module:Class``. The class provides
+(``sim_robot``, ``sim_network``, ``khepera``, ``mea``) or ``module:Class``. The class provides
 ``from_config(section, cfg) -> Endpoint`` and may provide
 ``check_config(section, cfg) -> dict``: a classmethod that checks the section's ``params``
 without building anything (no network, no device connection), raising
@@ -37,6 +37,7 @@ ENDPOINT_KINDS = {
     "sim_robot": "sim_robot.endpoint:ArenaEndpoint",
     "sim_network": "sim_network.endpoint:NetworkEndpoint",
     "khepera": "adapters.khepera.endpoint:KheperaEndpoint",
+    "mea": "adapters.mea.endpoint:MeaEndpoint",
 }
 
 

@@ -721,7 +721,12 @@ class Stimulation(Message):
 
 @dataclass(frozen=True, eq=False)
 class SpikeBatch(Message):
-    """Culture → hub: spikes fired in the window ``[t0_s, t1_s)``, sorted by time."""
+    """Culture → hub: spikes fired in the window ``[t0_s, t1_s)``, sorted by time.
+
+    A device may also carry spikes of earlier windows that reached it after it had answered
+    them (``late_channel``, ``late_t_ms``: their true times, ms from ``t0_s``, so negative;
+    contract v3): kept as data, never used by the loop's decoding.
+    """
 
     step: int
     run: str
@@ -729,6 +734,8 @@ class SpikeBatch(Message):
     t1_s: float
     channel: np.ndarray = field(default_factory=_empty("<u4"))
     t_ms: np.ndarray = field(default_factory=_empty("<f4"))
+    late_channel: np.ndarray | None = None
+    late_t_ms: np.ndarray | None = None
 
     SCHEMA = {
         "step": _STEP,
@@ -737,6 +744,8 @@ class SpikeBatch(Message):
         "t1_s": _TIME,
         "channel": Array("<u4", group="spike"),
         "t_ms": Array("<f4", group="spike", min=0.0),
+        "late_channel": Array("<u4", group="late", optional=True),
+        "late_t_ms": Array("<f4", group="late", max=0.0, optional=True),
     }
 
     @property

@@ -317,7 +317,8 @@ class RunRecord:
         return {d.role: d for d in self.decoded(Description, "rx")}
 
     def spikes(self) -> tuple[np.ndarray, np.ndarray]:
-        """All received spikes as ``(channel uint32, t_ms float64 absolute)``, in time order.
+        """All received spikes as ``(channel uint32, t_ms float64 absolute)``, in time order
+        (a device's late spikes at their true times included).
 
         The record holds replies in the order they arrived, which need not be the steps'
         (a late batch, two endpoints' threads): the order is made here, for every reader.
@@ -325,8 +326,12 @@ class RunRecord:
         batches = self.decoded(SpikeBatch, *DATA_DIRECTIONS)
         if not batches:
             return np.zeros(0, np.uint32), np.zeros(0, np.float64)
-        channel = np.concatenate([b.channel for b in batches])
-        t_ms = np.concatenate([b.t0_s * 1e3 + b.t_ms.astype(np.float64) for b in batches])
+        late = [b for b in batches if b.late_channel is not None]
+        channel = np.concatenate([b.channel for b in batches] + [b.late_channel for b in late])
+        t_ms = np.concatenate(
+            [b.t0_s * 1e3 + b.t_ms.astype(np.float64) for b in batches]
+            + [b.t0_s * 1e3 + b.late_t_ms.astype(np.float64) for b in late]
+        )
         order = np.argsort(t_ms, kind="stable")
         return channel[order], t_ms[order]
 

@@ -1,0 +1,341 @@
+"""An emulator of an Intan RHS controller under the RHX software, backed by a simulated culture.
+
+:class:`IntanEmulator` listens on loopback on a command port and a spike port and answers
+the RHX TCP protocol (:mod:`adapters.mea.rhx`) from a :mod:`sim_network` culture seen through
+its virtual MEA (``channels = "mea"``), stepped in real time: a channel's spikes are
+those of the neurons its electrode records, and a triggered pulse stimulates the neurons
+near its electrode, so stimulation evokes real responses. Timestamps count samples at
+``sample_rate_hz`` from the start of run mode.
+
+It is an **emulator**: it keeps and returns what ``set`` is given without checking it
+against the real software's ranges, knows only the commands the adapter uses plus
+``currenttimestamp``, and has no waveform port. Faults can be injected (:class:`Faults`):
+the command connection reset, the command port stalled, a malformed spike record.
+``neuvision emulate intan`` runs one from the command line.
+"""
+
+from __future__ import annotations
+
+import logging
+import socket
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from adapters.mea.layout import ElectrodeLayout
+from adapters.mea.rhx import spike_record
+from sim_network import Network
+from sim_network.config import load_config
+from sim_network.records import Pulses
+
+log = logging.getLogger(__name__)
+
+DEFAULT_CULTURE = Path(__file__).resolve().parents[2] / "configs" / "culture_1024.toml"
+SAMPLE_RATE_HZ = 30_000
+CHUNK_MS = 0.5  # the culture advances in steps of this much run time
+
+
+@dataclass
+class Faults:
+    """Faults to inject (tests)."""
+
+    reset_next_command: bool = False  # close the command connection instead of answering
+    stall_until: float = 0.0  # time.monotonic() before which commands are not answered
+    malformed_next_spike: bool = False  # garbage before the next spike record
+    fired: dict = field(default_factory=lambda: {"reset": 0, "stall": 0, "malformed": 0})
+
+
+class IntanEmulator:
+    """RHX's command and spike ports on loopback, answered by a simulated culture.
+
+    Parameters
+    ----------
+    culture : path
+        A culture file (``configs/culture_1024.toml`` by default); seen through its virtual
+        MEA, whose electrodes are the layout's channels in order.
+    seed : int
+    layout : ElectrodeLayout, optional
+        The channel names (default the MCS 60 layout on ports A and B).
+    command_port, spike_port : int
+        0: free ports, read back from the attributes of the same names.
+    """
+
+    def __init__(
+        self,
+        culture: str | Path = DEFAULT_CULTURE,
+        *,
+        seed: int = 1,
+        layout: ElectrodeLayout | None = None,
+        command_port: int = 0,
+        spike_port: int = 0,
+    ):
+        cfg = load_config(culture, ['channels="mea"'])
+        self.net = Network(cfg, seed=seed)
+        self.layout = layout or ElectrodeLayout.mcs60(cfg.mea.pitch_um)
+        if self.layout.n != self.net.channels.channel.size:
+            raise ValueError(
+                f"the layout has {self.layout.n} channels, the culture's MEA "
+                f"{self.net.channels.channel.size}"
+            )
+        self.faults = Faults()
+        self.values: dict[str, str] = {"sampleratehertz": str(SAMPLE_RATE_HZ), "runmode": "stop"}
+        self.uploaded: dict[str, dict[str, str]] = {}
+        self.triggers: list[tuple[float, list[int]]] = []  # (time, channels fired)
+        self.commands = 0
+        self._index = self.layout.index()
+        self._run_t0: float | None = None
+        self._pending: list[Pulses] = []
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._spike_clients: list[socket.socket] = []
+        self._cmd_server = self._listen(command_port)
+        self._spk_server = self._listen(spike_port)
+        self.command_port = self._cmd_server.getsockname()[1]
+        self.spike_port = self._spk_server.getsockname()[1]
+        self._threads: list[threading.Thread] = []
+
+    @staticmethod
+    def _listen(port: int) -> socket.socket:
+        server = socket.create_server(("127.0.0.1", port), reuse_port=False)
+        server.settimeout(0.2)
+        return server
+
+    # ------------------------------------------------------------ running
+
+    def start(self) -> IntanEmulator:
+        for target in (self._accept_commands, self._accept_spikes, self._simulate):
+            t = threading.Thread(target=target, daemon=True, name=f"intan-{target.__name__}")
+            t.start()
+            self._threads.append(t)
+        return self
+
+    def stop(self) -> None:
+        self._stop.set()
+        for t in self._threads:
+            t.join(timeout=2.0)
+        for sock in (self._cmd_server, self._spk_server, *self._spike_clients):
+            sock.close()
+
+    def __enter__(self) -> IntanEmulator:
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+    def timestamp(self, now: float | None = None) -> int:
+        """Samples since run mode began (0 when stopped)."""
+        if self._run_t0 is None:
+            return 0
+        return int(((now or time.monotonic()) - self._run_t0) * SAMPLE_RATE_HZ)
+
+    # ------------------------------------------------------------ command port
+
+    def _accept_commands(self) -> None:
+        while not self._stop.is_set():
+            try:
+                conn, _ = self._cmd_server.accept()
+            except TimeoutError:
+                continue
+            except OSError:
+                return
+            threading.Thread(target=self._serve_commands, args=(conn,), daemon=True).start()
+
+    def _serve_commands(self, conn: socket.socket) -> None:
+        conn.settimeout(0.2)
+        buffer = b""
+        with conn:
+            while not self._stop.is_set():
+                try:
+                    chunk = conn.recv(4096)
+                except TimeoutError:
+                    continue
+                except OSError:
+                    return
+                if not chunk:
+                    return
+                buffer += chunk
+                while b"\n" in buffer or b";" in buffer:
+                    cut = min(i for i in (buffer.find(b"\n"), buffer.find(b";")) if i >= 0)
+                    line, buffer = (
+                        buffer[:cut].decode("ascii", "replace").strip(),
+                        buffer[cut + 1 :],
+                    )
+                    if not line:
+                        continue
+                    if self.faults.reset_next_command:
+                        self.faults.reset_next_command = False
+                        self.faults.fired["reset"] += 1
+                        conn.close()
+                        return
+                    while time.monotonic() < self.faults.stall_until and not self._stop.is_set():
+                        self.faults.fired["stall"] += 1
+                        self._stop.wait(0.05)
+                    reply = self._command(line)
+                    if reply:
+                        conn.sendall(reply.encode("ascii") + b"\n")
+
+    def _command(self, line: str) -> str:
+        self.commands += 1
+        verb, _, rest = line.partition(" ")
+        verb = verb.lower()
+        if verb == "get":
+            name = rest.strip().lower()
+            if name == "currenttimestamp":
+                return f"Return: CurrentTimestamp {self.timestamp()}"
+            if name not in self.values:
+                return f"Error: unknown parameter {rest.strip()}"
+            return f"Return: {rest.strip()} {self.values[name]}"
+        if verb == "set":
+            name, _, value = rest.strip().partition(" ")
+            name = name.lower()
+            if not value:
+                return f"Error: set {name} needs a value"
+            if name == "runmode":
+                self._set_runmode(value.lower())
+            self.values[name] = value.lower() if value.lower() in ("true", "false") else value
+            return ""
+        if verb == "execute":
+            action, _, arg = rest.strip().partition(" ")
+            action = action.lower()
+            if action == "uploadstimparameters":
+                channel = arg.strip().lower()
+                self.uploaded[channel] = {
+                    k.split(".", 1)[1]: v
+                    for k, v in self.values.items()
+                    if k.startswith(channel + ".")
+                }
+                return ""
+            if action == "manualstimtriggerpulse":
+                self._trigger(arg.strip().upper())
+                return ""
+            return f"Error: unknown action {action}"
+        return f"Error: unknown command {verb}"
+
+    def _set_runmode(self, mode: str) -> None:
+        with self._lock:
+            if mode == "run" and self._run_t0 is None:
+                self._run_t0 = time.monotonic()
+                self._sim_origin_ms = self.net.t_ms
+            elif mode == "stop":
+                self._run_t0 = None
+                self._pending.clear()
+
+    def _trigger(self, key: str) -> None:
+        """Fire every uploaded, enabled channel whose source is this key."""
+        fired, amps, widths = [], [], []
+        for name, p in self.uploaded.items():
+            if p.get("stimenabled") != "true" or p.get("source", "").upper() != f"KEYPRESS{key}":
+                continue
+            channel = self._index.get(name)
+            if channel is None:
+                continue
+            phase_us = float(p.get("firstphasedurationmicroseconds", 0))
+            fired.append(channel)
+            amps.append(float(p.get("firstphaseamplitudemicroamps", 0)))
+            widths.append(2 * phase_us / 1e3)  # both phases drive the neurons near it
+        self.triggers.append((time.monotonic(), fired))
+        if fired and self._run_t0 is not None:
+            pulses = Pulses(
+                channel=np.array(fired, np.uint32),
+                amplitude_ua=np.array(amps, np.float32),
+                width_ms=np.array(widths, np.float32),
+                onset_ms=np.zeros(len(fired), np.float32),
+            )
+            with self._lock:
+                self._pending.append(pulses)
+
+    # ------------------------------------------------------------ spike port
+
+    def _accept_spikes(self) -> None:
+        while not self._stop.is_set():
+            try:
+                conn, _ = self._spk_server.accept()
+            except TimeoutError:
+                continue
+            except OSError:
+                return
+            conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            self._spike_clients.append(conn)
+
+    def _send_spikes(self, data: bytes) -> None:
+        for conn in list(self._spike_clients):
+            try:
+                conn.sendall(data)
+            except OSError:
+                self._spike_clients.remove(conn)
+
+    # ------------------------------------------------------------ the culture
+
+    def _simulate(self) -> None:
+        """Keep the culture at wall-clock time while in run mode, sending its spikes."""
+        while not self._stop.is_set():
+            with self._lock:
+                t0 = self._run_t0
+            if t0 is None:
+                self._stop.wait(0.01)
+                continue
+            behind_ms = (time.monotonic() - t0) * 1e3 - (self.net.t_ms - self._sim_origin_ms)
+            if behind_ms < CHUNK_MS:
+                self._stop.wait((CHUNK_MS - behind_ms) / 1e3)
+                continue
+            with self._lock:
+                pending, self._pending = self._pending, []
+            pulses = _merged(pending)
+            spikes = self.net.run(CHUNK_MS, pulses)
+            if spikes.channel.size == 0:
+                continue
+            samples = ((spikes.t_ms - self._sim_origin_ms) * SAMPLE_RATE_HZ / 1e3).astype(np.int64)
+            data = b"".join(
+                spike_record(self.layout.names[c], int(s))
+                for c, s in zip(spikes.channel, samples, strict=True)
+            )
+            if self.faults.malformed_next_spike:
+                self.faults.malformed_next_spike = False
+                self.faults.fired["malformed"] += 1
+                data = b"\x00garbage" + data
+            self._send_spikes(data)
+
+
+def _merged(pending: list[Pulses]) -> Pulses | None:
+    if not pending:
+        return None
+    if len(pending) == 1:
+        return pending[0]
+    return Pulses(
+        channel=np.concatenate([p.channel for p in pending]),
+        amplitude_ua=np.concatenate([p.amplitude_ua for p in pending]),
+        width_ms=np.concatenate([p.width_ms for p in pending]),
+        onset_ms=np.concatenate([p.onset_ms for p in pending]),
+    )
+
+
+def run_until_signalled(emulator: IntanEmulator, report_s: float = 5.0) -> None:
+    """Serve until SIGINT/SIGTERM (``neuvision emulate intan``), a status line every
+    ``report_s`` seconds on stderr."""
+    import signal
+    import sys
+
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    emulator.start()
+    print(
+        f"neuvision: Intan RHX emulator: commands on 127.0.0.1:{emulator.command_port}, spikes "
+        f"on 127.0.0.1:{emulator.spike_port} ({emulator.layout.n} electrodes); Ctrl-C ends it",
+        file=sys.stderr,
+        flush=True,
+    )
+    try:
+        while not stop.wait(report_s):
+            print(
+                f"neuvision: emulator: run mode {emulator.values.get('runmode')}, "
+                f"{emulator.commands} commands, {len(emulator.triggers)} triggers, culture at "
+                f"{emulator.net.t_ms / 1e3:.1f} s",
+                file=sys.stderr,
+                flush=True,
+            )
+    finally:
+        emulator.stop()

@@ -1,0 +1,284 @@
+"""A living culture on a multi-electrode array as the loop's culture (``kind = "mea"``).
+
+Each step's :class:`~hub.protocol.Stimulation` is checked pulse by pulse
+(:mod:`adapters.mea.safety`: refused pulses are counted by reason, never clipped), turned
+into charge-balanced biphasic pulses and fired at their onsets through the instrument's
+driver (:mod:`adapters.mea.rhx`). The spikes the instrument reports are placed in run time
+through its clock (offset and drift fitted, in ``describe``'s counters) and answered per
+window **after the window has passed** (``reply_margin_ms`` later, from a thread of the
+endpoint's own): a device cannot know a window's spikes before its end. The hub therefore
+gets step k's spikes during step k+1 — set ``loop.deadline_ms`` to one period plus the
+margin and a little (``configs/hybrid_mea.toml``). A spike that reaches the endpoint after
+its window was answered goes into the next batch at its true time (``late_channel``,
+``late_t_ms``), counted as late data, never dropped.
+
+Parameters (``[culture.params]``): ``driver`` (``"rhx"``), ``host`` (``127.0.0.1``),
+``command_port`` (5000), ``spike_port`` (5002), ``layout_file`` (CSV ``name,x_um,y_um``;
+default the MCS 60-electrode layout on Intan ports A and B), ``reply_margin_ms`` (2),
+``[culture.params.safety]`` (:class:`~adapters.mea.safety.PulseLimits`).
+
+Safety does not depend on the hub: stimulation stops (every electrode disabled, run mode
+off) when the run ends, when the hub's liveliness vanishes, when no input comes for the
+input timeout, and when the process ends.
+"""
+
+from __future__ import annotations
+
+import heapq
+import logging
+import math
+import threading
+import time
+
+import numpy as np
+
+from adapters.mea.layout import ElectrodeLayout
+from adapters.mea.rhx import RhxDriver
+from adapters.mea.safety import PulseLimits, SafetyGate
+from hub.config import ConfigError, EndpointSection, ExperimentConfig, check_value
+from hub.endpoint import DeviceFault, Endpoint, RunRefused
+from hub.protocol import Description, RunStart, SpikeBatch, StepWindow, Stimulation
+
+log = logging.getLogger(__name__)
+
+LOCKSTEP_REFUSAL = (
+    "a culture on an MEA is a real device: it lives in real time and cannot wait for a "
+    'lockstep loop; set loop.mode = "realtime"'
+)
+PARAMS = {"driver", "host", "command_port", "spike_port", "layout_file", "reply_margin_ms",
+          "safety"}  # fmt: skip
+CLOCK_SAMPLE_S = 0.5  # the instrument's clock is sampled this often during a run
+
+
+class MeaEndpoint(Endpoint):
+    """An MEA stimulator/recorder, served as the culture.
+
+    Parameters
+    ----------
+    driver : RhxDriver
+        Not yet opened (opened by :meth:`warm_up`).
+    limits : PulseLimits
+    id : str
+    reply_margin_ms : float
+        How long after a window's end its spikes are answered.
+    """
+
+    role, kind = "culture", "mea"
+
+    def __init__(self, driver: RhxDriver, limits: PulseLimits, id: str = "0", *,
+                 reply_margin_ms: float = 2.0):  # fmt: skip
+        super().__init__(id)
+        self.driver, self.limits = driver, limits
+        self.gate = SafetyGate(limits)
+        self.reply_margin_s = reply_margin_ms / 1e3
+        self.late_spikes = 0
+        self._opened = False
+        self._origin = math.inf  # run time 0 on time.monotonic()'s clock
+        self._answered_until_s = -math.inf  # run time up to which windows were answered
+        self._carry: list[tuple[np.ndarray, np.ndarray]] = []  # spikes of windows to come
+        self._late: list[tuple[np.ndarray, np.ndarray]] = []
+        self._due: list = []  # heap of (local time, seq, kind, payload)
+        self._seq = 0
+        self._wake = threading.Condition()
+        self._worker: threading.Thread | None = None
+        self._closing = False
+
+    @classmethod
+    def check_config(cls, section: EndpointSection, cfg: ExperimentConfig) -> dict:
+        """Check ``[culture.params]`` and the mode, opening nothing."""
+        if cfg.loop.mode != "realtime":
+            raise ConfigError(f"loop.mode: {LOCKSTEP_REFUSAL}")
+        params = dict(section.params)
+        unknown = sorted(set(params) - PARAMS)
+        if unknown:
+            raise ConfigError(f"culture.params: unknown key(s) {unknown} for kind mea")
+        driver = params.get("driver", "rhx")
+        if driver != "rhx":
+            raise ConfigError(
+                f"culture.params.driver must be 'rhx', got {driver!r} (the LSL driver is not "
+                "built yet)"
+            )
+        out = {
+            "driver": driver,
+            "host": check_value("culture.params.host", str, params.get("host", "127.0.0.1")),
+            "command_port": check_value("culture.params.command_port", int,
+                                        params.get("command_port", 5000), ge=1, le=65535),
+            "spike_port": check_value("culture.params.spike_port", int,
+                                      params.get("spike_port", 5002), ge=1, le=65535),
+            "reply_margin_ms": check_value("culture.params.reply_margin_ms", float,
+                                           params.get("reply_margin_ms", 2.0), ge=0),
+            "layout_file": params.get("layout_file"),
+            "safety": params.get("safety", {}),
+        }  # fmt: skip
+        PulseLimits.from_params(out["safety"])
+        if out["layout_file"] is not None:
+            ElectrodeLayout.from_file(out["layout_file"])
+        return out
+
+    @classmethod
+    def from_config(cls, section: EndpointSection, cfg: ExperimentConfig) -> MeaEndpoint:
+        p = cls.check_config(section, cfg)
+        layout = (
+            ElectrodeLayout.from_file(p["layout_file"])
+            if p["layout_file"]
+            else ElectrodeLayout.mcs60()
+        )
+        driver = RhxDriver(layout, p["host"], p["command_port"], p["spike_port"])
+        limits = PulseLimits.from_params(p["safety"])
+        return cls(driver, limits, section.id, reply_margin_ms=p["reply_margin_ms"])
+
+    # ------------------------------------------------------------ the endpoint
+
+    def warm_up(self) -> None:
+        if not self._opened:
+            self.driver.open()
+            self._opened = True
+            self._worker = threading.Thread(target=self._work, name="mea-replies", daemon=True)
+            self._worker.start()
+
+    def describe(self) -> Description:
+        self.warm_up()
+        layout = self.driver.layout
+        return Description(
+            role="culture",
+            id=self.id,
+            kind=self.kind,
+            channel=layout.channel,
+            x_um=layout.x_um,
+            y_um=layout.y_um,
+            max_amplitude_ua=self.limits.max_amplitude_ua,
+            max_width_ms=2 * self.limits.max_phase_us / 1e3,
+            max_pulse_hz=self.limits.max_pulse_hz,
+            realtime_only=True,
+        )
+
+    def description(self) -> Description:
+        desc = super().description()
+        desc.counters["device"] = {
+            **dict(self.driver.counts),
+            **(self.driver.clock.report() if self.driver.clock.pairs else {}),
+            "pulses_admitted": self.gate.admitted,
+            "pulses_refused": dict(self.gate.refused),
+            "late_spikes": self.late_spikes,
+        }
+        return desc
+
+    def start_run(self, run: RunStart) -> None:
+        if run.mode != "realtime":
+            raise RunRefused(LOCKSTEP_REFUSAL)
+        if self.driver.fault is not None:
+            raise RunRefused(f"the instrument failed: {self.driver.fault}")
+        try:
+            self.driver.start()
+        except DeviceFault as exc:
+            raise RunRefused(f"the instrument did not start: {exc}") from None
+        self.driver.take_spikes()  # what came before the run is not the run's
+        with self._wake:
+            self._origin = math.inf
+            self._answered_until_s = -math.inf
+            self._carry, self._late, self._due = [], [], []
+            self.gate = SafetyGate(self.limits)
+            self._schedule(time.monotonic() + CLOCK_SAMPLE_S, "clock", None)
+
+    def step(self, stim: Stimulation, window: StepWindow) -> None:
+        now = time.monotonic()
+        self._origin = min(self._origin, now - window.t0_s)
+        by_onset: dict[float, list] = {}
+        for c, a, w, o in zip(stim.channel, stim.amplitude_ua, stim.width_ms, stim.onset_ms,
+                              strict=True):  # fmt: skip
+            pulse = self.gate.admit(int(c), float(a), float(w), window.t0_s + float(o) / 1e3)
+            if not isinstance(pulse, str):
+                by_onset.setdefault(float(o), []).append(pulse)
+        with self._wake:
+            for onset_ms, pulses in by_onset.items():
+                self._schedule(self._origin + window.t0_s + onset_ms / 1e3, "fire", pulses)
+            self._schedule(self._origin + window.t1_s + self.reply_margin_s, "reply", window)
+        return None
+
+    def make_safe(self) -> None:
+        """Nothing more delivered: pending pulses dropped, every electrode disabled."""
+        with self._wake:
+            self._due = [d for d in self._due if d[2] != "fire"]
+            heapq.heapify(self._due)
+        if self._opened:
+            try:
+                self.driver.stop()
+            except DeviceFault as exc:
+                log.error("could not stop the stimulation: %s", exc)
+
+    def end_run(self) -> None:
+        with self._wake:
+            self._due = []
+        self.make_safe()
+
+    def close(self) -> None:
+        with self._wake:
+            self._closing = True
+            self._wake.notify()
+        if self._worker is not None:
+            self._worker.join(timeout=2.0)
+        self.driver.close()
+
+    # ------------------------------------------------------------ timing
+
+    def _schedule(self, at: float, kind: str, payload) -> None:
+        self._seq += 1
+        heapq.heappush(self._due, (at, self._seq, kind, payload))
+        self._wake.notify()
+
+    def _work(self) -> None:
+        """Fire pulses at their onsets, answer windows once they have passed, sample the clock."""
+        while True:
+            with self._wake:
+                while not self._closing:
+                    now = time.monotonic()
+                    if self._due and self._due[0][0] <= now:
+                        _, _, kind, payload = heapq.heappop(self._due)
+                        break
+                    self._wake.wait(self._due[0][0] - now if self._due else 0.1)
+                else:
+                    return
+            try:
+                if kind == "fire":
+                    self.driver.deliver(payload)
+                elif kind == "reply":
+                    self._answer(payload)
+                else:
+                    self.driver.sample_clock()
+                    with self._wake:
+                        if self.run is not None:
+                            self._schedule(time.monotonic() + CLOCK_SAMPLE_S, "clock", None)
+            except DeviceFault as exc:
+                log.error("the instrument failed: %s", exc)
+                self.driver.fault = exc
+                self.request_stop()
+                return
+
+    def _answer(self, window: StepWindow) -> None:
+        """The window's spikes (instrument time → run time), late ones at their true time."""
+        run = self.run
+        if run is None or run.run != window.run:  # the run ended meanwhile: nothing owed
+            return
+        channel, inst_s, _ = self.driver.take_spikes()
+        if channel.size:
+            run_s = self.driver.clock.to_local(inst_s) - self._origin
+            self._carry.append((channel, run_s))
+        channel = (
+            np.concatenate([c for c, _ in self._carry]) if self._carry else np.zeros(0, np.uint32)
+        )
+        run_s = np.concatenate([t for _, t in self._carry]) if self._carry else np.zeros(0)
+        mine = (run_s >= window.t0_s) & (run_s < window.t1_s)
+        early = run_s < window.t0_s  # a window already answered: late data
+        later = ~mine & ~early
+        self._carry = [(channel[later], run_s[later])] if later.any() else []
+        order = np.argsort(run_s[mine], kind="stable")
+        late_c, late_t = channel[early], run_s[early]
+        self.late_spikes += int(late_c.size)
+        batch = SpikeBatch(
+            **window.stamp,
+            channel=channel[mine][order],
+            t_ms=np.clip((run_s[mine][order] - window.t0_s) * 1e3, 0.0, None),
+            late_channel=late_c if late_c.size else None,
+            late_t_ms=np.minimum((late_t - window.t0_s) * 1e3, 0.0) if late_c.size else None,
+        )
+        self.reply(batch)

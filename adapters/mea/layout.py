@@ -1,0 +1,80 @@
+"""Which instrument channel is which electrode, and where each electrode sits (µm).
+
+The default is the Multi Channel Systems 60-electrode layout (``devices.mea``: 8 × 8 without
+the corners, 200 µm pitch) wired in electrode order to Intan channels ``a-000``…``a-031``
+then ``b-000``…``b-027``. A lab's own wiring is a CSV file ``name,x_um,y_um`` (one line per
+electrode, the instrument's channel name first).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from devices import mea
+from hub.config import ConfigError
+
+
+@dataclass(frozen=True)
+class ElectrodeLayout:
+    """Electrodes: channel id on the wire (0..n-1), instrument name, position (µm)."""
+
+    names: tuple[str, ...]
+    x_um: np.ndarray
+    y_um: np.ndarray
+
+    def __post_init__(self):
+        if len(set(self.names)) != len(self.names):
+            raise ValueError("electrode names must be unique")
+        if not (len(self.names) == self.x_um.size == self.y_um.size):
+            raise ValueError("one position per electrode")
+
+    @property
+    def n(self) -> int:
+        return len(self.names)
+
+    @property
+    def channel(self) -> np.ndarray:
+        return np.arange(self.n, dtype=np.uint32)
+
+    def index(self) -> dict[str, int]:
+        """Instrument name → channel id."""
+        return {name: i for i, name in enumerate(self.names)}
+
+    @classmethod
+    def mcs60(cls, pitch_um: float = mea.MCS60_PITCH_UM) -> ElectrodeLayout:
+        """The MCS 60-electrode layout on Intan ports A and B, centred at (0, 0)."""
+        row, col = mea.grid(mea.MCS60_ROWS, mea.MCS60_COLS, drop_corners=True)
+        x = (col - (mea.MCS60_COLS - 1) / 2) * pitch_um
+        y = (row - (mea.MCS60_ROWS - 1) / 2) * pitch_um
+        names = tuple(f"a-{i:03d}" if i < 32 else f"b-{i - 32:03d}" for i in range(row.size))
+        return cls(names, x.astype(np.float32), y.astype(np.float32))
+
+    @classmethod
+    def from_file(cls, path: str | Path, key: str = "culture.params.layout_file"):
+        """A CSV ``name,x_um,y_um`` with that header.
+
+        Raises
+        ------
+        ConfigError
+            Naming ``key``: missing file, bad header, a bad row, duplicate names.
+        """
+        try:
+            lines = Path(path).read_text().splitlines()
+            if not lines or lines[0].replace(" ", "") != "name,x_um,y_um":
+                raise ValueError("first line must be 'name,x_um,y_um'")
+            names, xs, ys = [], [], []
+            for n, line in enumerate(lines[1:], start=2):
+                if not line.strip():
+                    continue
+                parts = [p.strip() for p in line.split(",")]
+                if len(parts) != 3:
+                    raise ValueError(f"line {n}: expected name,x_um,y_um")
+                names.append(parts[0])
+                xs.append(float(parts[1]))
+                ys.append(float(parts[2]))
+            return cls(tuple(names), np.array(xs, np.float32), np.array(ys, np.float32))
+        except (OSError, ValueError) as exc:
+            raise ConfigError(f"{key}: {path}: {exc}") from None

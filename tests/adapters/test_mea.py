@@ -1,0 +1,239 @@
+"""The MEA adapter against its emulator over real TCP on loopback: the RHX protocol, spikes,
+stimulation that evokes a response, the instrument's clock, and safety."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+
+from adapters.mea.emulator import IntanEmulator
+from adapters.mea.endpoint import MeaEndpoint
+from adapters.mea.layout import ElectrodeLayout
+from adapters.mea.rhx import RhxDriver, RhxError, spike_record, spike_records
+from adapters.mea.safety import BiphasicPulse, PulseLimits, SafetyGate
+from hub import conformance
+from hub.config import ConfigError, load_config
+from tests.harness import wait_for
+
+HYBRID = "configs/hybrid_mea.toml"
+
+
+@pytest.fixture
+def emulator():
+    with IntanEmulator(seed=1) as emu:
+        yield emu
+
+
+def driver_for(emu: IntanEmulator) -> RhxDriver:
+    return RhxDriver(emu.layout, command_port=emu.command_port, spike_port=emu.spike_port)
+
+
+# ---------------------------------------------------------------- protocol, layout
+
+
+def test_spike_records_split_across_reads_are_joined_and_bad_bytes_skipped():
+    from collections import Counter
+
+    counts = Counter()
+    data = spike_record("a-010", 1234) + b"\x01\x02junk" + spike_record("b-003", 99)
+    buffer = bytearray(data[:9])  # a record cut in the middle
+    assert spike_records(buffer, counts) == []
+    buffer += data[9:]
+    assert spike_records(buffer, counts) == [("a-010", 1234), ("b-003", 99)]
+    assert counts["bad_magic"] >= 1 and not buffer
+
+
+def test_the_default_layout_is_the_mcs_60_grid_on_two_ports():
+    layout = ElectrodeLayout.mcs60()
+    assert layout.n == 60 and layout.names[0] == "a-000" and layout.names[59] == "b-027"
+    assert np.ptp(layout.x_um) == 7 * 200.0 and np.ptp(layout.y_um) == 7 * 200.0
+
+
+def test_a_labs_layout_file_and_a_bad_one(tmp_path):
+    good = tmp_path / "l.csv"
+    good.write_text("name,x_um,y_um\nc-000,0,0\nc-001,100,0\n")
+    assert ElectrodeLayout.from_file(good).names == ("c-000", "c-001")
+    bad = tmp_path / "bad.csv"
+    bad.write_text("name,x_um,y_um\nc-000,0,0\nc-000,1,1\n")
+    with pytest.raises(ConfigError, match="culture.params.layout_file.*unique"):
+        ElectrodeLayout.from_file(bad)
+
+
+# ---------------------------------------------------------------- the driver
+
+
+def test_every_write_is_confirmed_and_pulse_parameters_read_back(emulator):
+    d = driver_for(emulator)
+    d.open()
+    try:
+        assert d.sample_rate_hz == 30_000
+        d.deliver([BiphasicPulse(5, 40.0, 150.0, True)])
+        name = emulator.layout.names[5]
+        assert d.get(f"{name}.firstphaseamplitudemicroamps") == "40"
+        assert d.get(f"{name}.secondphasedurationmicroseconds") == "150"
+        assert d.get(f"{name}.polarity") == "NegativeFirst"
+        assert d.get(f"{name}.stimenabled") == "true"
+        with pytest.raises(RhxError, match="Error"):
+            d.get("nosuchparameter")
+    finally:
+        d.close()
+
+
+def test_spikes_come_by_channel_and_the_clock_offset_is_within_a_sample(emulator):
+    d = driver_for(emulator)
+    d.open()
+    try:
+        d.start()
+        time.sleep(1.0)  # a second of the culture's activity to look at
+        channel, inst_s, arrived = d.take_spikes()
+        assert channel.size > 100 and channel.max() < 60
+        # the emulator's clock: samples since run mode began at its _run_t0 (monotonic)
+        offset_s, drift = d.clock.fit()
+        assert abs(-emulator._run_t0 - offset_s) < 1 / 30_000 + 2e-4  # a sample + loopback jitter
+        local = d.clock.to_local(inst_s)
+        assert np.all(local <= arrived + 1e-3)  # a spike is seen after it happened
+    finally:
+        d.close()
+
+
+def test_stimulation_evokes_a_response_peaking_10_to_100_ms_later(emulator):
+    d = driver_for(emulator)
+    d.open()
+    try:
+        d.start()
+        time.sleep(0.5)
+        sites = [20, 21, 28, 29]  # four electrodes near the centre
+        fired_at = []
+        for _ in range(15):
+            fired_at.append(time.monotonic())
+            d.deliver([BiphasicPulse(c, 100.0, 400.0, True) for c in sites])
+            time.sleep(0.4)  # the stimulation protocol: one train every 400 ms
+        channel, inst_s, _ = d.take_spikes()
+        t = d.clock.to_local(inst_s)
+        lags_ms = np.concatenate([(t - f) * 1e3 for f in fired_at])
+        lags_ms = lags_ms[(lags_ms >= 0) & (lags_ms < 300)]
+        counts, edges = np.histogram(lags_ms, bins=np.arange(0, 305, 5))
+        peak_ms = edges[np.argmax(counts)]
+        assert 10 <= peak_ms <= 100, (peak_ms, counts[:25])
+    finally:
+        d.close()
+
+
+# ---------------------------------------------------------------- safety
+
+
+@pytest.mark.parametrize(
+    "amplitude_ua, width_ms, reason",
+    [
+        (150.0, 0.4, "amplitude"),  # over 100 µA
+        (100.0, 1.0, "phase"),  # a 500 µs phase
+        (0.0, 0.01, "phase"),  # a 5 µs phase: too short to be charge balanced
+    ],
+)
+def test_an_unsafe_pulse_is_refused_and_counted_never_clipped(amplitude_ua, width_ms, reason):
+    gate = SafetyGate(PulseLimits())
+    assert gate.admit(3, amplitude_ua, width_ms, 0.0).startswith(reason)
+    assert gate.refused == {reason: 1} and gate.admitted == 0
+
+
+def test_charge_is_checked_against_the_electrodes_size():
+    limits = PulseLimits(electrode_diameter_um=10.0, max_phase_us=1000.0)
+    assert limits.max_charge_nc == pytest.approx(18.06, abs=0.01)  # devices.md: ~18 nC
+    assert SafetyGate(limits).admit(0, 100.0, 0.4, 0.0).startswith("charge")
+
+
+def test_too_frequent_pulses_are_refused_per_electrode_and_in_total():
+    gate = SafetyGate(PulseLimits(max_pulse_hz=2, max_total_hz=3))
+    assert not isinstance(gate.admit(0, 50, 0.4, 0.0), str)
+    assert not isinstance(gate.admit(0, 50, 0.4, 0.1), str)
+    assert gate.admit(0, 50, 0.4, 0.2).startswith("rate")  # a third within a second
+    assert not isinstance(gate.admit(1, 50, 0.4, 0.3), str)
+    assert gate.admit(2, 50, 0.4, 0.4).startswith("total_rate")
+    assert not isinstance(gate.admit(0, 50, 0.4, 1.05), str)  # a second later: allowed
+
+
+@pytest.mark.parametrize(
+    "override, named",
+    [
+        ('culture.params.safety.shape="monophasic"', "safety.shape must be 'biphasic'"),
+        ('culture.params.safety.mode="voltage"', "safety.mode must be 'current'"),
+        ('culture.params.safety.polarity="sideways"', "safety.polarity"),
+        ("culture.params.safety.max_amplitude_ua=-1", "max_amplitude_ua"),
+        ('culture.params.driver="lsl"', "the LSL driver is not built yet"),
+        ('loop.mode="lockstep"', "loop.mode: a culture on an MEA is a real device"),
+    ],
+)
+def test_unsafe_or_unsupported_settings_are_named_before_anything_opens(override, named):
+    cfg = load_config(HYBRID, [override])
+    with pytest.raises(ConfigError, match=named):
+        MeaEndpoint.check_config(cfg.culture, cfg)
+
+
+# ---------------------------------------------------------------- the endpoint
+
+
+@pytest.fixture
+def emulators():
+    started: list[IntanEmulator] = []
+
+    def new() -> IntanEmulator:
+        started.append(IntanEmulator(seed=1).start())
+        return started[-1]
+
+    yield new
+    for emu in started:
+        emu.stop()
+
+
+def endpoint_for(emu: IntanEmulator, **limits) -> MeaEndpoint:
+    return MeaEndpoint(driver_for(emu), PulseLimits(**limits), reply_margin_ms=1.0)
+
+
+@pytest.mark.parametrize("check", conformance.CHECKS, ids=lambda c: c.__name__)
+def test_the_mea_endpoint_keeps_the_contract(check, emulators):
+    check(lambda: endpoint_for(emulators(), max_pulse_hz=1000, max_total_hz=10_000))
+
+
+def test_refused_pulses_never_reach_the_instrument(emulators):
+    from hub.protocol import Stimulation
+
+    emu = emulators()
+    # 10 µm electrodes: 18 nC per phase at most
+    with conformance.served(lambda: endpoint_for(emu, electrode_diameter_um=10.0)) as hub:
+        assert hub.start(mode="realtime").ok
+        # over the described amplitude limit: the whole message dropped by the endpoint
+        over = Stimulation(**hub.window(0).stamp, channel=[1], amplitude_ua=[500.0],
+                           width_ms=[0.4], onset_ms=[0.0])  # fmt: skip
+        hub.send(over)
+        # within the described limits, over the electrode's safe charge: that pulse refused
+        w = hub.window(1)
+        charge = Stimulation(**w.stamp, channel=[2], amplitude_ua=[100.0], width_ms=[0.4],
+                             onset_ms=[0.0])  # fmt: skip
+        hub.send(charge)
+        assert hub.reply().step == 1
+        counters = hub.counters()
+        assert counters["dropped"] == {"limit": 1}
+        assert counters["device"]["pulses_refused"] == {"charge": 1}
+        assert counters["device"]["pulses_admitted"] == 0
+        assert emu.triggers == []  # nothing fired
+
+
+def test_when_the_hub_vanishes_no_trigger_follows(emulators):
+    emu = emulators()
+    with conformance.served(lambda: endpoint_for(emu)) as hub:
+        assert hub.start(mode="realtime").ok
+        from hub.protocol import Stimulation
+
+        w = hub.window(0)
+        later = Stimulation(**w.stamp, channel=[3], amplitude_ua=[50.0], width_ms=[0.4],
+                            onset_ms=[9.0])  # fmt: skip
+        hub.send(later)
+        hub.vanish()
+        wait_for(lambda: hub.hooks.calls["end_run"] >= 1, 10.0)
+        ended = time.monotonic()
+        n = len(emu.triggers)
+        time.sleep(0.3)  # any pending pulse would fire in this time
+        assert all(t <= ended for t, _ in emu.triggers[n:]) and len(emu.triggers) == n
+        assert emu.values["runmode"] == "stop"
