@@ -29,6 +29,7 @@ import logging
 import math
 import threading
 import time
+from collections import deque
 
 import numpy as np
 
@@ -72,6 +73,8 @@ class MeaEndpoint(Endpoint):
         self.gate = SafetyGate(limits)
         self.reply_margin_s = reply_margin_ms / 1e3
         self.late_spikes = 0
+        self.trigger_lag_ms: deque[float] = deque(maxlen=100_000)  # due → trigger sent
+        self.spike_wait_ms: deque[float] = deque(maxlen=100_000)  # spike read → batch sent
         self._opened = False
         self._origin = math.inf  # run time 0 on time.monotonic()'s clock
         self._answered_until_s = -math.inf  # run time up to which windows were answered
@@ -161,6 +164,12 @@ class MeaEndpoint(Endpoint):
             "pulses_refused": dict(self.gate.refused),
             "late_spikes": self.late_spikes,
         }
+        for name, data in (("stim_to_trigger_ms", self.trigger_lag_ms),
+                           ("spike_to_batch_ms", self.spike_wait_ms)):  # fmt: skip
+            if data:
+                values = np.array(data)
+                desc.counters["device"][f"{name}_p50"] = float(np.percentile(values, 50))
+                desc.counters["device"][f"{name}_p99"] = float(np.percentile(values, 99))
         return desc
 
     def start_run(self, run: RunStart) -> None:
@@ -191,7 +200,8 @@ class MeaEndpoint(Endpoint):
                 by_onset.setdefault(float(o), []).append(pulse)
         with self._wake:
             for onset_ms, pulses in by_onset.items():
-                self._schedule(self._origin + window.t0_s + onset_ms / 1e3, "fire", pulses)
+                due = self._origin + window.t0_s + onset_ms / 1e3
+                self._schedule(due, "fire", (pulses, max(now, due)))
             self._schedule(self._origin + window.t1_s + self.reply_margin_s, "reply", window)
         return None
 
@@ -240,7 +250,9 @@ class MeaEndpoint(Endpoint):
                     return
             try:
                 if kind == "fire":
-                    self.driver.deliver(payload)
+                    pulses, due = payload
+                    self.driver.deliver(pulses)
+                    self.trigger_lag_ms.append((time.monotonic() - due) * 1e3)
                 elif kind == "reply":
                     self._answer(payload)
                 else:
@@ -259,18 +271,20 @@ class MeaEndpoint(Endpoint):
         run = self.run
         if run is None or run.run != window.run:  # the run ended meanwhile: nothing owed
             return
-        channel, inst_s, _ = self.driver.take_spikes()
+        channel, inst_s, arrived = self.driver.take_spikes()
         if channel.size:
             run_s = self.driver.clock.to_local(inst_s) - self._origin
-            self._carry.append((channel, run_s))
-        channel = (
-            np.concatenate([c for c, _ in self._carry]) if self._carry else np.zeros(0, np.uint32)
-        )
-        run_s = np.concatenate([t for _, t in self._carry]) if self._carry else np.zeros(0)
+            self._carry.append((channel, run_s, arrived))
+        if self._carry:
+            channel, run_s, arrived = (np.concatenate(p) for p in zip(*self._carry, strict=True))
+        else:
+            channel, run_s, arrived = np.zeros(0, np.uint32), np.zeros(0), np.zeros(0)
         mine = (run_s >= window.t0_s) & (run_s < window.t1_s)
         early = run_s < window.t0_s  # a window already answered: late data
         later = ~mine & ~early
-        self._carry = [(channel[later], run_s[later])] if later.any() else []
+        self._carry = [(channel[later], run_s[later], arrived[later])] if later.any() else []
+        if mine.any():  # how long the window's spikes waited in the endpoint
+            self.spike_wait_ms.extend(((time.monotonic() - arrived[mine]) * 1e3).tolist())
         order = np.argsort(run_s[mine], kind="stable")
         late_c, late_t = channel[early], run_s[early]
         self.late_spikes += int(late_c.size)

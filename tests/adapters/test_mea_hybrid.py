@@ -1,0 +1,97 @@
+"""Hybrid realtime runs with the emulated Intan (its own process, real TCP) and the simulated
+arena; and the instrument dying mid-run."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+from hub.bus import free_tcp_port
+from hub.protocol import SpikeBatch
+from hub.record import read_run
+from tests.harness import wait_for
+
+pytestmark = pytest.mark.bus
+HYBRID = "configs/hybrid_mea.toml"
+
+
+def emulator() -> tuple[subprocess.Popen, list[str]]:
+    """``neuvision emulate intan`` on free ports; the overrides that point a run at it."""
+    cmd_port, spk_port = free_tcp_port(), free_tcp_port()
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "hub.cli", "emulate", "intan", "--command-port", str(cmd_port),
+         "--spike-port", str(spk_port)],
+        stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    assert "Intan RHX emulator" in proc.stderr.readline()
+    return proc, [f"culture.params.command_port={cmd_port}",
+                  f"culture.params.spike_port={spk_port}"]  # fmt: skip
+
+
+def run(tmp_path, bus_overrides, points_at, duration_s, *more, timeout=180):
+    args = [sys.executable, "-m", "hub.cli", "run", HYBRID, "--quiet", "--duration-s",
+            str(duration_s), "--runs-dir", str(tmp_path)]  # fmt: skip
+    for item in [*bus_overrides, *points_at, *more]:
+        args += ["--set", item]
+    return subprocess.Popen(args, stderr=subprocess.PIPE, text=True)
+
+
+def test_a_short_hybrid_run_with_the_emulated_instrument(tmp_path, bus_overrides):
+    emu, points_at = emulator()
+    try:
+        proc = run(tmp_path, bus_overrides, points_at, 3.0, "loop.period_ms=20",
+                   "loop.deadline_ms=25")  # fmt: skip
+        _, stderr = proc.communicate(timeout=180)
+        assert proc.returncode == 0, stderr[-2000:]
+    finally:
+        emu.terminate()
+        emu.wait(timeout=10)
+    (run_dir,) = tmp_path.iterdir()
+    rec = read_run(run_dir)
+    batches = rec.decoded(SpikeBatch, "rx")
+    assert len(batches) >= 140 and sum(b.channel.size for b in batches) > 100
+    device = rec.manifest["endpoints"]["culture"]["device"]
+    assert device["pulses_admitted"] > 0 and device["pulses_refused"] == {}
+    assert abs(device["clock_drift_ppm"]) < 1000
+    summary = json.loads((run_dir / "summary.json").read_text())
+    assert "trajectory.png" in summary["figures"]
+
+
+def test_the_instrument_dying_mid_run_ends_the_run_by_the_fault_policy(tmp_path, bus_overrides):
+    emu, points_at = emulator()
+    proc = run(tmp_path, bus_overrides, points_at, 60.0, "loop.period_ms=20",
+               "loop.deadline_ms=25")  # fmt: skip
+    try:
+        wait_for(lambda: any(tmp_path.glob("*/culture.log")), 60)
+        log = next(tmp_path.glob("*/culture.log"))
+        wait_for(lambda: "took run" in log.read_text(), 60)
+        emu.kill()
+        _, stderr = proc.communicate(timeout=60)
+        assert proc.returncode == 2 and "run failed" in stderr
+        assert "instrument" in log.read_text() or "RHX" in log.read_text()
+        rec = read_run(log.parent)
+        assert rec.manifest["outcome"] == "fault" and rec.manifest["steps"] > 0
+    finally:
+        for p in (proc, emu):
+            if p.poll() is None:
+                p.kill()
+            p.wait(timeout=10)
+
+
+@pytest.mark.slow
+def test_a_20_s_hybrid_run_at_20_ms_has_no_late_step(tmp_path, bus_overrides):
+    emu, points_at = emulator()
+    try:
+        proc = run(tmp_path, bus_overrides, points_at, 20.0, "loop.period_ms=20",
+                   "loop.deadline_ms=25")  # fmt: skip
+        _, stderr = proc.communicate(timeout=240)
+        assert proc.returncode == 0, stderr[-2000:]
+    finally:
+        emu.terminate()
+        emu.wait(timeout=10)
+    (run_dir,) = tmp_path.iterdir()
+    m = read_run(run_dir).manifest
+    assert m["steps"] == 1000 and m["timing"]["late_steps"] == 0, m["timing"]
