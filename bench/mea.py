@@ -42,7 +42,7 @@ def hybrid(seconds: float, period_ms: float) -> dict:
             cmd += ["--duration-s", str(seconds), "--runs-dir", tmp, "--session", "bench-mea"]
             for item in (f"culture.params.command_port={ports[0]}",
                          f"culture.params.spike_port={ports[1]}", f"loop.period_ms={period_ms}",
-                         f"loop.deadline_ms={period_ms + 5}"):  # fmt: skip
+                         f"loop.deadline_ms={period_ms * 1.8}"):  # fmt: skip
                 cmd += ["--set", item]
             with StealMeter() as steal:
                 done = child_run(cmd, cwd=ROOT)

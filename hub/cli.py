@@ -426,12 +426,18 @@ def cmd_emulate(args) -> int:
     if args.device == "intan":
         from adapters.mea.emulator import DEFAULT_CULTURE, IntanEmulator, run_until_signalled
 
-        emulator = IntanEmulator(
-            args.culture or DEFAULT_CULTURE,
-            seed=args.seed or 1,
-            command_port=args.command_port,
-            spike_port=args.spike_port,
-        )
+        try:
+            emulator = IntanEmulator(
+                args.culture or DEFAULT_CULTURE,
+                seed=args.seed or 1,
+                command_port=args.command_port,
+                spike_port=args.spike_port,
+            )
+        except OSError as exc:  # a port taken: another emulator, or RHX itself
+            raise InputError(
+                f"cannot listen on 127.0.0.1:{args.command_port}/{args.spike_port}: "
+                f"{exc.strerror or exc}"
+            ) from None
         run_until_signalled(emulator)
         return EXIT_OK
     if args.baud is not None and args.baud not in BAUDS:

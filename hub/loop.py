@@ -179,7 +179,9 @@ class Hub(LockstepSteps, RealtimeSteps):
         self.times = LoopTimes.for_run(cfg.loop.mode, cfg.loop.period_ms, n)
         self.recorder: Recorder | None = None
         self.live: LiveBursts | None = None
-        self.reply_deadline = math.inf  # realtime: replies arriving later are late
+        # realtime: the step each role's reply is awaited for, and its deadline
+        self.collect_steps: dict[str, int] = {}
+        self.reply_deadlines: dict[str, float] = {}
         self._final_step = -1  # the step of the body's final stop, once sent
         self.scheduling: Scheduling | None = None  # realtime: what the hub's threads got
         self.placement = Placement()  # the CPUs the hub's threads are kept on (loop.cpus)
@@ -425,7 +427,11 @@ class Hub(LockstepSteps, RealtimeSteps):
             return "final"
         if self.state == "waiting":
             return self._drop(role, "early", f"reply for step {step} before the run started")
-        if step == self.k and t_arrival > self.reply_deadline and step not in self.missed[role]:
+        if (
+            step == self.collect_steps.get(role)
+            and t_arrival > self.reply_deadlines[role]
+            and step not in self.missed[role]
+        ):
             self._miss(role, step)  # in after its deadline, however soon the loop looked
         if expected <= step <= self.last_sent.get(role, -1) and step not in self.missed[role]:
             if step in self.pending[role]:

@@ -13,7 +13,6 @@ there.
 
 from __future__ import annotations
 
-import math
 import time
 
 from hub.live import BackgroundLiveBursts
@@ -46,18 +45,23 @@ class RealtimeSteps:
         # Each step's inputs are coded and encoded in the slack of the step before, so
         # that they leave the moment the step starts.
         inputs = self._encoded(self.inputs.motor_for(0, None), self.inputs.stim_for(0, None))
+        # A deadline beyond the period (a device culture answers a window once it has
+        # passed): the culture's reply trails by a step; the next step starts on time and its
+        # motor command is decoded from the spikes of the step before (docs/contract.md).
+        lag = int(self.cfg.loop.deadline_s > period_s)
         for k in range(n):
             if not self._await_start(k, period_s):
                 return
             self.k = k
-            self.expect = {"body": k, "culture": k}
+            steps = {"body": k, "culture": k - lag}
+            self.expect = {role: max(step, 0) for role, step in steps.items()}
             t0 = time.monotonic()
             for role in ROLES:
                 self._send(role, *inputs[role])
-            late = self._collect(k, self._deadline(k, period_s))
+            late = self._collect(steps, self._deadlines(steps, period_s))
             if k == 0:  # every thread that carries replies has started by now
                 self.scheduling.include_new_threads()
-            prev = {role: self.pending[role].pop(k, None) for role in ROLES}
+            prev = {role: self.pending[role].pop(step, None) for role, step in steps.items()}
             self.times.step_wall_s[k] = time.monotonic() - t0
             if k + 1 < n:
                 inputs = self._encoded(
@@ -74,15 +78,27 @@ class RealtimeSteps:
                     background.add(prev["culture"], self._scheduled(k + 1, period_s) - guard_s)
                 self._record_network_bursts(background.completed())
             self._tick()
+        if lag:  # the last step's culture reply: in the record, and not missing
+            self.expect["culture"] = n - 1
+            steps = {"culture": n - 1}
+            self._collect(steps, self._deadlines(steps, period_s))
+            last = self.pending["culture"].pop(n - 1, None)
+            if background is not None and last is not None:
+                background.add(last, time.monotonic() + guard_s)
 
     @staticmethod
     def _encoded(motor: MotorCommand, stim: Stimulation) -> dict[str, tuple[Message, bytes]]:
         return {"body": (motor, motor.encode()), "culture": (stim, stim.encode())}
 
-    def _deadline(self, k: int, period_s: float) -> float:
-        if self.cfg.loop.mode == "lockstep":
-            return time.monotonic() + self.cfg.loop.reply_timeout_s
-        return self._scheduled(k, period_s) + self.cfg.loop.deadline_s
+    def _deadlines(self, steps: dict[str, int], period_s: float) -> dict[str, float]:
+        """Each role's reply deadline for the step it owes: ``loop.deadline_ms`` after that
+        step's start; a body always within its own period."""
+        deadline_s = self.cfg.loop.deadline_s
+        return {
+            role: self._scheduled(k, period_s)
+            + (min(deadline_s, period_s) if role == "body" else deadline_s)
+            for role, k in steps.items()
+        }
 
     def _scheduled(self, k: int, period_s: float) -> float:
         return self.times.t_start + self._paused_s + k * period_s
@@ -105,18 +121,26 @@ class RealtimeSteps:
                 return True
             self._next_event(target)
 
-    def _collect(self, k: int, deadline: float) -> bool:
-        """Take in events until both replies of step k are in or the deadline passes.
+    def _collect(self, steps: dict[str, int], deadlines: dict[str, float]) -> bool:
+        """Take in events until each role's reply for its step is in or its deadline passes
+        (a negative step: nothing owed yet).
 
         Returns True if a reply missed its deadline (the policy stands in for it).
         """
-        self.reply_deadline = deadline
-        while time.monotonic() < deadline and not all(k in self.pending[r] for r in ROLES):
-            self._next_event(deadline)
+        owed = {role: k for role, k in steps.items() if k >= 0}
+        self.collect_steps, self.reply_deadlines = owed, deadlines
+        while True:
+            now = time.monotonic()
+            waiting = [
+                r for r, k in owed.items() if k not in self.pending[r] and now < deadlines[r]
+            ]
+            if not waiting:
+                break
+            self._next_event(min(deadlines[r] for r in waiting))
         # Replies judged by when they arrived, not by when this thread got to them.
         self._drain()
-        self.reply_deadline = math.inf
-        for role in ROLES:
+        self.collect_steps, self.reply_deadlines = {}, {}
+        for role, k in owed.items():
             if k not in self.pending[role] and k not in self.missed[role]:
                 self._miss(role, k)
-        return any(k not in self.pending[r] for r in ROLES)
+        return any(k not in self.pending[r] for r, k in owed.items())

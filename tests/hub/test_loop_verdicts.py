@@ -18,6 +18,11 @@ def _hub_at_step(k: int) -> Hub:
     return hub
 
 
+def _both(k: int, deadline: float) -> tuple[dict, dict]:
+    """Both roles owe step k by ``deadline``."""
+    return {"body": k, "culture": k}, {"body": deadline, "culture": deadline}
+
+
 def _replies(hub: Hub, k: int, arrived: dict[str, float]) -> list[tuple]:
     w = StepWindow.of(hub.run_id, k, 0.01)
     raw = {
@@ -34,7 +39,7 @@ def test_replies_in_before_the_deadline_are_on_time_even_if_the_loop_was_held_up
     deadline = time.monotonic() - 0.002  # the loop's thread comes back 2 ms past the deadline
     for item in _replies(hub, 5, {"body": deadline - 0.004, "culture": deadline - 0.001}):
         hub.inbox.put(item)
-    assert hub._collect(5, deadline) is False
+    assert hub._collect(*_both(5, deadline)) is False
     assert all(5 in hub.pending[r] for r in ("body", "culture"))
     assert not hub.late and not any(hub.missed.values())
 
@@ -44,7 +49,7 @@ def test_a_reply_in_after_the_deadline_is_late_however_soon_the_loop_sees_it():
     deadline = time.monotonic() - 0.002
     for item in _replies(hub, 5, {"body": deadline - 0.004, "culture": deadline + 0.001}):
         hub.inbox.put(item)
-    assert hub._collect(5, deadline) is True
+    assert hub._collect(*_both(5, deadline)) is True
     assert 5 in hub.pending["body"] and 5 not in hub.pending["culture"]
     assert hub.late["culture"] == 1 and not hub.late["body"]
 
@@ -52,5 +57,5 @@ def test_a_reply_in_after_the_deadline_is_late_however_soon_the_loop_sees_it():
 def test_a_reply_that_never_comes_is_missing():
     hub = _hub_at_step(2)
     hub.inbox.put(_replies(hub, 2, {"body": time.monotonic()})[0])
-    assert hub._collect(2, time.monotonic() + 0.005) is True
+    assert hub._collect(*_both(2, time.monotonic() + 0.005)) is True
     assert hub.missed["culture"] == {2} and 2 in hub.pending["body"]
