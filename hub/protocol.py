@@ -794,8 +794,9 @@ class Description(Message):
     per channel; :mod:`hub.limits`). A body lists its range finders and drive geometry
     (``max_wheel_mps`` is its speed limit). A real device says it runs in real time only
     (``realtime_only``: a lockstep run is refused) and how long its own I/O cycle takes
-    (``cycle_ms``: the hub warns when the period is shorter). ``counters`` reports what
-    the endpoint has dropped, by kind.
+    (``cycle_ms``: the hub warns when the period is shorter); a device culture that answers
+    each window once it has passed says so (``answers_after_window``: in realtime its reply
+    trails by a step). ``counters`` reports what the endpoint has dropped, by kind.
     """
 
     role: str
@@ -815,6 +816,7 @@ class Description(Message):
     max_pulse_hz: float | None = None
     realtime_only: bool | None = None
     cycle_ms: float | None = None
+    answers_after_window: bool | None = None
     counters: dict | None = None
 
     SCHEMA = {
@@ -835,6 +837,7 @@ class Description(Message):
         "max_pulse_hz": Scalar(float, min=0.0, optional=True),
         "realtime_only": Scalar(bool, optional=True),
         "cycle_ms": Scalar(float, min=0.0, optional=True),
+        "answers_after_window": Scalar(bool, optional=True),
         "counters": Mapping(optional=True),
     }
 

@@ -45,10 +45,10 @@ class RealtimeSteps:
         # Each step's inputs are coded and encoded in the slack of the step before, so
         # that they leave the moment the step starts.
         inputs = self._encoded(self.inputs.motor_for(0, None), self.inputs.stim_for(0, None))
-        # A deadline beyond the period (a device culture answers a window once it has
-        # passed): the culture's reply trails by a step; the next step starts on time and its
-        # motor command is decoded from the spikes of the step before (docs/contract.md).
-        lag = int(self.cfg.loop.deadline_s > period_s)
+        # A device culture that answers a window once it has passed: its reply trails by a
+        # step; the next step starts on time and its motor command is decoded from the
+        # spikes of the step before (docs/contract.md).
+        lag = int(bool(self.descriptions["culture"].answers_after_window))
         for k in range(n):
             if not self._await_start(k, period_s):
                 return

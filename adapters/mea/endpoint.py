@@ -153,6 +153,7 @@ class MeaEndpoint(Endpoint):
             max_width_ms=2 * self.limits.max_phase_us / 1e3,
             max_pulse_hz=self.limits.max_pulse_hz,
             realtime_only=True,
+            answers_after_window=True,
         )
 
     def description(self) -> Description:
