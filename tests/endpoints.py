@@ -213,3 +213,12 @@ class LargeCulture(Endpoint):
             channel=np.arange(n, dtype=np.uint32) % self.n_channels,
             t_ms=np.linspace(0.0, span_ms, n, endpoint=False, dtype=np.float32),
         )
+
+
+class TrailingCulture(EchoCulture):
+    """An echo culture that describes itself as answering each window after it has passed."""
+
+    kind = "test_trailing_culture"
+
+    def describe(self):
+        return dataclasses.replace(super().describe(), answers_after_window=True)

@@ -27,3 +27,31 @@ def test_the_hub_warns_when_the_period_is_shorter_than_the_devices_cycle(tmp_pat
     warnings = [e.payload for e in h.record.events if e.key == "warning"]
     assert len(warnings) == 1
     assert "80.0 ms, longer than the period of 50 ms" in warnings[0]["reason"]
+
+
+TRAILING = 'culture.kind="tests.endpoints:TrailingCulture"'
+
+
+def test_a_culture_answering_after_its_window_needs_a_deadline_between_one_and_two_periods(
+    tmp_path, bus_overrides
+):
+    with harness(tmp_path, bus_overrides, TRAILING, 'loop.mode="realtime"') as h:
+        result = h.run()
+    assert result.outcome == "fault"
+    assert "answers each window after it has passed" in result.reason
+    assert "loop.deadline_ms must lie between one and two periods" in result.reason
+
+
+def test_its_reply_trails_by_a_step_and_the_loop_keeps_time(tmp_path, bus_overrides):
+    from hub.protocol import MotorCommand
+
+    with harness(
+        tmp_path, bus_overrides, TRAILING, 'loop.mode="realtime"', "loop.period_ms=10",
+        "loop.deadline_ms=18", "experiment.duration_s=0.5",
+    ) as h:  # fmt: skip
+        result = h.run()
+    assert result.outcome == "completed" and result.steps == 50
+    assert result.counts["missing"] == {} and result.timing["late_steps"] == 0
+    motors = h.sent(MotorCommand)
+    # the motor command of step k is decoded from the spikes of step k-2: two steps of latency
+    assert [motors[k].left_mps for k in range(2, 50)] == [float(k - 2) for k in range(2, 50)]
