@@ -5,7 +5,7 @@ lockstep steps per second, and for realtime mode at 1 ms and 10 ms
 periods the lateness of step starts (median, p99) and the share of late steps.
 
 Lockstep runs twice: with the hub on a CPU of its own and the endpoints on the others
-(``loop.cpus``, ``body.cpus``, ``culture.cpus``; README, "CPU placement") — the
+(``loop.cpus``, ``body.cpus``, ``culture.cpus``; docs/architecture.md, "CPU placement") — the
 ``lockstep_steps_per_s`` figure — and with every process wherever the OS puts it, the
 default (``lockstep_os_placement_steps_per_s``). Realtime runs use the default.
 Recording is on, as in a real run. The endpoints are the trivial test fixtures
@@ -139,7 +139,7 @@ def large_step(steps: int) -> dict:
 
 def placement() -> tuple[list[str], str]:
     """Config overrides that give the hub a CPU of its own and the endpoints the others
-    (README, "CPU placement"), and their description; none on a single CPU."""
+    (docs/architecture.md, "CPU placement"), and their description; none on a single CPU."""
     cpus = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else []
     if len(cpus) < 2:
         return [], "wherever the OS puts them"

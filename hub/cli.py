@@ -85,7 +85,7 @@ def build_parser() -> argparse.ArgumentParser:
         "one on an MEA) and a robot (simulated, or a real Khepera), looped by a hub over Zenoh. "
         "Every run is recorded in a folder of its own.",
         epilog="Start with: neuvision run configs/closed_loop.toml  (the paper's closed loop, "
-        "60 s). 'neuvision COMMAND --help' for each command; the README for the rest. "
+        "60 s). 'neuvision COMMAND --help' for each command; the README and docs/ for the rest. "
         "Exit status: 0 done, 2 fault, 3 bad input, 130 interrupted.",
     )
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")

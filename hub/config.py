@@ -108,7 +108,7 @@ class LoopSection:
     # goes on, and the manifest says so.
     realtime_priority: int = field(default=10, metadata=bounds(ge=0, le=99))
     # The CPUs the hub's process runs on (empty: wherever the OS puts it). A CPU of its
-    # own keeps the hub's threads from waiting behind the endpoints' (README, "CPU
+    # own keeps the hub's threads from waiting behind the endpoints' (docs/architecture.md, "CPU
     # placement"). Not for runs side by side: each would take the same CPUs.
     cpus: tuple[int, ...] = field(default=(), metadata=CPUS)
 

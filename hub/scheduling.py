@@ -158,7 +158,7 @@ def place_threads(key: str, cpus: Sequence[int]) -> Placement:
 
     Why: the hub's threads hand each message to one another; kept on one CPU of their
     own, they neither wait behind the endpoints' threads nor wake a thread on another
-    CPU (costly in a virtual machine). See README, "CPU placement"."""
+    CPU (costly in a virtual machine). See docs/architecture.md, "CPU placement"."""
     if not cpus:
         return Placement()
     if not hasattr(os, "sched_setaffinity"):

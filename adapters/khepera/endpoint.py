@@ -5,7 +5,7 @@ clamped to its limits, the clamp counted) and answers at once with the freshest 
 the serial thread (:mod:`adapters.khepera.driver`): IR distances through the calibration
 table, the odometry pose, ``t_s`` the run time the reading was taken and ``age_s`` its age.
 
-Parameters (``[body.params]``; docs in README "A real Khepera"):
+Parameters (``[body.params]``; docs in docs/khepera.md):
 
 ``port`` (required), ``baud`` (9600, 19200, 38400, 57600, 115200; default 9600), ``stop_bits``
 (1 or 2; default 2), ``timeout_s`` (one reply; default 0.25), ``silent_s`` (no valid reply
