@@ -23,6 +23,7 @@ os.environ.setdefault("ZENOH_RUNTIME", ZENOH_RUNTIME)
 
 import zenoh  # noqa: E402
 
+from hub import security  # noqa: E402
 from hub.config import BusSection  # noqa: E402
 
 # Loop messages must not be dropped under load, and should leave at once.
@@ -35,7 +36,11 @@ LOOP_PUBLISH = dict(
 TELEMETRY_PUBLISH = dict(congestion_control=zenoh.CongestionControl.DROP)
 
 
-def zenoh_config(bus: BusSection, *, listener: bool) -> zenoh.Config:
+class BusError(RuntimeError):
+    """The bus could not be joined; the message says where and why."""
+
+
+def zenoh_config(bus: BusSection, *, listener: bool, role: str | None = None) -> zenoh.Config:
     """Build the Zenoh configuration of one participant.
 
     Parameters
@@ -46,6 +51,14 @@ def zenoh_config(bus: BusSection, *, listener: bool) -> zenoh.Config:
         True for the hub, which listens on ``bus.listen``; False for an
         endpoint, which listens nowhere and connects to ``bus.connect`` (or,
         when empty, to where the hub listens).
+    role : str, optional
+        Who takes part (:data:`hub.security.PARTICIPANTS`): with ``bus.security =
+        "mtls"`` it picks the certificate; the hub's is ``"hub"``.
+
+    Raises
+    ------
+    BusError
+        With ``bus.security = "mtls"``: no certificate for ``role`` (the message names it).
     """
     cfg = zenoh.Config()
 
@@ -70,23 +83,32 @@ def zenoh_config(bus: BusSection, *, listener: bool) -> zenoh.Config:
         put("connect/endpoints", list(bus.connect or bus.listen))
         # Wait for the hub to come up (endpoints are often started first).
         put("connect/timeout_ms", int(bus.connect_timeout_s * 1000))
+    if bus.security == "mtls":
+        try:
+            tls = security.tls_settings(
+                bus.certs_dir, "hub" if listener else role, listener=listener
+            )
+        except security.SecurityError as exc:
+            raise BusError(str(exc)) from None
+        put("transport/link/tls", tls)
+        if listener:
+            put("access_control", security.access_control(bus.keys))
     return cfg
-
-
-class BusError(RuntimeError):
-    """The bus could not be joined; the message says where and why."""
 
 
 #: an endpoint tries to reach its hub for this long at a time, saying so between tries
 CONNECT_TRY_S = 2.0
 
 
-def open_session(bus: BusSection, *, listener: bool, on_wait=None) -> zenoh.Session:
+def open_session(
+    bus: BusSection, *, listener: bool, role: str | None = None, on_wait=None
+) -> zenoh.Session:
     """Open a Zenoh session for one participant (caller must close it).
 
     An endpoint (``listener`` False) whose hub is not up yet keeps trying for
     ``bus.connect_timeout_s``, calling ``on_wait(where, waited_s)`` before each new try
-    (to tell the user where it is trying).
+    (to tell the user where it is trying). ``role`` picks the participant's certificate
+    when ``bus.security = "mtls"``.
 
     Raises
     ------
@@ -106,12 +128,17 @@ def open_session(bus: BusSection, *, listener: bool, on_wait=None) -> zenoh.Sess
         left_s = bus.connect_timeout_s - waited_s
         try_bus = dataclasses.replace(bus, connect_timeout_s=max(min(CONNECT_TRY_S, left_s), 0.1))
         try:
-            return zenoh.open(zenoh_config(try_bus, listener=False))
+            return zenoh.open(zenoh_config(try_bus, listener=False, role=role))
         except zenoh.ZError as exc:
             if time.monotonic() - start >= bus.connect_timeout_s:
+                refused = (
+                    f" (bus.security = 'mtls': or the hub refused the {role}'s certificate)"
+                    if bus.security == "mtls"
+                    else ""
+                )
                 raise BusError(
                     f"cannot reach the hub at {where} within {bus.connect_timeout_s:g} s "
-                    f"(bus.connect_timeout_s): {_first_line(exc)}"
+                    f"(bus.connect_timeout_s){refused}: {_first_line(exc)}"
                 ) from None
             if on_wait is not None:
                 on_wait(where, time.monotonic() - start)

@@ -21,6 +21,7 @@ from pathlib import Path
 from hub.bus import BusError
 from hub.config import ConfigError, load_config
 from hub.logs import install_log_cap
+from hub.security import PARTICIPANTS
 
 EXIT_OK, EXIT_FAULT, EXIT_CONFIG, EXIT_INTERRUPTED = 0, 2, 3, 130
 log = logging.getLogger("neuvision")
@@ -59,7 +60,10 @@ def _address(text: str, args) -> str:
     if not port:
         listen = load_config(args.config, list(args.set or [])).bus.listen
         port = listen[0].rsplit(":", 1)[-1] if listen else "7447"
-    return f"tcp/{host}:{port}"
+    scheme = (
+        "tls" if load_config(args.config, list(args.set or [])).bus.security == "mtls" else "tcp"
+    )
+    return f"{scheme}/{host}:{port}"
 
 
 def _add_config_args(p: argparse.ArgumentParser, *, shortcuts: bool = True) -> None:
@@ -196,6 +200,27 @@ def build_parser() -> argparse.ArgumentParser:
         "--drop-every", type=int, default=0, metavar="N", help="fault: drop every N-th reply"
     )
     p.add_argument("--seed", type=int, default=0, help="range-finder noise of the world, if any")
+    p = sub.add_parser(
+        "certs",
+        help="make a certificate authority and a certificate per participant (bus.security)",
+        description="Make a small certificate authority in DIR (kept if there) and, for "
+        "each role, ROLE.pem and ROLE.key, for runs with bus.security = 'mtls' and "
+        "bus.certs_dir = DIR. Copy to each machine ca.pem and its participant's two files; "
+        "keep ca.key where certificates are made. Needs 'cryptography' (pip install "
+        "'neuvision[security]').",
+    )
+    p.add_argument("dir", type=Path, help="folder of the certificates")
+    p.add_argument(
+        "--roles",
+        default=",".join(PARTICIPANTS),
+        help=f"comma-separated, of {','.join(PARTICIPANTS)} (default: all)",
+    )
+    p.add_argument(
+        "--hub-hosts",
+        help="comma-separated names and addresses the hub is reached by (default: "
+        "127.0.0.1, localhost and this machine's name)",
+    )
+    p.add_argument("--days", type=int, default=365, help="validity (default 365)")
     p = sub.add_parser("reproduce", help="run the paper's validation of the simulated culture")
     p.add_argument("--out", type=Path, help="output folder (default: a new run folder)")
     p.add_argument("--quick", action="store_true", help="a shortened version (for tests)")
@@ -453,7 +478,30 @@ def cmd_emulate(args) -> int:
     return EXIT_OK
 
 
+def cmd_certs(args) -> int:
+    try:
+        from hub.certs import make_certificates
+    except ImportError:
+        raise InputError(
+            "neuvision certs needs the 'cryptography' package: pip install 'neuvision[security]'"
+        ) from None
+    hosts = [h.strip() for h in args.hub_hosts.split(",")] if args.hub_hosts else None
+    if args.days < 1:
+        raise InputError(f"--days must be >= 1, got {args.days}")
+    try:
+        written = make_certificates(
+            args.dir, [r.strip() for r in args.roles.split(",")], hub_hosts=hosts, days=args.days
+        )
+    except ValueError as exc:
+        raise InputError(f"--roles / --hub-hosts: {exc}") from None
+    for path in written:
+        print(path)
+    print(f"neuvision: {len(written)} files in {args.dir}", file=sys.stderr)
+    return EXIT_OK
+
+
 COMMANDS = {
+    "certs": cmd_certs,
     "run": cmd_run,
     "hub": cmd_hub,
     "endpoint": cmd_endpoint,

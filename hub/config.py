@@ -23,6 +23,7 @@ from typing import Any
 
 import settings
 from hub.protocol import Keys
+from hub.security import SECURITY_MODES
 from settings import ConfigError, bounds
 
 __all__ = [
@@ -44,7 +45,7 @@ __all__ = [
 ]
 
 # Keys that name files, resolved relative to the file naming them (dotted patterns).
-PATH_KEYS = ("*.params.world", "*.params.config", "*.params.*_file")
+PATH_KEYS = ("*.params.world", "*.params.config", "*.params.*_file", "bus.certs_dir")
 # The most steps a run may have (duration_s / period_ms): the hub keeps a few numbers per
 # step (~16 bytes), and 10 million steps are 28 h at 10 ms.
 MAX_STEPS = 10_000_000
@@ -152,6 +153,29 @@ class BusSection:
     # no QoS priorities, which the loop does not need). A participant without it still
     # connects, over the usual transport.
     low_latency: bool = True
+    # "mtls": TLS links, each participant proving its role with a certificate of the
+    # experiment's CA (`neuvision certs`), and the hub's router admitting each role's
+    # messages only on its own keys (hub.security). "none": plain TCP, no authentication.
+    security: str = field(default="none", metadata=bounds(choices=SECURITY_MODES))
+    # ca.pem, <role>.pem, <role>.key of this participant (relative to the experiment file)
+    certs_dir: str = ""
+
+    def __post_init__(self) -> None:
+        if self.security == "none":
+            return
+        for key in ("listen", "connect"):
+            plain = [loc for loc in getattr(self, key) if not loc.startswith("tls/")]
+            if plain:
+                raise ConfigError(
+                    f"{key}: with bus.security = 'mtls' every address is a TLS one "
+                    f"(tls/HOST:PORT), got {plain}"
+                )
+        if self.mode != "client" or self.hub_mode != "router":
+            raise ConfigError(
+                "mode, hub_mode: with bus.security = 'mtls' the hub is the router "
+                "(its access control sees every message) and the others its clients; got "
+                f"mode = {self.mode!r}, hub_mode = {self.hub_mode!r}"
+            )
 
     @property
     def keys(self) -> Keys:

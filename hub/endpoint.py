@@ -444,7 +444,9 @@ class Endpoint(abc.ABC):
             self.warm_up()  # so that the first realtime steps are not late
             where = ", ".join(bus.connect or bus.listen)
             log.info("%s/%s: connecting to the hub at %s", self.role, self.id, where)
-            session = self._session = open_session(bus, listener=False, on_wait=self._waiting)
+            session = self._session = open_session(
+                bus, listener=False, role=self.role, on_wait=self._waiting
+            )
         except _StoppedWaiting:
             restore_placement(placement)
             self.close()

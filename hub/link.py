@@ -97,6 +97,8 @@ class HubLink:
                 history=True,
             ),
             session.declare_queryable(keys.hub_control, lambda q: deliver(("control", q))),
+            # the status on request, for observers that may not send control commands
+            session.declare_queryable(keys.hub_status, lambda q: deliver(("status", q))),
             session.liveliness().declare_token(keys.alive("hub", "0")),
         ]
 

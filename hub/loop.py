@@ -400,6 +400,9 @@ class Hub(LockstepSteps, RealtimeSteps):
             self._on_liveliness(*item[1:])
         elif kind == "control":
             self._on_control(item[1])
+        elif kind == "status":  # an observer asks for the run's status (read-only)
+            item[1].reply(item[1].key_expr, self._status().encode())
+            item[1].drop()
         elif kind == "stop":
             self._stop_reason = self._stop_reason or item[1]
         # "wake": nothing to do but look at the state

@@ -87,7 +87,8 @@ def run_experiment(
     cfg = load_config(config, overrides)
     if local and all(cfg.endpoint(r).launch == "local" for r in ("body", "culture")):
         # Everything on this machine: a free loopback port keeps parallel runs apart.
-        overrides.append(f'bus.listen=["tcp/127.0.0.1:{free_tcp_port()}"]')
+        scheme = "tls" if cfg.bus.security == "mtls" else "tcp"
+        overrides.append(f'bus.listen=["{scheme}/127.0.0.1:{free_tcp_port()}"]')
         cfg = load_config(config, overrides)
     check_cpus("loop.cpus", cfg.loop.cpus)
     for role in ("body", "culture"):

@@ -1,0 +1,143 @@
+"""The security profile of a session: TLS links, a certificate per role, access control.
+
+With ``bus.security = "mtls"`` every link is TLS with a client certificate (Zenoh's own
+TLS, mutual authentication), issued by the experiment's certificate authority
+(``neuvision certs``, :mod:`hub.certs`); the certificate's common name is the participant's
+role. The hub's router admits each role's messages only on that role's own keys (Zenoh's
+access control, enforced where the message enters the router): only the culture may put
+``spikes``, only the body ``sensors``; observers may subscribe, and query descriptions
+and ``hub/status``; only an operator may send ``hub/control`` (pause, resume, stop). The
+hub itself is the router: what it puts (``stim``, ``motor``, ``hub/status``) enters
+through no link, and no link may put on those keys. Nobody but a role may declare that
+role's liveliness token.
+
+Plain data only: these functions return Zenoh configuration values; :mod:`hub.bus` puts
+them into the configuration.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from hub.protocol import Keys
+
+#: who may take part: the hub, the two endpoint roles, observers (dashboards, recorders)
+#: that only watch, and operators that may also pause, resume and stop the run
+PARTICIPANTS = ("hub", "body", "culture", "observer", "operator")
+SECURITY_MODES = ("none", "mtls")
+
+CA_FILE = "ca.pem"
+
+
+def certificate_files(certs_dir: str | Path, role: str) -> dict[str, Path]:
+    """The files a participant of ``role`` uses: the CA, its certificate and its key."""
+    folder = Path(certs_dir)
+    return {
+        "ca": folder / CA_FILE,
+        "certificate": folder / f"{role}.pem",
+        "key": folder / f"{role}.key",
+    }
+
+
+class SecurityError(RuntimeError):
+    """A participant cannot take part securely; the message names the file or role."""
+
+
+def tls_settings(certs_dir: str | Path, role: str | None, *, listener: bool) -> dict:
+    """Zenoh's ``transport/link/tls`` settings of one participant (mutual TLS).
+
+    Raises
+    ------
+    SecurityError
+        ``role`` is not a participant, or one of its files is missing.
+    """
+    if not certs_dir:
+        raise SecurityError(
+            "bus.security = 'mtls' needs bus.certs_dir (a folder made by 'neuvision certs')"
+        )
+    if role not in PARTICIPANTS:
+        raise SecurityError(
+            f"with bus.security = 'mtls' a participant needs a role, one of {PARTICIPANTS}; "
+            f"got {role!r}"
+        )
+    files = certificate_files(certs_dir, role)
+    for what, path in files.items():
+        if not path.is_file():
+            raise SecurityError(
+                f"no {what} file {str(path)!r} for the {role} (bus.certs_dir; make it with "
+                f"'neuvision certs {certs_dir} --roles {role}' and the same CA)"
+            )
+    side = "listen" if listener else "connect"
+    return {
+        "root_ca_certificate": str(files["ca"]),
+        "enable_mtls": True,
+        f"{side}_certificate": str(files["certificate"]),
+        f"{side}_private_key": str(files["key"]),
+    }
+
+
+# The nine kinds of message Zenoh's access control tells apart.
+_ALL_MESSAGES = [
+    "put",
+    "delete",
+    "declare_subscriber",
+    "query",
+    "declare_queryable",
+    "reply",
+    "liveliness_token",
+    "declare_liveliness_subscriber",
+    "liveliness_query",
+]
+_WATCH = ["declare_subscriber", "declare_liveliness_subscriber", "liveliness_query"]
+
+
+def access_control(keys: Keys) -> dict:
+    """The access-control policy of the hub's router for one session (Zenoh's
+    ``access_control`` value): default deny; each rule names what a role may send in."""
+    root = keys.root
+
+    def serve(role: str) -> list[str]:
+        """An endpoint's own queryables (its description, the run's announcements)."""
+        return [keys.describe(role, "*"), keys.run(role, "*")]
+
+    rules = [
+        # What the router passes on to any participant it admitted.
+        _rule("receive", ["egress"], _ALL_MESSAGES, [f"{root}/**"]),
+        _rule("watch", ["ingress"], _WATCH, [f"{root}/**"]),
+        _rule("read", ["ingress"], ["query"], [keys.describe("*", "*"), keys.hub_status]),
+        _rule("control", ["ingress"], ["query"], [keys.hub_control]),
+        _rule("body out", ["ingress"], ["put"], [keys.sensors("*")]),
+        _rule("body serves", ["ingress"], ["declare_queryable", "reply"], serve("body")),
+        _rule("body alive", ["ingress"], ["liveliness_token"], [keys.alive("body", "*")]),
+        _rule("culture out", ["ingress"], ["put"], [keys.spikes("*"), keys.potentials("*")]),
+        _rule("culture serves", ["ingress"], ["declare_queryable", "reply"], serve("culture")),
+        _rule("culture alive", ["ingress"], ["liveliness_token"], [keys.alive("culture", "*")]),
+    ]
+    everyone = ["receive", "watch", "read"]
+    policies = [
+        {"rules": everyone + ["body out", "body serves", "body alive"], "subjects": ["body"]},
+        {
+            "rules": everyone + ["culture out", "culture serves", "culture alive"],
+            "subjects": ["culture"],
+        },
+        {"rules": everyone, "subjects": ["observer"]},
+        {"rules": everyone + ["control"], "subjects": ["operator"]},
+    ]
+    subjects = [{"id": role, "cert_common_names": [role]} for role in PARTICIPANTS if role != "hub"]
+    return {
+        "enabled": True,
+        "default_permission": "deny",
+        "rules": rules,
+        "subjects": subjects,
+        "policies": policies,
+    }
+
+
+def _rule(name: str, flows: list[str], messages: list[str], key_exprs: list[str]) -> dict:
+    return {
+        "id": name,
+        "permission": "allow",
+        "flows": flows,
+        "messages": messages,
+        "key_exprs": key_exprs,
+    }

@@ -1,0 +1,281 @@
+"""The security profile (``bus.security = "mtls"``): who may connect, and who may put what.
+
+Real Zenoh TLS on loopback, certificates made by ``neuvision certs``; the hub's router
+enforces the access-control policy of :mod:`hub.security`.
+"""
+
+from __future__ import annotations
+
+import os
+import queue
+import threading
+from pathlib import Path
+
+import pytest
+import zenoh
+
+from hub.bus import BusError, open_session, payload_bytes, zenoh_config
+from hub.certs import make_certificates
+from hub.cli import main
+from hub.config import ConfigError, load_config
+from hub.protocol import (
+    ControlReply,
+    ControlRequest,
+    Description,
+    HubStatus,
+    MotorCommand,
+    Stimulation,
+)
+from hub.security import PARTICIPANTS, access_control
+from tests.harness import harness, wait_for
+
+pytest.importorskip("cryptography")
+
+
+@pytest.fixture(scope="module")
+def certs(tmp_path_factory) -> Path:
+    folder = tmp_path_factory.mktemp("certs")
+    make_certificates(folder, list(PARTICIPANTS), hub_hosts=["127.0.0.1"])
+    return folder
+
+
+@pytest.fixture
+def mtls(bus_overrides, certs) -> list[str]:
+    """The test's isolated bus, over mutual TLS with the experiment's certificates."""
+    return [o.replace("tcp/", "tls/") for o in bus_overrides if o.startswith("bus.")] + [
+        'bus.security="mtls"',
+        f'bus.certs_dir="{certs}"',
+        "bus.connect_timeout_s=2",
+    ]
+
+
+# ------------------------------------------------------------------ certificates
+
+
+def test_certs_makes_a_ca_and_one_certificate_per_role_named_by_its_role(tmp_path):
+    from cryptography import x509
+    from cryptography.x509.oid import NameOID
+
+    assert main(["certs", str(tmp_path), "--roles", "hub,body", "--hub-hosts", "10.0.0.1,hub"]) == 0
+    hub = x509.load_pem_x509_certificate((tmp_path / "hub.pem").read_bytes())
+    assert hub.subject.get_attributes_for_oid(NameOID.COMMON_NAME)[0].value == "hub"
+    names = hub.extensions.get_extension_for_class(x509.SubjectAlternativeName).value
+    assert [str(n.value) for n in names] == ["10.0.0.1", "hub"]
+    assert (tmp_path / "body.key").stat().st_mode & 0o077 == 0  # keys: owner only
+    # A participant added later is signed by the same CA.
+    ca_before = (tmp_path / "ca.pem").read_bytes()
+    assert main(["certs", str(tmp_path), "--roles", "observer"]) == 0
+    assert (tmp_path / "ca.pem").read_bytes() == ca_before
+    observer = x509.load_pem_x509_certificate((tmp_path / "observer.pem").read_bytes())
+    assert observer.issuer == hub.issuer
+
+
+def test_certs_refuses_a_role_that_is_not_a_participant(tmp_path, capsys):
+    assert main(["certs", str(tmp_path), "--roles", "hub,robot"]) == 3
+    err = capsys.readouterr().err
+    assert "--roles" in err and "robot" in err and len(err.strip().splitlines()) == 1
+
+
+# ------------------------------------------------------------------ configuration
+
+
+def test_mtls_needs_tls_addresses_and_the_hub_as_router(certs):
+    with pytest.raises(ConfigError, match=r"bus\.listen: .*tls/HOST:PORT"):
+        load_config(None, ['bus.security="mtls"', 'bus.listen=["tcp/127.0.0.1:7447"]'])
+    with pytest.raises(ConfigError, match=r"bus\.mode"):
+        load_config(
+            None,
+            ['bus.security="mtls"', 'bus.listen=["tls/127.0.0.1:7447"]', 'bus.mode="peer"'],
+        )
+
+
+def test_a_participant_without_its_certificate_file_is_told_which_file(tmp_path, certs):
+    cfg = load_config(
+        None,
+        ['bus.security="mtls"', 'bus.listen=["tls/127.0.0.1:7447"]', f'bus.certs_dir="{tmp_path}"'],
+    )
+    with pytest.raises(BusError, match=r"no ca file .*ca\.pem.* for the body"):
+        zenoh_config(cfg.bus, listener=False, role="body")
+    with pytest.raises(BusError, match=r"needs a role"):
+        zenoh_config(cfg.bus, listener=False, role=None)
+
+
+def test_the_access_policy_lets_each_role_put_only_on_its_own_keys():
+    keys = load_config(None, ['bus.session="s"']).bus.keys
+    acl = access_control(keys)
+    assert acl["default_permission"] == "deny"
+    rules = {r["id"]: r for r in acl["rules"]}
+    puts = {
+        p["subjects"][0]: sorted(
+            k
+            for name in p["rules"]
+            if rules[name]["flows"] == ["ingress"] and "put" in rules[name]["messages"]
+            for k in rules[name]["key_exprs"]
+        )
+        for p in acl["policies"]
+    }
+    assert puts == {
+        "body": ["nv/s/body/*/sensors"],
+        "culture": ["nv/s/culture/*/potentials", "nv/s/culture/*/spikes"],
+        "observer": [],
+        "operator": [],
+    }
+    # Nobody may put what only the hub sends (it is the router: its puts enter by no link).
+    assert not any(
+        k.endswith(("/stim", "/motor", "/hub/status"))
+        for r in acl["rules"]
+        if r["flows"] == ["ingress"] and "put" in r["messages"]
+        for k in r["key_exprs"]
+    )
+
+
+# ------------------------------------------------------------------ on the bus
+
+
+def test_no_valid_certificate_no_connection(tmp_path, mtls, certs):
+    cfg = load_config(None, mtls)
+    hub = open_session(cfg.bus, listener=True)
+    try:
+        # A certificate of the right role from another CA.
+        stranger = tmp_path / "stranger"
+        make_certificates(stranger, ["body"], hub_hosts=["127.0.0.1"])
+        for name in ("body.pem", "body.key"):
+            (tmp_path / "mixed").mkdir(exist_ok=True)
+            (tmp_path / "mixed" / name).write_bytes((stranger / name).read_bytes())
+        (tmp_path / "mixed" / "ca.pem").write_bytes((certs / "ca.pem").read_bytes())
+        other_ca = load_config(None, mtls + [f'bus.certs_dir="{tmp_path / "mixed"}"'])
+        with pytest.raises(BusError, match="cannot reach the hub.*certificate"):
+            open_session(other_ca.bus, listener=False, role="body")
+        # TLS, but no client certificate at all.
+        no_cert = zenoh_config(cfg.bus, listener=False, role="observer")
+        no_cert.insert_json5(
+            "transport/link/tls",
+            f'{{"root_ca_certificate": "{certs / "ca.pem"}", "enable_mtls": true}}',
+        )
+        with pytest.raises(zenoh.ZError):
+            zenoh.open(no_cert).close()
+        # Plain TCP to the TLS port.
+        plain = zenoh_config(
+            load_config(None, [o for o in mtls if "bus." in o]).bus, listener=False, role="observer"
+        )
+        port = cfg.bus.listen[0].rsplit(":", 1)[1]
+        plain.insert_json5("connect/endpoints", f'["tcp/127.0.0.1:{port}"]')
+        with pytest.raises(zenoh.ZError):
+            zenoh.open(plain).close()
+        # The real observer gets in.
+        open_session(cfg.bus, listener=False, role="observer").close()
+    finally:
+        hub.close()
+
+
+def _listening_ports(pid: int) -> set[tuple[str, int]]:
+    """(protocol, port) of every listening TCP and bound UDP socket of a process."""
+    inodes = set()
+    for fd in os.listdir(f"/proc/{pid}/fd"):
+        try:
+            target = os.readlink(f"/proc/{pid}/fd/{fd}")
+        except OSError:
+            continue
+        if target.startswith("socket:["):
+            inodes.add(target[8:-1])
+    found = set()
+    for proto in ("tcp", "tcp6", "udp", "udp6"):
+        path = Path(f"/proc/net/{proto}")
+        if not path.exists():
+            continue
+        for line in path.read_text().splitlines()[1:]:
+            fields = line.split()
+            local, state, inode = fields[1], fields[3], fields[9]
+            listening = state == "0A" if proto.startswith("tcp") else True
+            if inode in inodes and listening:
+                found.add((proto.rstrip("6"), int(local.rsplit(":", 1)[1], 16)))
+    return found
+
+
+@pytest.mark.skipif(not Path("/proc/net/tcp").exists(), reason="no /proc/net here")
+def test_with_mtls_a_wrong_role_reaches_no_endpoint_and_observers_only_watch(mtls, tmp_path):
+    out: dict = {}
+    with harness(tmp_path, [], *mtls, "experiment.duration_s=4", "body.params.delay_ms=5") as h:
+        bus, keys = h.cfg.bus, h.cfg.bus.keys
+        port = int(bus.listen[0].rsplit(":", 1)[1])
+
+        def intrude():
+            body = open_session(bus, listener=False, role="body")
+            observer = open_session(bus, listener=False, role="observer")
+            operator = open_session(bus, listener=False, role="operator")
+            try:
+                statuses: queue.SimpleQueue = queue.SimpleQueue()
+                watch = observer.declare_subscriber(keys.hub_status, statuses.put)
+                stim = Stimulation(
+                    step=10**6, run="x", t0_s=0, t1_s=0.01, channel=[0], amplitude_ua=[1],
+                    width_ms=[1], onset_ms=[0],
+                )  # fmt: skip
+                motor = MotorCommand(
+                    step=10**6, run="x", t0_s=0, t1_s=0.01, left_mps=1, right_mps=1
+                )
+                for _ in range(20):
+                    body.put(keys.stim("0"), stim.encode())  # the body's certificate: not its key
+                    observer.put(keys.motor("0"), motor.encode())  # an observer puts nothing
+                    observer.put(keys.sensors("0"), b"\x00")
+                out["sent"] = 40
+                # What the endpoints saw, asked on the intruders' own links (after their puts,
+                # in order): their counters of what they dropped.
+                out["counters"] = {
+                    (who, role): Description.decode(payload_bytes(r.ok)).counters["dropped"]
+                    for who, session in (("body", body), ("observer", observer))
+                    for role in ("body", "culture")
+                    for r in session.get(keys.describe(role, "0"), timeout=5)
+                }
+                pause = ControlRequest(cmd="pause").encode()
+                out["observer_control"] = list(
+                    observer.get(keys.hub_control, payload=pause, timeout=1)
+                )
+                if out["observer_control"]:  # the policy failed: let the run go on, to fail
+                    resume = ControlRequest(cmd="resume").encode()
+                    list(observer.get(keys.hub_control, payload=resume, timeout=5))
+                out["operator_status"] = [
+                    ControlReply.decode(payload_bytes(r.ok))
+                    for r in operator.get(
+                        keys.hub_control, payload=ControlRequest(cmd="status").encode(), timeout=5
+                    )
+                ]
+                out["observer_status"] = [
+                    HubStatus.decode(payload_bytes(r.ok))
+                    for r in observer.get(keys.hub_status, timeout=5)
+                ]
+                wait_for(lambda: not statuses.empty())
+                out["published_status"] = HubStatus.decode(payload_bytes(statuses.get()))
+                watch.undeclare()
+                # Only the hub's listener is open, in the hub's process and in no endpoint's.
+                out["ports"] = {
+                    "hub": _listening_ports(os.getpid()),
+                    **{r: _listening_ports(h.pid(r)) for r in ("body", "culture")},
+                }
+            finally:
+                for s in (body, observer, operator):
+                    s.close()
+
+        intruder = threading.Thread(target=intrude)
+
+        def start(progress):
+            if progress.step >= 20 and not intruder.is_alive() and "started" not in out:
+                out["started"] = True
+                intruder.start()
+
+        result = h.run(progress=start)
+        intruder.join(timeout=30)
+    assert out.get("sent") == 40
+    assert result.outcome == "completed" and result.steps == 400
+    assert result.counts["dropped"] == {}  # the observer's sensors never reached the hub
+    # Nothing of the intruders' reached an endpoint: the router dropped it.
+    assert out["counters"] == {
+        (w, r): {} for w in ("body", "observer") for r in ("body", "culture")
+    }
+    assert out["observer_control"] == []  # refused by the router: no answer, no pause
+    assert [r.ok for r in out["operator_status"]] == [True]
+    assert len(out["observer_status"]) == 1 and out["observer_status"][0].step > 0
+    assert out["published_status"].step > 0
+    assert out["ports"] == {"hub": {("tcp", port)}, "body": set(), "culture": set()}
+    # The hub heard the operator's status request and never the observer's pause.
+    commands = [e.payload["cmd"] for e in h.record.events if e.key == "control"]
+    assert commands == ["status"]
