@@ -130,6 +130,10 @@ class PolicySection:
     )
     # What happens when a required endpoint dies mid-run.
     endpoint_death: str = field(default="stop", metadata=bounds(choices=("stop", "continue")))
+    # An endpoint whose liveliness vanishes may come back within this long (a restarted
+    # process, a link that dropped) and rejoin the run; the gap is recorded. Beyond it,
+    # `endpoint_death` applies. 0: a vanished endpoint is dead at once.
+    rejoin_s: float = field(default=0.0, metadata=bounds(ge=0))
 
 
 @dataclass(frozen=True)

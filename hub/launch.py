@@ -119,7 +119,10 @@ class LocalProcess:
 
 def die_with_parent() -> None:
     """Ask the kernel to send this process SIGTERM when its parent dies, even by SIGKILL
-    (``PR_SET_PDEATHSIG``; Linux). Runs in a child between fork and exec."""
+    (``PR_SET_PDEATHSIG``; Linux). Runs in a child between fork and exec.
+
+    The kernel's "parent" is the thread that started the child: start endpoints from a
+    thread that lives as long as they should (the main thread), or they end with it."""
     try:
         libc = ctypes.CDLL(None, use_errno=True)
         libc.prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)

@@ -52,7 +52,7 @@ class LockstepSteps:
                     if self._stop_reason or self.k_done >= n:
                         return
                     now = time.monotonic()
-                    if self.state == "paused":
+                    if self.state == "paused" or self.gone:  # gone: waiting for it to rejoin
                         self._last_progress = now
                     elif now - self._last_progress >= timeout_s:
                         self._stand_in(n)

@@ -171,6 +171,14 @@ class Hub(LockstepSteps, RealtimeSteps):
         self.last_sent: dict[str, int] = {}
         self.descriptions: dict[str, Description] = {}
         self.participants: dict[str, dict] = {}  # each endpoint's host, clock offset
+        # policy.rejoin_s: role -> (when its liveliness vanished, the step then); and the
+        # rejoins so far (the manifest's `rejoins`)
+        self.gone: dict[str, tuple[float, int]] = {}
+        self.rejoins: list[dict] = []
+        # lockstep: the inputs each role has not answered yet, by step (sent again to an
+        # endpoint that rejoins)
+        self.unanswered: dict[str, dict[int, bytes]] = {role: {} for role in ROLES}
+        self._start_unix_s: float | None = None  # as announced to the endpoints
         self._stop_reason: str | None = None
         self._pause_started: float | None = None
         self._paused_s = 0.0
@@ -270,6 +278,7 @@ class Hub(LockstepSteps, RealtimeSteps):
                     steps=self.k_done,
                     timing=timing,
                     counts=counts,
+                    rejoins=self.rejoins,
                     endpoints={
                         r: {
                             "kind": d.kind,
@@ -379,6 +388,8 @@ class Hub(LockstepSteps, RealtimeSteps):
             self._handle(item)
 
     def _tick(self) -> None:
+        if self.gone:
+            self._check_rejoin_deadlines()
         now = time.monotonic()
         if now >= self._next_status:
             self._next_status = now + 1.0 / self.cfg.loop.status_hz
@@ -468,6 +479,8 @@ class Hub(LockstepSteps, RealtimeSteps):
             return
         self._record_event("alive" if present else "dead", role=parsed[0], id=parsed[1])
         required = parsed[0] in ROLES and self.ids[parsed[0]] == parsed[1]
+        if present and required and parsed[0] in self.gone:
+            return self._rejoin(parsed[0])
         if not present and required and self.state in ("running", "paused"):
             stalled_s = self._hub_stalled_s()
             if stalled_s:
@@ -475,9 +488,49 @@ class Hub(LockstepSteps, RealtimeSteps):
                     f"the hub itself stopped running for {stalled_s:.1f} s (frozen or starved "
                     f"of CPU) at step {self.k}: {parsed[0]}/{parsed[1]}'s lease lapsed meanwhile"
                 )
-            log.error("%s/%s died at step %d", *parsed, self.k)
-            if self.cfg.policy.endpoint_death == "stop":
-                raise EndpointDied(*parsed, self.k)
+            if self.cfg.policy.rejoin_s > 0:
+                log.warning(
+                    "%s/%s vanished at step %d: it may rejoin within %g s (policy.rejoin_s)",
+                    *parsed, self.k, self.cfg.policy.rejoin_s,
+                )  # fmt: skip
+                self.gone[parsed[0]] = (time.monotonic(), self.k)
+                return
+            self._endpoint_dead(*parsed)
+
+    def _endpoint_dead(self, role: str, id: str) -> None:
+        """An endpoint is gone for good: ``policy.endpoint_death`` applies."""
+        log.error("%s/%s died at step %d", role, id, self.k)
+        if self.cfg.policy.endpoint_death == "stop":
+            raise EndpointDied(role, id, self.k)
+
+    def _rejoin(self, role: str) -> None:
+        """An endpoint that vanished is back within ``policy.rejoin_s``: describe it and give
+        it the run again (same id and key; it starts from its model's or device's start).
+        Lockstep: the input it owes a reply to is sent again; the loop waited for it."""
+        since, gone_at = self.gone.pop(role)
+        i = self.ids[role]
+        self._describe(role, i)
+        self._announce(role, i)
+        gap_s = time.monotonic() - since
+        entry = {"role": role, "id": i, "gone_at_step": gone_at, "at_step": self.k}
+        entry["gap_s"] = round(gap_s, 3)
+        self.rejoins.append(entry)
+        self._record_event("rejoined", **entry)
+        log.warning("%s/%s rejoined at step %d after %.2f s", role, i, self.k, gap_s)
+        if self.cfg.loop.mode == "lockstep":
+            for step in sorted(self.unanswered[role]):  # in lockstep up to two are in flight
+                if step >= self.expect[role]:
+                    self.link.send(role, self.unanswered[role][step])
+        self._last_progress = time.monotonic()
+
+    def _check_rejoin_deadlines(self) -> None:
+        """An endpoint gone longer than ``policy.rejoin_s`` is dead."""
+        now = time.monotonic()
+        for role, (since, _) in list(self.gone.items()):
+            if now - since > self.cfg.policy.rejoin_s:
+                del self.gone[role]
+                self._record_event("rejoin_expired", role=role, id=self.ids[role])
+                self._endpoint_dead(role, self.ids[role])
 
     def _on_control(self, query) -> None:
         try:
@@ -571,60 +624,70 @@ class Hub(LockstepSteps, RealtimeSteps):
 
     def _describe_all(self, session: zenoh.Session) -> None:
         for role, i in self.ids.items():
-            key = self.keys.describe(role, i)
-            desc = None
-            t0 = time.time()
-            replies = self.link.query(key, timeout_s=5.0)
-            t1 = time.time()
-            for raw in replies:
-                if self.recorder:
-                    self.recorder.message("rx", key, raw)
-                try:
-                    desc = Description.decode(raw)
-                except ProtocolError as exc:
-                    raise HubError(f"{role}/{i} sent an invalid description: {exc}") from None
-            if desc is None or desc.role != role or desc.id != i:
-                raise HubError(f"{role}/{i} did not describe itself on {key}")
-            counters = desc.counters or {}
-            their_time = counters.get("unix_time_s")
-            self.participants[role] = {
-                "host": counters.get("host", {}),
-                # their clock minus ours, at the middle of the query (± half its round trip)
-                "clock_offset_ms": (their_time - (t0 + t1) / 2) * 1e3
-                if isinstance(their_time, float)
-                else None,
-                "describe_round_trip_ms": (t1 - t0) * 1e3,
-            }
-            self._take_description(desc)
-            self._record_event("described", role=role, id=i, kind=desc.kind)
+            self._describe(role, i)
+
+    def _describe(self, role: str, i: str) -> None:
+        """Ask one endpoint to describe itself; keep what its replies are checked against."""
+        key = self.keys.describe(role, i)
+        desc = None
+        t0 = time.time()
+        replies = self.link.query(key, timeout_s=5.0)
+        t1 = time.time()
+        for raw in replies:
+            if self.recorder:
+                self.recorder.message("rx", key, raw)
+            try:
+                desc = Description.decode(raw)
+            except ProtocolError as exc:
+                raise HubError(f"{role}/{i} sent an invalid description: {exc}") from None
+        if desc is None or desc.role != role or desc.id != i:
+            raise HubError(f"{role}/{i} did not describe itself on {key}")
+        counters = desc.counters or {}
+        their_time = counters.get("unix_time_s")
+        self.participants[role] = {
+            "host": counters.get("host", {}),
+            # their clock minus ours, at the middle of the query (± half its round trip)
+            "clock_offset_ms": (their_time - (t0 + t1) / 2) * 1e3
+            if isinstance(their_time, float)
+            else None,
+            "describe_round_trip_ms": (t1 - t0) * 1e3,
+        }
+        self._take_description(desc)
+        self._record_event("described", role=role, id=i, kind=desc.kind)
 
     def _announce_run(self, session: zenoh.Session) -> None:
         """Give each endpoint the run: its id, timing and that endpoint's key (contract v2)."""
-        cfg = self.cfg
         for role, i in self.ids.items():
-            start = RunStart(
-                run=self.run_id,
-                period_ms=float(cfg.loop.period_ms),
-                n_steps=cfg.n_steps,
-                mode=cfg.loop.mode,
-                start_unix_s=time.time(),
-                deadline_ms=cfg.loop.deadline_s * 1e3,
-                key=self.run_keys[role],
-                seed=cfg.experiment.seed,
-            )
-            replies = self.link.query(self.keys.run(role, i), start.encode(), timeout_s=5.0)
-            answers = []
-            for raw in replies:
-                try:
-                    answers.append(RunReply.decode(raw))
-                except ProtocolError:
-                    continue
-            if not answers:
-                raise HubError(f"{role}/{i} did not answer the run's announcement")
-            refusals = [a.reason for a in answers if not a.ok or a.run != self.run_id]
-            if refusals:
-                raise HubError(f"{role}/{i} refused the run: {refusals[0]}")
-            self._record_event("run_taken", role=role, id=i, run=self.run_id)
+            self._announce(role, i)
+
+    def _announce(self, role: str, i: str) -> None:
+        """Give one endpoint the run (again, when it rejoins: the same id, timing and key)."""
+        cfg = self.cfg
+        if self._start_unix_s is None:
+            self._start_unix_s = time.time()
+        start = RunStart(
+            run=self.run_id,
+            period_ms=float(cfg.loop.period_ms),
+            n_steps=cfg.n_steps,
+            mode=cfg.loop.mode,
+            start_unix_s=self._start_unix_s,
+            deadline_ms=cfg.loop.deadline_s * 1e3,
+            key=self.run_keys[role],
+            seed=cfg.experiment.seed,
+        )
+        replies = self.link.query(self.keys.run(role, i), start.encode(), timeout_s=5.0)
+        answers = []
+        for raw in replies:
+            try:
+                answers.append(RunReply.decode(raw))
+            except ProtocolError:
+                continue
+        if not answers:
+            raise HubError(f"{role}/{i} did not answer the run's announcement")
+        refusals = [a.reason for a in answers if not a.ok or a.run != self.run_id]
+        if refusals:
+            raise HubError(f"{role}/{i} refused the run: {refusals[0]}")
+        self._record_event("run_taken", role=role, id=i, run=self.run_id)
 
     def _end_run(self, session: zenoh.Session, outcome: str) -> None:
         """Tell each endpoint still there that the run is over (it makes itself safe)."""
@@ -705,6 +768,11 @@ class Hub(LockstepSteps, RealtimeSteps):
         raw = raw or message.encode()
         self.link.send(role, raw)
         self.last_sent[role] = message.step
+        if self.cfg.policy.rejoin_s > 0:
+            unanswered = self.unanswered[role]
+            for step in [k for k in unanswered if k < self.expect[role]]:
+                del unanswered[step]
+            unanswered[message.step] = raw
         if self.recorder:
             self.recorder.message("tx", self.input_key[role], raw)
 
