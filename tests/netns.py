@@ -32,8 +32,21 @@ def _why_unavailable() -> str:
     return ""
 
 
+def _probe() -> str:
+    """"" if a namespace can be made here, else why not (a container without the right)."""
+    why = _why_unavailable()
+    if why:
+        return why
+    name = f"nvprobe{os.getpid()}"
+    done = subprocess.run(["ip", "netns", "add", name], capture_output=True, text=True)
+    if done.returncode != 0:
+        return f"cannot make a network namespace: {done.stderr.strip()}"
+    subprocess.run(["ip", "netns", "del", name], capture_output=True)
+    return ""
+
+
 #: why hosts cannot be made here ("" when they can)
-UNAVAILABLE = _why_unavailable()
+UNAVAILABLE = _probe()
 
 
 @dataclass(frozen=True)
