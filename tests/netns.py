@@ -33,7 +33,7 @@ def _why_unavailable() -> str:
 
 
 def _probe() -> str:
-    """"" if a namespace can be made here, else why not (a container without the right)."""
+    """ "" if a namespace can be made here, else why not (a container without the right)."""
     why = _why_unavailable()
     if why:
         return why

@@ -52,6 +52,38 @@ def _table(rows: dict, glossary: dict) -> str:
     return f"<table>{''.join(body)}</table>"
 
 
+def _summary_html(text: str) -> str:
+    """A markdown table (lines starting with ``|``) as an HTML table, other lines as
+    paragraphs; text that is neither stays preformatted."""
+    lines = [ln.strip() for ln in text.strip().splitlines()]
+    if not any(ln.startswith("|") for ln in lines):
+        return f"<pre>{html.escape(text)}</pre>"
+    parts, rows = [], []
+
+    def flush() -> None:
+        if not rows:
+            return
+        head, *body = rows
+        cells = "".join(f"<th>{html.escape(c)}</th>" for c in head)
+        trs = "".join(
+            "<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in r) + "</tr>" for r in body
+        )
+        parts.append(f"<table><tr>{cells}</tr>{trs}</table>")
+        rows.clear()
+
+    for ln in lines:
+        if ln.startswith("|"):
+            cells = [c.strip() for c in ln.strip("|").split("|")]
+            if not all(set(c) <= set("-: ") for c in cells):  # not the |---| rule
+                rows.append([c.replace("**", "") for c in cells])
+        else:
+            flush()
+            if ln:
+                parts.append(f"<p>{html.escape(ln)}</p>")
+    flush()
+    return "\n".join(parts)
+
+
 def _pick_figures(figures) -> list[Path]:
     """One file per figure stem, preferring PNG; keeps the given order."""
     chosen: dict[tuple[Path, str], Path] = {}
@@ -98,7 +130,7 @@ def write_report(
         f"<p>Written {_dt.datetime.now(_dt.UTC).isoformat(timespec='seconds')}.</p>",
     ]
     if summary:
-        parts += ["<h2>Summary</h2>", f"<pre>{html.escape(summary)}</pre>"]
+        parts += ["<h2>Summary</h2>", _summary_html(summary)]
     parts += [
         "<h2>Metrics</h2>",
         _table(metrics, METRICS),
@@ -109,7 +141,11 @@ def write_report(
     for fig in _pick_figures(figures):
         data = base64.b64encode(fig.read_bytes()).decode("ascii")
         mime = _MIME[fig.suffix.lower()]
-        name = html.escape(fig.stem)
+        # A figure in a folder of its own (one per protocol, say) is named with the folder.
+        folder, here = fig.parent.resolve(), out.parent.resolve()
+        inside = folder != here and folder.is_relative_to(here)
+        label = f"{folder.relative_to(here)} — {fig.stem}" if inside else fig.stem
+        name = html.escape(label)
         caption = html.escape(FIGURES.get(fig.stem, fig.stem))
         parts.append(
             f"<figure><img alt='{name}' src='data:{mime};base64,{data}'>"

@@ -100,6 +100,22 @@ def test_report_is_self_contained(tmp_path, record):
         write_report(tmp_path / "r.html", {}, {}, [tmp_path / "missing.png"])
 
 
+def test_report_names_each_protocol_s_figures_and_shows_a_markdown_summary_as_a_table(
+    tmp_path, record
+):
+    ch, t, res = record
+    paths = []
+    for protocol in ("exc_1", "inh_4"):  # the same figure, one per protocol's folder
+        paths += figures.plot_raster(ch, t, tmp_path / protocol / "raster", CELL_TYPE)
+    summary = (
+        "| measure | paper | NeuVision |\n|---|---|---|\n| MFR (Hz) | 3.41 | **3.03** |\nA note."
+    )
+    text = write_report(tmp_path / "report.html", {}, {}, paths, summary=summary).read_text()
+    assert "<b>exc_1 — raster</b>" in text and "<b>inh_4 — raster</b>" in text
+    assert "<th>measure</th>" in text and "<td>3.03</td>" in text and "<p>A note.</p>" in text
+    assert "|---|" not in text and "<pre>| measure" not in text
+
+
 def test_plot_all_writes_the_standard_set(tmp_path, record):
     ch, t, res = record
     paths = figures.plot_all(
