@@ -35,6 +35,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
 import zenoh
 
 from hub import wire
@@ -179,6 +180,9 @@ class Hub(LockstepSteps, RealtimeSteps):
         # endpoint that rejoins)
         self.unanswered: dict[str, dict[int, bytes]] = {role: {} for role in ROLES}
         self._start_unix_s: float | None = None  # as announced to the endpoints
+        # when each role's input of each step was put, for its reply's round trip
+        self._put_at = {role: np.full(cfg.n_steps, np.nan) for role in ROLES}
+        self._last_round_trip_ms: dict[str, float] = {}  # the latest, for observers
         self._stop_reason: str | None = None
         self._pause_started: float | None = None
         self._paused_s = 0.0
@@ -430,6 +434,14 @@ class Hub(LockstepSteps, RealtimeSteps):
         if self.recorder:
             self.recorder.message(verdict, self.output_key[role], raw, t_wall_ns)
 
+    def _note_round_trip(self, role: str, step: int, t_arrival: float) -> None:
+        """The time from the input of ``step`` to ``role`` going out to its reply coming in."""
+        put_at = self._put_at[role]
+        if 0 <= step < put_at.size and not np.isnan(put_at[step]):
+            rtt_s = t_arrival - put_at[step]
+            self.times.round_trip_s[role][step] = rtt_s
+            self._last_round_trip_ms[role] = rtt_s * 1e3
+
     def _classify_reply(self, role: str, raw: bytes, t_arrival: float) -> str:
         try:
             message = self.checker.check(role, raw)
@@ -451,11 +463,13 @@ class Hub(LockstepSteps, RealtimeSteps):
             if step in self.pending[role]:
                 return self._drop(role, "duplicate", f"second reply for step {step}")
             self.pending[role][step] = message
+            self._note_round_trip(role, step, t_arrival)
             return "rx"
         if step in self.missed[role]:
             self.late[role] += 1
             self.missed[role].discard(step)
             self._record_event("late", role=role, step=step, at_step=expected)
+            self._note_round_trip(role, step, t_arrival)
             return "late"
         if step <= expected:
             return self._drop(role, "stale", f"reply for step {step} awaiting step {expected}")
@@ -521,6 +535,7 @@ class Hub(LockstepSteps, RealtimeSteps):
             for step in sorted(self.unanswered[role]):  # in lockstep up to two are in flight
                 if step >= self.expect[role]:
                     self.link.send(role, self.unanswered[role][step])
+                    self._put_at[role][step] = time.monotonic()
         self._last_progress = time.monotonic()
 
     def _check_rejoin_deadlines(self) -> None:
@@ -768,6 +783,8 @@ class Hub(LockstepSteps, RealtimeSteps):
         raw = raw or message.encode()
         self.link.send(role, raw)
         self.last_sent[role] = message.step
+        if 0 <= message.step < self.cfg.n_steps:
+            self._put_at[role][message.step] = time.monotonic()
         if self.cfg.policy.rejoin_s > 0:
             unanswered = self.unanswered[role]
             for step in [k for k in unanswered if k < self.expect[role]]:
@@ -830,6 +847,7 @@ class Hub(LockstepSteps, RealtimeSteps):
                 "late_steps": self.times.late_steps,
                 "single_channel_bursts": self.live.bursts if self.live else 0,
                 "network_bursts": self.live.network_bursts if self.live else 0,
+                "round_trip_ms": dict(self._last_round_trip_ms),
             },
         )
 

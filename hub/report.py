@@ -45,10 +45,28 @@ class LoopTimes:
     direct_busy_s: float = 0.0
     t_start: float = 0.0
     cpu_start_s: float = field(default=0.0)
+    # role -> per step: from the input's put to its reply's arrival (NaN: none came)
+    round_trip_s: dict[str, np.ndarray] = field(default_factory=dict)
 
     @classmethod
     def for_run(cls, mode: str, period_ms: float, n_steps: int) -> LoopTimes:
-        return cls(mode, period_ms, np.full(n_steps, np.nan), np.full(n_steps, np.nan))
+        times = cls(mode, period_ms, np.full(n_steps, np.nan), np.full(n_steps, np.nan))
+        times.round_trip_s = {role: np.full(n_steps, np.nan) for role in ("body", "culture")}
+        return times
+
+    def round_trip_ms(self, steps: int) -> dict[str, dict[str, float]]:
+        """Each endpoint's reply round trip over the first ``steps`` steps: median, p99, max
+        (ms; its replies that came, late ones included)."""
+        out = {}
+        for role, rtt in self.round_trip_s.items():
+            ms = rtt[:steps][~np.isnan(rtt[:steps])] * 1e3
+            if ms.size:
+                out[role] = {
+                    "median": float(np.median(ms)),
+                    "p99": float(np.percentile(ms, 99)),
+                    "max": float(ms.max()),
+                }
+        return out
 
     def start(self) -> None:
         """The steps begin now."""
@@ -85,6 +103,8 @@ class LoopTimes:
             step_ms = self.step_wall_s[:n] * 1e3
             out["step_ms_median"] = float(np.median(step_ms))
             out["step_ms_p99"] = float(np.percentile(step_ms, 99))
+        if n:
+            out["round_trip_ms"] = self.round_trip_ms(n)
         if n and self.mode == "realtime":
             late_ms = self.lateness_s[:n] * 1e3
             out["lateness_ms_median"] = float(np.nanmedian(late_ms))

@@ -97,6 +97,10 @@ TIMING: dict[str, tuple[str, str]] = {
     "lateness_ms_median": ("start lateness median (ms)", "realtime: how late steps started"),
     "lateness_ms_p99": ("start lateness p99 (ms)", "realtime: 99th percentile of that"),
     "lateness_ms_max": ("start lateness max (ms)", "realtime: the latest start"),
+    "round_trip_ms": (
+        "reply round trip (ms)",
+        "per endpoint, median / p99 / max of the time from its input's put to its reply",
+    ),
     "outcome": ("outcome", "completed, stopped, interrupted or fault"),
     "reason": ("reason", "why the run ended so (a fault, a stop request)"),
     "start_utc": ("start (UTC)", "when the run began"),

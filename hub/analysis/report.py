@@ -36,6 +36,8 @@ def _fmt(value) -> str:
         return "—"
     if isinstance(value, float):
         return f"{value:.4g}"
+    if isinstance(value, dict):  # e.g. per endpoint: {"body": {"median": 1.2, ...}}
+        return "; ".join(f"{html.escape(str(k))}: {_fmt(v)}" for k, v in value.items())
     return html.escape(str(value))
 
 

@@ -357,6 +357,37 @@ def _control(session, keys, cmd):
     raise AssertionError(f"no reply to {cmd}")
 
 
+def test_each_endpoint_s_reply_round_trip_is_measured_live_and_in_the_manifest(
+    tmp_path, bus_overrides
+):
+    statuses: list[HubStatus] = []
+    with harness(
+        tmp_path,
+        bus_overrides,
+        'loop.mode="realtime"',
+        "experiment.duration_s=1",
+        "loop.status_hz=20",
+        "body.params.delay_ms=3",  # the body takes 3 ms to answer
+    ) as h:
+        runner = threading.Thread(target=h.run)
+        runner.start()
+        session = open_session(h.cfg.bus, listener=False)  # waits for the hub to be up
+        watch = session.declare_subscriber(
+            h.cfg.bus.keys.hub_status,
+            lambda s: statuses.append(HubStatus.decode(payload_bytes(s))),
+        )
+        runner.join(timeout=60)
+        watch.undeclare()
+        session.close()
+    assert h.result.outcome == "completed"
+    rtt = h.record.manifest["timing"]["round_trip_ms"]
+    assert set(rtt) == {"body", "culture"}
+    assert 3.0 <= rtt["body"]["median"] <= rtt["body"]["p99"] <= rtt["body"]["max"]
+    assert rtt["culture"]["median"] < rtt["body"]["median"]  # the echo culture answers at once
+    live = [s.extra["round_trip_ms"] for s in statuses if s.extra.get("round_trip_ms")]
+    assert live and all(r["body"] >= 3.0 for r in live)
+
+
 def test_pause_resume_stop_and_config_over_the_control_key(tmp_path, bus_overrides):
     statuses: list[HubStatus] = []
     out = {}
