@@ -218,6 +218,8 @@ def test_with_mtls_a_wrong_role_reaches_no_endpoint_and_observers_only_watch(mtl
                     observer.put(keys.motor("0"), motor.encode())  # an observer puts nothing
                     observer.put(keys.sensors("0"), b"\x00")
                 out["sent"] = 40
+                # Nobody declares another role's liveliness: an observer posing as a culture.
+                posing = observer.liveliness().declare_token(keys.alive("culture", "9"))
                 # What the endpoints saw, asked on the intruders' own links (after their puts,
                 # in order): their counters of what they dropped.
                 out["counters"] = {
@@ -246,6 +248,7 @@ def test_with_mtls_a_wrong_role_reaches_no_endpoint_and_observers_only_watch(mtl
                 wait_for(lambda: not statuses.empty())
                 out["published_status"] = HubStatus.decode(payload_bytes(statuses.get()))
                 watch.undeclare()
+                posing.undeclare()
                 # Only the hub's listener is open, in the hub's process and in no endpoint's.
                 out["ports"] = {
                     "hub": _listening_ports(os.getpid()),
@@ -276,6 +279,9 @@ def test_with_mtls_a_wrong_role_reaches_no_endpoint_and_observers_only_watch(mtl
     assert len(out["observer_status"]) == 1 and out["observer_status"][0].step > 0
     assert out["published_status"].step > 0
     assert out["ports"] == {"hub": {("tcp", port)}, "body": set(), "culture": set()}
+    # The hub never saw the observer's token as a culture's liveliness.
+    alive = [e.payload for e in h.record.events if e.key == "alive"]
+    assert {"role": "culture", "id": "9"} not in alive and {"role": "culture", "id": "0"} in alive
     # The hub heard the operator's status request and never the observer's pause.
     commands = [e.payload["cmd"] for e in h.record.events if e.key == "control"]
     assert commands == ["status"]
