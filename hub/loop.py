@@ -30,7 +30,7 @@ import sys
 import threading
 import time
 import uuid
-from collections import Counter, defaultdict
+from collections import Counter, defaultdict, deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -81,6 +81,8 @@ log = logging.getLogger(__name__)
 # The live burst detector is fed this much simulated time at once (in realtime, on a
 # thread of its own).
 ONLINE_EVERY_MS = 100.0
+# Network bursts repeated in each HubStatus (``extra.recent_network_bursts``), for observers.
+RECENT_NETWORK_BURSTS = 8
 # The longest a thread holds the interpreter while another wants it during the steps.
 # Python's default, 5 ms, would let live analysis hold up a step start (realtime) or keep
 # Zenoh's callback from handing the loop a reply (both modes).
@@ -207,6 +209,8 @@ class Hub(LockstepSteps, RealtimeSteps):
         self._last_wake = time.monotonic()
         self._stall: tuple[float, float] = (-math.inf, 0.0)
         self._live_in: queue.SimpleQueue = queue.SimpleQueue()  # spikes for live analysis
+        # The latest network bursts found online, for observers: [start_ms, end_ms, n_channels]
+        self._recent_network_bursts: deque = deque(maxlen=RECENT_NETWORK_BURSTS)
 
     # ================================================================ public
 
@@ -338,6 +342,9 @@ class Hub(LockstepSteps, RealtimeSteps):
                 end_ms=nb.end_ms,
                 n_channels=len(nb.channels),
                 at_step=self.k,
+            )
+            self._recent_network_bursts.append(
+                [round(nb.start_ms, 3), round(nb.end_ms, 3), len(nb.channels)]
             )
 
     def _miss(self, role: str, k: int) -> None:
@@ -848,6 +855,12 @@ class Hub(LockstepSteps, RealtimeSteps):
                 "single_channel_bursts": self.live.bursts if self.live else 0,
                 "network_bursts": self.live.network_bursts if self.live else 0,
                 "round_trip_ms": dict(self._last_round_trip_ms),
+                # for observers (the dashboard, docs/dashboard.md)
+                "run": self.run_id,
+                "period_ms": float(self.cfg.loop.period_ms),
+                "n_steps": self.cfg.n_steps,
+                "recent_network_bursts": list(self._recent_network_bursts),
+                **self.times.lateness_now(done),
             },
         )
 

@@ -47,6 +47,8 @@ class LoopTimes:
     cpu_start_s: float = field(default=0.0)
     # role -> per step: from the input's put to its reply's arrival (NaN: none came)
     round_trip_s: dict[str, np.ndarray] = field(default_factory=dict)
+    _lateness_seen: int = field(default=0, repr=False)  # steps scanned by lateness_now
+    _lateness_max_s: float = field(default=float("nan"), repr=False)
 
     @classmethod
     def for_run(cls, mode: str, period_ms: float, n_steps: int) -> LoopTimes:
@@ -77,6 +79,25 @@ class LoopTimes:
     def wall_s(self) -> float:
         """Wall time since the steps began (0 before)."""
         return time.monotonic() - self.t_start if self.t_start else 0.0
+
+    def lateness_now(self, steps: int) -> dict:
+        """Realtime: how late the last of ``steps`` steps started and the most so far, in ms
+        (``lateness_ms``, ``lateness_ms_max``), for the hub's status; ``{}`` before a step
+        or in lockstep. Each call scans only the steps since the last one."""
+        if self.mode != "realtime" or steps < 1:
+            return {}
+        new = self.lateness_s[self._lateness_seen : steps]
+        new = new[~np.isnan(new)]
+        if new.size:
+            self._lateness_max_s = float(np.fmax(self._lateness_max_s, new.max()))
+        self._lateness_seen = max(self._lateness_seen, steps)
+        last = float(self.lateness_s[steps - 1])
+        out = {}
+        if last == last:  # not NaN
+            out["lateness_ms"] = last * 1e3
+        if self._lateness_max_s == self._lateness_max_s:
+            out["lateness_ms_max"] = self._lateness_max_s * 1e3
+        return out
 
     def report(self, steps: int, scheduling: Scheduling | None) -> dict:
         """Loop timing figures of the first ``steps`` steps (wall time, lateness, late steps)."""
