@@ -31,6 +31,7 @@ __all__ = [
     "PATH_KEYS",
     "BusSection",
     "ConfigError",
+    "DashboardSection",
     "EndpointSection",
     "ExperimentConfig",
     "ExperimentSection",
@@ -221,6 +222,21 @@ class OnlineSection:
 
 
 @dataclass(frozen=True)
+class DashboardSection:
+    """The live dashboard (``neuvision dashboard``, ``neuvision run --dashboard``): where its
+    page is served. It watches the bus as an observer and changes nothing of the run."""
+
+    # 127.0.0.1: this machine only; "0.0.0.0" serves other machines too (anyone who can
+    # reach the port can pause and stop the run).
+    host: str = "127.0.0.1"
+    # 0: a free port, chosen when the dashboard starts (and printed).
+    port: int = field(default=8447, metadata=bounds(ge=0, le=65535))
+    # Frames sent to the page per second (each frame carries the newest state; a page that
+    # cannot keep up gets fewer, never older ones).
+    fps: float = field(default=30.0, metadata=bounds(ge=1, le=120))
+
+
+@dataclass(frozen=True)
 class ExperimentConfig:
     """A whole experiment file, validated."""
 
@@ -238,6 +254,7 @@ class ExperimentConfig:
     culture: EndpointSection = field(default_factory=lambda: EndpointSection(kind="sim_network"))
     record: RecordSection = field(default_factory=RecordSection)
     online: OnlineSection = field(default_factory=OnlineSection)
+    dashboard: DashboardSection = field(default_factory=DashboardSection)
     source: str = field(default="", metadata={"internal": True})
 
     def __post_init__(self) -> None:

@@ -1,0 +1,61 @@
+"""The hub's control key from outside: ``status``, ``pause``, ``resume``, ``stop``, ``config``.
+
+What ``neuvision ctl`` and the dashboard send to a running hub: a :class:`ControlRequest`
+as the payload of a query on ``nv/<session>/hub/control``, answered by the hub's loop
+with a :class:`ControlReply` (whether it was taken, the hub's state, its status or
+config). Nothing here keeps state; a caller with a session of its own uses
+:func:`request`, one without :func:`ctl`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+from hub import wire
+from hub.bus import open_session
+from hub.config import BusSection
+from hub.protocol import ControlReply, ControlRequest, Keys, ProtocolError
+
+
+def request(session, keys: Keys, cmd: str, *, timeout_s: float = 5.0) -> ControlReply | None:
+    """Ask the hub of ``keys``'s session to ``cmd``; its reply, or None if no hub answered.
+
+    Parameters
+    ----------
+    session : zenoh.Session
+        An open session on the hub's bus.
+    keys : Keys
+        The bus session's key expressions.
+    cmd : str
+        One of :data:`hub.protocol.CONTROL_COMMANDS`.
+    timeout_s : float
+        How long to wait for the reply.
+
+    Raises
+    ------
+    ProtocolError
+        ``cmd`` is not a control command.
+    """
+    payload = ControlRequest(cmd=cmd).encode()
+    for raw in wire.get(session, keys.hub_control, payload, timeout_s=timeout_s):
+        try:
+            return ControlReply.decode(raw)
+        except ProtocolError:
+            continue
+    return None
+
+
+def ctl(bus: BusSection, cmd: str, *, timeout_s: float = 5.0) -> ControlReply | None:
+    """:func:`request` over a session of its own, opened as a client of the hub's router
+    (trying to reach it for at most ``timeout_s``) and closed after.
+
+    Raises
+    ------
+    hub.bus.BusError
+        The hub's router was not reached.
+    """
+    session = open_session(dataclasses.replace(bus, connect_timeout_s=timeout_s), listener=False)
+    try:
+        return request(session, bus.keys, cmd, timeout_s=timeout_s)
+    finally:
+        session.close()
