@@ -1,0 +1,65 @@
+"""``neuvision dashboard``: a source (live or replay), the state, the server, put together."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+
+from hub.config import ExperimentConfig
+
+from .state import FrameState
+
+
+def run_dashboard(
+    cfg: ExperimentConfig,
+    *,
+    replay: str | Path | None = None,
+    speed: float = 1.0,
+    host: str | None = None,
+    port: int | None = None,
+    announce: Callable[[str], None] = print,
+) -> None:
+    """Serve the dashboard until SIGINT/SIGTERM.
+
+    Parameters
+    ----------
+    cfg : ExperimentConfig
+        The bus to observe (``[bus]``: session, where the hub listens or ``bus.connect``)
+        and where to serve (``[dashboard]``).
+    replay : path, optional
+        A run folder to replay instead of watching the bus.
+    speed : float
+        The replay's speed (× real time).
+    host, port : optional
+        Override ``dashboard.host`` and ``dashboard.port`` (0: a free port).
+    announce : callable
+        Called with the line that says where the page is.
+
+    Raises
+    ------
+    dashboard.server.ServeError
+        The address cannot be served on.
+    dashboard.replay.ReplayError
+        The run folder cannot be replayed.
+    """
+    from .server import serve  # the web stack only when serving
+
+    state = FrameState()
+    if replay is not None:
+        from .replay import ReplaySource
+
+        source = ReplaySource(replay, state, speed=speed)
+        what = f"replay of {replay} at {speed:g}x"
+    else:
+        from .observer import BusObserver
+
+        source = BusObserver(cfg.bus, state)
+        what = f"live: session {cfg.bus.session!r}, hub at {source.where}"
+    serve(
+        source,
+        state,
+        host=host or cfg.dashboard.host,
+        port=cfg.dashboard.port if port is None else port,
+        fps=cfg.dashboard.fps,
+        on_ready=lambda url: announce(f"dashboard at {url} ({what}); Ctrl-C ends it"),
+    )

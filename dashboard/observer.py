@@ -1,0 +1,271 @@
+"""The live source: an observer on the bus that feeds a :class:`~dashboard.state.FrameState`.
+
+It joins the hub's router as a client, like an endpoint, but only subscribes and queries —
+it never puts a loop message. What it hears is held by Zenoh in ring buffers (no Python
+runs per message as it arrives, and a full ring drops its oldest sample: the loop is never
+held up) and taken out by :meth:`BusObserver.tick`, a frame at a time:
+
+- ``body/*/sensors`` (pose, ranges), ``body/*/motor``, ``culture/*/spikes``,
+  ``culture/*/stim``: each message read (reassembled, unsealed payloads are plain msgpack)
+  and checked against the contract; a bad one is counted and left out;
+- ``hub/status``: the hub's state, counters and recent network bursts;
+- liveliness ``alive/**``: whether the hub is there.
+
+A thread of its own asks the hub for the run's config (``hub/control`` ``config``: the world,
+the period) and each endpoint for its description (the geometry, then every second its
+counters), so no frame waits for a query. A new run (another run id on the wire) starts the
+histories again and the scene is asked for anew. Controls go to ``hub/control``
+(:func:`hub.ctl.request`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import threading
+import time
+from collections import Counter
+
+import zenoh
+
+from hub import wire
+from hub.bus import BusError, open_session
+from hub.config import BusSection
+from hub.ctl import request
+from hub.protocol import (
+    CONTROL_COMMANDS,
+    Description,
+    HubStatus,
+    MotorCommand,
+    ProtocolError,
+    SensorReading,
+    SpikeBatch,
+    Stimulation,
+)
+
+from .scene import build_scene
+from .state import FrameState
+
+log = logging.getLogger(__name__)
+
+# Samples each ring holds between two frames. At 30 frames/s a ring of 4096 spike batches
+# covers ~1,200 steps/s (the closed loop's lockstep pace is ~1,000-1,700); past that the
+# oldest are dropped (the raster shows a gap), the loop never waits.
+RINGS = {"sensors": 4096, "motor": 4, "spikes": 4096, "stim": 4096, "status": 16}
+ENDPOINTS_EVERY_S = 1.0  # each endpoint's counters asked this often
+RETRY_S = 1.0  # between tries to reach the hub, or its scene
+QUERY_TIMEOUT_S = 2.0
+COMMANDS = tuple(c for c in CONTROL_COMMANDS if c != "config")
+
+
+class BusObserver:
+    """The dashboard's live source on ``bus`` (the experiment's ``[bus]`` section: the
+    session, and where the hub listens or ``bus.connect``)."""
+
+    def __init__(self, bus: BusSection, state: FrameState):
+        self.bus = dataclasses.replace(bus, connect_timeout_s=QUERY_TIMEOUT_S)
+        self.keys = bus.keys
+        self.state = state
+        self.where = ", ".join(bus.connect or bus.listen)
+        self.session: zenoh.Session | None = None
+        self._subs: dict = {}
+        self._inboxes: dict[str, wire.Inbox] = {}
+        self._declared: list = []
+        self.run: str | None = None  # the run id seen on the wire
+        self.ids: dict[str, str] | None = None  # role -> id, from the run's config
+        self.dropped: Counter[str] = Counter()
+        self._hub_alive = False
+        self._need_scene = threading.Event()
+        self._need_scene.set()
+        self._closed = threading.Event()
+        self._thread = threading.Thread(target=self._watch, name="dashboard-watch", daemon=True)
+        state.source = {"kind": "live", "session": bus.session, "hub": self.where}
+        state.observer = {"connected": False, "hub_alive": False, "dropped": {}}
+
+    # ------------------------------------------------------------------ life
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def close(self) -> None:
+        self._closed.set()
+        self._thread.join(timeout=5)
+        if self.session is not None:
+            self.session.close()
+            self.session = None
+
+    # ------------------------------------------------------------------ frames
+
+    def tick(self) -> None:
+        """Take what arrived since the last tick into the state (caller holds its lock)."""
+        subs = self._subs
+        if not subs:
+            return
+        for name in ("status", "sensors", "motor", "stim", "spikes"):
+            sub = subs[name]
+            while (sample := sub.try_recv()) is not None:
+                self._take(name, sample)
+        self.state.observer = {
+            "connected": True,
+            "hub_alive": self._hub_alive,
+            "dropped": dict(self.dropped),
+        }
+
+    def _take(self, name: str, sample) -> None:
+        key = str(sample.key_expr)
+        inbox = self._inboxes.setdefault(key, wire.Inbox())
+        try:
+            raw = inbox.feed(sample.payload, sample.attachment)
+            if raw is not None:
+                self._handle(name, raw)
+        except (wire.WireError, ProtocolError) as exc:
+            if not self.dropped[exc.kind]:
+                log.warning("dropped a message on %s (%s): %s", key, exc.kind, exc)
+            self.dropped[exc.kind] += 1
+
+    def _handle(self, name: str, raw: bytes) -> None:
+        state = self.state
+        if name == "status":
+            status = HubStatus.decode(raw).to_dict()
+            extra = status.get("extra") or {}
+            self._new_run(extra.get("run"))
+            state.set_status(status)
+            state.add_bursts(extra.get("recent_network_bursts") or [])
+            return
+        kind = {
+            "sensors": SensorReading,
+            "motor": MotorCommand,
+            "stim": Stimulation,
+            "spikes": SpikeBatch,
+        }[name]
+        m = kind.decode(raw)
+        self._new_run(m.run)
+        if name == "sensors":
+            state.add_sensors(m.step, m.t_s, m.pose, m.ranges_m, m.contact)
+        elif name == "motor":
+            state.add_motor(m.step, m.left_mps, m.right_mps)
+        elif name == "stim":
+            if m.n_pulses:
+                state.add_pulses(m.channel, m.t0_s * 1e3 + m.onset_ms.astype(float))
+        else:
+            state.add_spikes(m.channel, m.t0_s * 1e3 + m.t_ms.astype(float), m.t1_s * 1e3)
+
+    def _new_run(self, run: str | None) -> None:
+        if run and run != self.run:
+            if self.run is not None:
+                self.state.reset()
+            self.run = run
+            self._need_scene.set()
+
+    # ------------------------------------------------------------------ controls
+
+    def command(self, message: dict) -> dict:
+        """A control from the page, ``{"cmd": "pause" | "resume" | "stop" | "status"}``,
+        sent to the hub; its reply as ``{ok, state, reason}``."""
+        cmd = message.get("cmd")
+        if cmd not in COMMANDS:
+            return {"ok": False, "state": "", "reason": f"unknown command {cmd!r}"}
+        if self.session is None:
+            return {"ok": False, "state": "", "reason": f"no hub reached at {self.where}"}
+        reply = request(self.session, self.keys, cmd, timeout_s=QUERY_TIMEOUT_S)
+        if reply is None:
+            return {"ok": False, "state": "", "reason": "no hub answered"}
+        return {"ok": reply.ok, "state": reply.state, "reason": reply.reason}
+
+    # ------------------------------------------------------------------ the watch thread
+
+    def _watch(self) -> None:
+        next_counters = 0.0
+        while not self._closed.is_set():
+            if self.session is None and not self._connect():
+                self._closed.wait(RETRY_S)
+                continue
+            if self._need_scene.is_set() and self._hub_alive:
+                self._need_scene.clear()
+                if not self._fetch_scene():
+                    self._need_scene.set()
+            now = time.monotonic()
+            if now >= next_counters and self.ids:
+                next_counters = now + ENDPOINTS_EVERY_S
+                self._fetch_counters()
+            self._closed.wait(0.1 if self._need_scene.is_set() else 0.25)
+
+    def _connect(self) -> bool:
+        try:
+            session = open_session(self.bus, listener=False)
+        except BusError as exc:
+            log.debug("no hub yet: %s", exc)
+            return False
+        ring = zenoh.handlers.RingChannel
+        root = self.keys.root
+        subs = {
+            "sensors": session.declare_subscriber(f"{root}/body/*/sensors", ring(RINGS["sensors"])),
+            "motor": session.declare_subscriber(f"{root}/body/*/motor", ring(RINGS["motor"])),
+            "spikes": session.declare_subscriber(f"{root}/culture/*/spikes", ring(RINGS["spikes"])),
+            "stim": session.declare_subscriber(f"{root}/culture/*/stim", ring(RINGS["stim"])),
+            "status": session.declare_subscriber(self.keys.hub_status, ring(RINGS["status"])),
+        }
+        self._declared = [
+            session.liveliness().declare_subscriber(
+                self.keys.alive_all, self._on_alive, history=True
+            )
+        ]
+        with self.state.lock:
+            self.session, self._subs = session, subs
+        log.info("observing session %r at %s", self.bus.session, self.where)
+        return True
+
+    def _on_alive(self, sample) -> None:
+        if self.keys.parse_alive(str(sample.key_expr)) == ("hub", "0"):
+            alive = sample.kind == zenoh.SampleKind.PUT
+            if alive and not self._hub_alive:
+                self._need_scene.set()  # a hub (again): its run's config and endpoints
+            self._hub_alive = alive
+
+    def _fetch_scene(self) -> bool:
+        """Ask the hub for the run's config and each endpoint for its description."""
+        reply = request(self.session, self.keys, "config", timeout_s=QUERY_TIMEOUT_S)
+        if reply is None or not reply.data:
+            return False
+        config = reply.data
+        ids = {role: str((config.get(role) or {}).get("id", "0")) for role in ("body", "culture")}
+        descriptions = {}
+        for role, i in ids.items():
+            for raw in wire.get(
+                self.session, self.keys.describe(role, i), timeout_s=QUERY_TIMEOUT_S
+            ):
+                try:
+                    descriptions[role] = Description.decode(raw)
+                except ProtocolError as exc:
+                    log.warning("%s/%s described itself badly: %s", role, i, exc)
+        if len(descriptions) < 2:
+            return False
+        scene = build_scene(descriptions, config)
+        with self.state.lock:
+            self.ids = ids
+            self.state.set_scene(scene)
+        return True
+
+    def _fetch_counters(self) -> None:
+        endpoints = {}
+        for role, i in self.ids.items():
+            replies = wire.get(self.session, self.keys.describe(role, i), timeout_s=1.0)
+            entry = {"id": i, "alive": bool(replies)}
+            for raw in replies:
+                try:
+                    desc = Description.decode(raw)
+                except ProtocolError:
+                    continue
+                entry.update(kind=desc.kind, counters=_plain(desc.counters or {}))
+            endpoints[role] = entry
+        with self.state.lock:
+            self.state.set_endpoints(endpoints)
+
+
+def _plain(value):
+    """A counters map made JSON-ready (bytes left out)."""
+    if isinstance(value, dict):
+        return {str(k): _plain(v) for k, v in value.items() if not isinstance(v, bytes)}
+    if isinstance(value, list | tuple):
+        return [_plain(v) for v in value if not isinstance(v, bytes)]
+    return value

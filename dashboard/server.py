@@ -1,0 +1,256 @@
+"""The web server: the page, its assets, and a websocket per page that carries frames.
+
+Starlette serves ``/`` (the page) and ``/static/`` (its script and style, shipped in the
+package: no CDN, no build step) and ``/ws``. One task, the *pump*, runs at the frames
+rate: in a worker thread it lets the source feed the state (:meth:`tick`) and builds each
+page's frame (:meth:`FrameState.frame`); a page whose last frame is still being sent
+gets none this time (it is counted as dropped) and everything since in its next one. The
+page sends controls back on the same websocket (``{"cmd": ...}``), which go to the source:
+the hub's ``hub/control`` live, the replay's clock in a replay.
+
+:func:`serve` runs it with uvicorn on a socket bound first, so that a port already taken
+is one line (:class:`ServeError`), and port 0 gets a free one.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import logging
+import math
+import socket
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from importlib import resources
+from typing import Protocol
+
+import uvicorn
+from starlette.applications import Starlette
+from starlette.responses import FileResponse, JSONResponse
+from starlette.routing import Mount, Route, WebSocketRoute
+from starlette.staticfiles import StaticFiles
+from starlette.websockets import WebSocket, WebSocketDisconnect
+
+from .state import FrameState, Reader
+
+log = logging.getLogger(__name__)
+
+STATIC = resources.files("dashboard") / "static"
+
+
+class Source(Protocol):
+    """What feeds the state: :class:`~dashboard.observer.BusObserver` or
+    :class:`~dashboard.replay.ReplaySource`."""
+
+    def start(self) -> None: ...
+    def tick(self) -> None: ...
+    def command(self, message: dict) -> dict: ...
+    def close(self) -> None: ...
+
+
+class ServeError(RuntimeError):
+    """The page cannot be served (the port is taken); the message says where."""
+
+
+@dataclass(eq=False)
+class Page:
+    """One connected page: its websocket, its place in the state, its frame counts."""
+
+    ws: WebSocket
+    reader: Reader = field(default_factory=Reader)
+    busy: bool = False  # a frame is being sent
+    sent: int = 0
+    dropped: int = 0
+    lock: asyncio.Lock = field(default_factory=asyncio.Lock)
+
+    async def send(self, text: str) -> None:
+        async with self.lock:
+            await self.ws.send_text(text)
+
+
+class Dashboard:
+    """The app: ``source`` feeds ``state``; frames go to every page ``fps`` times a second."""
+
+    def __init__(self, source: Source, state: FrameState, fps: float = 30.0):
+        self.source = source
+        self.state = state
+        self.interval_s = 1.0 / fps
+        self.pages: set[Page] = set()
+        self.ticks = 0
+        self.app = Starlette(
+            routes=[
+                Route("/", self.index),
+                Route("/frame", self.frame_json),
+                Mount("/static", StaticFiles(directory=str(STATIC)), name="static"),
+                WebSocketRoute("/ws", self.websocket),
+            ],
+            lifespan=self.lifespan,
+        )
+
+    @contextlib.asynccontextmanager
+    async def lifespan(self, app):
+        await asyncio.to_thread(self.source.start)
+        pump = asyncio.create_task(self.pump())
+        try:
+            yield
+        finally:
+            pump.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await pump
+            await asyncio.to_thread(self.source.close)
+
+    # ------------------------------------------------------------------ http
+
+    async def index(self, request):
+        return FileResponse(str(STATIC / "index.html"), headers={"Cache-Control": "no-store"})
+
+    async def frame_json(self, request):
+        """The newest frame, as a page that just connected would get it (for scripts)."""
+        built = await asyncio.to_thread(self._build, [Page(ws=None)])
+        return JSONResponse(json.loads(built[0][1][-1]))
+
+    async def websocket(self, ws: WebSocket) -> None:
+        await ws.accept()
+        page = Page(ws)
+        self.pages.add(page)
+        try:
+            while True:
+                message = await ws.receive_json()
+                if not isinstance(message, dict):
+                    continue
+                reply = await asyncio.to_thread(self.source.command, message)
+                await page.send(json.dumps({"type": "reply", "cmd": message.get("cmd"), **reply}))
+        except (WebSocketDisconnect, RuntimeError, ValueError):
+            pass
+        finally:
+            self.pages.discard(page)
+
+    # ------------------------------------------------------------------ frames
+
+    async def pump(self) -> None:
+        """Tick the source and send each free page its frame, ``fps`` times a second."""
+        next_at = time.monotonic()
+        while True:
+            ready = []
+            for page in list(self.pages):
+                if page.busy:
+                    page.dropped += 1
+                else:
+                    ready.append(page)
+            try:
+                frames = await asyncio.to_thread(self._build, ready)
+            except Exception:
+                log.exception("a frame failed")
+                frames = []
+            for page, texts in frames:
+                page.busy = True
+                asyncio.create_task(self._send(page, texts))
+            next_at += self.interval_s
+            delay = next_at - time.monotonic()
+            if delay < -self.interval_s:  # behind by more than a frame: do not catch up
+                next_at, delay = time.monotonic(), 0.0
+            await asyncio.sleep(max(delay, 0.0))
+
+    def _build(self, pages: list[Page]) -> list[tuple[Page, list[str]]]:
+        """Tick the source, then each page's messages as JSON (in a worker thread): the
+        scene when it is new to the page, and its frame."""
+        state = self.state
+        out = []
+        with state.lock:
+            self.source.tick()
+            self.ticks += 1
+            for page in pages:
+                parts = []
+                if page.reader.scene_version != state.scene_version:
+                    page.reader.scene_version = state.scene_version
+                    parts.append(json.dumps({"type": "scene", "scene": state.scene}))
+                frame = state.frame(page.reader)
+                frame["server"] = {
+                    "wall_ms": time.time() * 1e3,
+                    "sent": page.sent,
+                    "dropped": page.dropped,
+                }
+                parts.append(json.dumps(frame, allow_nan=False, default=_json_default))
+                out.append((page, parts))
+        return out
+
+    async def _send(self, page: Page, texts: list[str]) -> None:
+        try:
+            for text in texts:
+                await page.send(text)
+            page.sent += 1
+        except Exception:  # the page went away: its websocket task removes it
+            self.pages.discard(page)
+        finally:
+            page.busy = False
+
+
+def _json_default(obj):
+    if hasattr(obj, "tolist"):
+        return obj.tolist()
+    if isinstance(obj, bytes):
+        return None
+    raise TypeError(f"not JSON serialisable: {type(obj).__name__}")
+
+
+def bind(host: str, port: int) -> socket.socket:
+    """A listening TCP socket on ``host:port`` (0: a free port).
+
+    Raises
+    ------
+    ServeError
+        The address cannot be bound (the port taken, the host not this machine's).
+    """
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    sock = socket.socket(family, socket.SOCK_STREAM)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    try:
+        sock.bind((host, port))
+    except OSError as exc:
+        sock.close()
+        raise ServeError(
+            f"cannot serve the dashboard on {host}:{port}: {exc.strerror or exc} "
+            "(another dashboard? choose another with --port or dashboard.port)"
+        ) from None
+    sock.listen(64)
+    sock.set_inheritable(True)
+    return sock
+
+
+def url_of(sock: socket.socket) -> str:
+    host, port = sock.getsockname()[:2]
+    shown = "127.0.0.1" if host in ("0.0.0.0", "::") else host
+    return f"http://{shown}:{port}/"
+
+
+def serve(
+    source: Source,
+    state: FrameState,
+    *,
+    host: str = "127.0.0.1",
+    port: int = 0,
+    fps: float = 30.0,
+    on_ready: Callable[[str], None] = lambda url: None,
+) -> None:
+    """Serve the dashboard until SIGINT/SIGTERM; ``on_ready(url)`` once it listens.
+
+    Raises
+    ------
+    ServeError
+        The address cannot be bound.
+    """
+    if not (isinstance(fps, int | float) and math.isfinite(fps) and fps > 0):
+        raise ValueError(f"fps must be > 0, got {fps!r}")
+    sock = bind(host, port)
+    dashboard = Dashboard(source, state, fps)
+    config = uvicorn.Config(
+        dashboard.app, log_level="warning", lifespan="on", ws_ping_interval=20.0
+    )
+    server = uvicorn.Server(config)
+    on_ready(url_of(sock))
+    try:
+        server.run(sockets=[sock])
+    finally:
+        sock.close()

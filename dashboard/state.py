@@ -1,0 +1,358 @@
+"""What the page shows, kept between frames: the newest of everything and short histories.
+
+A source (:mod:`dashboard.observer` live, :mod:`dashboard.replay` from a record) feeds a
+:class:`FrameState` plain values — a pose, a batch of spikes as arrays, the hub's status
+as a dict — and the server asks it for a frame per page (:meth:`FrameState.frame`): a
+JSON-ready dict with the newest values and, for the streams (the trail, spikes, pulses,
+rates, the Center of Activity, network bursts), what that page has not had yet. A page
+that missed frames gets everything since its last one in the next: frames are dropped,
+never data (within the histories kept below).
+
+Everything is stamped with *run time* (ms or s from the run's start, as the messages'
+windows say), so a replay computes the same rates and Center of Activity as the live run.
+No bus, no web: plain numpy, unit-tested on its own. Not thread-safe by itself: callers
+hold :attr:`FrameState.lock`.
+"""
+
+from __future__ import annotations
+
+import base64
+import math
+import threading
+from collections import deque
+from dataclasses import dataclass, field
+
+import numpy as np
+
+RASTER_S = 4.0  # spikes and pulses kept for the scrolling raster
+BIN_MS = 50.0  # rates and the Center of Activity per bin of run time (the CA decoder's window)
+RATE_HISTORY_S = 20.0  # rate bins kept
+CA_PATH_S = 3.0  # the Center of Activity's recent path
+BURSTS_KEPT_S = 60.0  # network bursts kept (by their end)
+ACTIVITY_TAU_MS = 150.0  # decay of a channel's colour on the culture map
+LIT_MS = 100.0  # a stimulated site stays lit this long
+TRAIL_POINTS = 5000  # trail points kept
+TRAIL_STEP_M = 0.002  # a trail point is added when the robot moved this far
+MAX_SPIKES_PER_FRAME = 20_000  # beyond: the newest only (counted in raster_capped)
+BURSTS_SEEN_MAX = 256  # network bursts remembered as given (the hub repeats the latest)
+
+
+class Tape:
+    """Items stamped with run time, each with a sequence number; a reader asks for what
+    came after its cursor. Items older than ``keep_s`` behind the newest time are let go."""
+
+    def __init__(self, keep_s: float, max_items: int | None = None):
+        self.keep_s = keep_s
+        self._items: deque = deque(maxlen=max_items)  # (seq, t_s, item)
+        self.seq = 0  # the last item's number
+
+    def add(self, t_s: float, item) -> None:
+        self.seq += 1
+        self._items.append((self.seq, t_s, item))
+
+    def trim(self, now_s: float) -> None:
+        items, oldest = self._items, now_s - self.keep_s
+        while items and items[0][1] < oldest:
+            items.popleft()
+
+    def since(self, cursor: int) -> list:
+        """Items numbered after ``cursor`` that are still kept, oldest first."""
+        items = self._items
+        if not items or cursor >= self.seq:
+            return []
+        start = max(cursor + 1 - items[0][0], 0)
+        return [items[i][2] for i in range(start, len(items))]
+
+    def __len__(self) -> int:
+        return len(self._items)
+
+
+STREAMS = ("trail", "spikes", "pulses", "rates", "ca", "bursts")
+
+
+@dataclass
+class Reader:
+    """One page's place in the state: the generation it saw and a cursor per stream."""
+
+    generation: int = -1
+    scene_version: int = -1
+    cursors: dict = field(default_factory=dict)
+
+
+class FrameState:
+    """The dashboard's state (see the module's docstring).
+
+    The culture's layout comes with the scene (:meth:`set_scene`): spikes and pulses on
+    channels it does not list are ignored, and before a scene none are kept.
+    """
+
+    def __init__(self):
+        self.lock = threading.RLock()
+        self.scene: dict | None = None
+        self.scene_version = 0
+        self.generation = 0
+        self.source: dict = {}  # what the page says about where the data comes from
+        self.status: dict = {}  # the hub's latest HubStatus (or the replay's stand-in)
+        self.endpoints: dict = {}  # role -> what the endpoint said of itself
+        self.replay: dict | None = None
+        self.observer: dict = {}  # the observer's own counters (dropped messages...)
+        self._layout(None)
+        self.reset()
+
+    # ------------------------------------------------------------------ set-up
+
+    def set_scene(self, scene: dict | None) -> None:
+        """A new arena, body and culture (plain dict, :func:`dashboard.scene.build_scene`):
+        every history starts again."""
+        self.scene = scene
+        self.scene_version += 1
+        self._layout((scene or {}).get("culture"))
+        self.reset()
+
+    def _layout(self, culture: dict | None) -> None:
+        if not culture or not culture.get("channel"):
+            self.n_channels = 0
+            self._table = np.zeros(1, np.int64) - 1
+            self._exc = self._inh = np.zeros(0, bool)
+            self._xy = np.zeros((0, 2))
+            return
+        ids = np.asarray(culture["channel"], np.int64)
+        self.n_channels = ids.size
+        self._table = np.full(int(ids.max()) + 2, -1, np.int64)  # id -> index; last: unknown
+        self._table[ids] = np.arange(ids.size)
+        cell = culture.get("cell_type")
+        self._exc = np.asarray(cell) == 0 if cell is not None else np.zeros(0, bool)
+        self._inh = np.asarray(cell) == 1 if cell is not None else np.zeros(0, bool)
+        self._xy = np.stack([np.asarray(culture["x_um"]), np.asarray(culture["y_um"])], axis=1)
+
+    def reset(self) -> None:
+        """Empty every history (a new run, a jump in a replay); the scene stays."""
+        self.generation += 1
+        self.t_ms = 0.0  # newest run time seen
+        self.step = -1
+        self.pose: list | None = None
+        self.ranges: list | None = None
+        self.contact = False
+        self.motor: list | None = None
+        self.tapes = {
+            "trail": Tape(math.inf, TRAIL_POINTS),
+            "spikes": Tape(RASTER_S),
+            "pulses": Tape(RASTER_S),
+            "rates": Tape(RATE_HISTORY_S),
+            "ca": Tape(CA_PATH_S),
+            "bursts": Tape(BURSTS_KEPT_S),
+        }
+        self._last_trail: tuple[float, float] | None = None
+        self._activity = np.zeros(self.n_channels)
+        self._activity_ms = 0.0
+        self._bins: dict[int, np.ndarray] = {}  # open bins: [all, exc, inh, sum x, sum y]
+        self._next_bin: int | None = None
+        self._burst_starts: set[float] = set()
+        self.raster_capped = 0
+
+    # ------------------------------------------------------------------ feeding
+
+    def add_sensors(self, step: int, t_s: float, pose, ranges, contact: bool) -> None:
+        """A body's reading: the newest pose (by step) and the trail."""
+        x, y = float(pose[0]), float(pose[1])
+        last = self._last_trail
+        if last is None or math.hypot(x - last[0], y - last[1]) >= TRAIL_STEP_M:
+            self._last_trail = (x, y)
+            self.tapes["trail"].add(t_s, [round(x, 5), round(y, 5)])
+        if step >= self.step:
+            self.step = int(step)
+            self.pose = [float(v) for v in pose]
+            self.ranges = [round(float(r), 5) for r in ranges]
+            self.contact = bool(contact)
+        self._advance(t_s * 1e3)
+
+    def add_motor(self, step: int, left_mps: float, right_mps: float) -> None:
+        self.motor = [float(left_mps), float(right_mps)]
+
+    def add_spikes(self, channel, t_ms, until_ms: float) -> None:
+        """Spikes (channel ids, run times in ms) of a window that ends at ``until_ms``:
+        every spike before it has now been given."""
+        if not self.n_channels:
+            return
+        idx = self._index(channel)
+        t_ms = np.asarray(t_ms, np.float64)
+        known = idx >= 0
+        if not known.all():
+            idx, t_ms = idx[known], t_ms[known]
+        now_ms = max(until_ms, self._activity_ms)
+        self._decay_to(now_ms)
+        if idx.size:  # each spike as decayed from its own time to now
+            weight = np.exp(np.minimum(t_ms - now_ms, 0.0) / ACTIVITY_TAU_MS)
+            self._activity += np.bincount(idx, weight, minlength=self.n_channels)
+            self.tapes["spikes"].add(float(t_ms[-1]) / 1e3, (t_ms, idx))
+            self._bin(idx, t_ms)
+        self._close_bins(until_ms)
+        self._advance(until_ms)
+
+    def add_pulses(self, channel, t_ms) -> None:
+        """Stimulation pulses delivered at run times ``t_ms`` on channel ids ``channel``."""
+        if not self.n_channels:
+            return
+        idx = self._index(channel)
+        t_ms = np.asarray(t_ms, np.float64)
+        known = idx >= 0
+        if known.any():
+            self.tapes["pulses"].add(float(t_ms[known].max()) / 1e3, (t_ms[known], idx[known]))
+
+    def add_bursts(self, bursts) -> None:
+        """Network bursts ``[start_ms, end_ms, n_channels]`` (each once, however often given)."""
+        for start_ms, end_ms, n in bursts:
+            if start_ms in self._burst_starts:
+                continue
+            self._burst_starts.add(start_ms)
+            self.tapes["bursts"].add(end_ms / 1e3, [start_ms, end_ms, n])
+        if len(self._burst_starts) > BURSTS_SEEN_MAX:  # forget those no longer kept
+            self._burst_starts = {b[0] for b in self.tapes["bursts"].since(0)}
+
+    def begin_at(self, t_ms: float) -> None:
+        """The histories (rates, activity) start at run time ``t_ms`` (after :meth:`reset`,
+        before a replay gives the spikes from there on)."""
+        self._next_bin = int(math.floor(t_ms / BIN_MS))
+        self._activity_ms = t_ms
+
+    def set_status(self, status: dict) -> None:
+        self.status = status
+
+    def set_endpoints(self, endpoints: dict) -> None:
+        self.endpoints = endpoints
+
+    # ------------------------------------------------------------------ internals
+
+    def _index(self, channel) -> np.ndarray:
+        ids = np.asarray(channel, np.int64)
+        return self._table[np.clip(ids, 0, self._table.size - 1)]
+
+    def _advance(self, t_ms: float) -> None:
+        if t_ms > self.t_ms:
+            self.t_ms = t_ms
+            now_s = t_ms / 1e3
+            for tape in self.tapes.values():
+                tape.trim(now_s)
+
+    def _decay_to(self, t_ms: float) -> None:
+        dt = t_ms - self._activity_ms
+        if dt > 0:
+            self._activity *= math.exp(-dt / ACTIVITY_TAU_MS)
+            self._activity_ms = t_ms
+
+    def _bin(self, idx: np.ndarray, t_ms: np.ndarray) -> None:
+        bins = np.floor(t_ms / BIN_MS).astype(np.int64)
+        first = int(bins[0]) if bins.size else 0
+        if self._next_bin is None:
+            self._next_bin = first
+        for b in np.unique(bins).tolist():
+            if b < self._next_bin:
+                continue  # a bin already closed (a late reply): not counted again
+            sel = idx[bins == b]
+            acc = self._bins.setdefault(b, np.zeros(5))
+            acc[0] += sel.size
+            if self._exc.size:
+                acc[1] += np.count_nonzero(self._exc[sel])
+                acc[2] += np.count_nonzero(self._inh[sel])
+            acc[3] += self._xy[sel, 0].sum()
+            acc[4] += self._xy[sel, 1].sum()
+
+    def _close_bins(self, until_ms: float) -> None:
+        """Emit every bin that ends at or before ``until_ms`` (as rates and a CA point)."""
+        last = int(math.floor(until_ms / BIN_MS + 1e-9))  # bins before this one are whole
+        if self._next_bin is None:
+            self._next_bin = last
+        history = int(RATE_HISTORY_S * 1e3 / BIN_MS)
+        if last - self._next_bin > history:  # a jump: only the bins a page would show
+            for b in [b for b in self._bins if b < last - history]:
+                del self._bins[b]
+            self._next_bin = last - history
+        n_all = max(self.n_channels, 1)
+        n_exc = int(self._exc.sum()) if self._exc.size else 0
+        n_inh = int(self._inh.sum()) if self._inh.size else 0
+        to_hz = 1e3 / BIN_MS
+        for b in range(self._next_bin, last):
+            acc = self._bins.pop(b, None)
+            t_s = round((b + 1) * BIN_MS / 1e3, 4)
+            if acc is None:
+                acc = np.zeros(5)
+            rates = [t_s, round(acc[0] / n_all * to_hz, 3)]
+            rates.append(round(acc[1] / n_exc * to_hz, 3) if n_exc else None)
+            rates.append(round(acc[2] / n_inh * to_hz, 3) if n_inh else None)
+            self.tapes["rates"].add(t_s, rates)
+            if acc[0] > 0:
+                ca = [t_s, round(acc[3] / acc[0], 2), round(acc[4] / acc[0], 2)]
+                self.tapes["ca"].add(t_s, ca)
+        self._next_bin = max(self._next_bin, last)
+
+    # ------------------------------------------------------------------ frames
+
+    def frame(self, reader: Reader) -> dict:
+        """The frame for one page: the newest values, and each stream since ``reader``'s
+        cursors (all that is kept, with ``reset``, when the page has another generation)."""
+        reset = reader.generation != self.generation
+        if reset:
+            reader.generation = self.generation
+            reader.cursors = dict.fromkeys(STREAMS, 0)
+        streams = {}
+        for name in STREAMS:
+            tape = self.tapes[name]
+            streams[name] = tape.since(reader.cursors.get(name, 0))
+            reader.cursors[name] = tape.seq
+        self._decay_to(self.t_ms)
+        now_ms = self.t_ms
+        out = {
+            "type": "frame",
+            "generation": self.generation,
+            "reset": reset,
+            "t_s": round(now_ms / 1e3, 4),
+            "step": self.step,
+            "pose": self.pose,
+            "ranges": self.ranges,
+            "contact": self.contact,
+            "motor": self.motor,
+            "trail": streams["trail"],
+            "spikes": self._events(streams["spikes"], cap=MAX_SPIKES_PER_FRAME),
+            "pulses": self._events(streams["pulses"]),
+            "rates": streams["rates"],
+            "ca": streams["ca"],
+            "bursts": streams["bursts"],
+            "activity": self._activity_bytes(),
+            "lit": self._lit(now_ms),
+            "status": self.status,
+            "endpoints": self.endpoints,
+            "source": self.source,
+            "observer": self.observer,
+        }
+        if self.replay is not None:
+            out["replay"] = self.replay
+        return out
+
+    def _events(self, parts: list, cap: int | None = None) -> dict:
+        """(times ms, channel indices) of a stream's items, as two lists."""
+        if not parts:
+            return {"t": [], "i": []}
+        t_ms = np.concatenate([p[0] for p in parts])
+        idx = np.concatenate([p[1] for p in parts])
+        if cap is not None and t_ms.size > cap:
+            self.raster_capped += t_ms.size - cap
+            t_ms, idx = t_ms[-cap:], idx[-cap:]
+        return {"t": np.round(t_ms, 2).tolist(), "i": idx.tolist()}
+
+    def _activity_bytes(self) -> str:
+        """Each channel's recent activity, 0-255 (1 - exp(-a), a the decayed spike count),
+        base64."""
+        if not self.n_channels:
+            return ""
+        level = -np.expm1(-self._activity) * 255.0
+        return base64.b64encode(level.astype(np.uint8).tobytes()).decode("ascii")
+
+    def _lit(self, now_ms: float) -> list:
+        """Channel indices stimulated within the last LIT_MS."""
+        lit = set()
+        for t_ms, idx in self.tapes["pulses"].since(0)[::-1]:
+            recent = t_ms >= now_ms - LIT_MS
+            if not recent.any():
+                break
+            lit.update(idx[recent].tolist())
+        return sorted(lit)

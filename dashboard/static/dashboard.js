@@ -1,0 +1,484 @@
+// NeuVision dashboard: draws the frames the server sends on /ws (dashboard/server.py).
+// No framework and no build step: canvas 2-D drawing, one file. The server sends a "scene"
+// (arena, body, culture layout) when it changes and a "frame" about 30 times a second with
+// the newest values and what is new in each stream since this page's last frame.
+"use strict";
+
+const RASTER_S = 3.0;       // seconds of run time on the raster
+const RATES_S = 20.0;       // ... on the rates plot
+const CA_PATH_S = 3.0;      // the Center of Activity's recent path
+const TRACE_MAX = 20000;    // frames remembered for window.nv.trace (tests, lag)
+
+const $ = (id) => document.getElementById(id);
+const nv = {
+  scene: null, source: {}, status: {}, endpoints: {}, replay: null,
+  step: -1, t_s: 0, pose: null, ranges: null, contact: false, motor: null,
+  trail: [], spikes: [], pulses: [], rates: [], ca: [], bursts: [],
+  activity: null, lit: [],
+  stats: { received: 0, drawn: 0, fps: 0, drawFps: 0, resets: 0, connected: false, serverDropped: 0 },
+  trace: [],   // [step, page wall ms when drawn, x, y, run time s]
+  dirty: false,
+};
+window.nv = nv;
+const receivedAt = [];
+const drawnAt = [];
+
+// ------------------------------------------------------------------ connection
+
+let ws = null;
+function connect() {
+  ws = new WebSocket(`${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/ws`);
+  ws.onopen = () => { nv.stats.connected = true; message(""); };
+  ws.onclose = () => {
+    nv.stats.connected = false;
+    const badge = $("source");
+    badge.textContent = "dashboard not reachable (it ended with its run?) — retrying";
+    badge.className = "badge down";
+    setTimeout(connect, 1000);
+  };
+  ws.onmessage = (event) => {
+    const m = JSON.parse(event.data);
+    if (m.type === "scene") setScene(m.scene);
+    else if (m.type === "frame") takeFrame(m);
+    else if (m.type === "reply") showReply(m);
+  };
+}
+
+function send(obj) {
+  if (ws && ws.readyState === WebSocket.OPEN) ws.send(JSON.stringify(obj));
+}
+
+function message(text, bad) {
+  const el = $("message");
+  el.textContent = text;
+  el.className = "message" + (bad ? " bad" : "");
+}
+
+function showReply(m) {
+  if (m.ok) message(`${m.cmd}: done${m.state ? " (" + m.state + ")" : ""}`);
+  else message(`${m.cmd}: ${m.reason}`, true);
+}
+
+// ------------------------------------------------------------------ data
+
+function setScene(scene) {
+  nv.scene = scene;
+  $("name").textContent = scene && scene.name ? "· " + scene.name : "";
+  nv.dirty = true;
+}
+
+function takeFrame(f) {
+  const now = performance.now();
+  nv.stats.received += 1;
+  receivedAt.push(now);
+  while (receivedAt.length && receivedAt[0] < now - 2000) receivedAt.shift();
+  if (f.reset) {
+    nv.trail = []; nv.spikes = []; nv.pulses = []; nv.rates = []; nv.ca = []; nv.bursts = [];
+    nv.stats.resets += 1;
+  }
+  nv.source = f.source || {};
+  nv.observer = f.observer || {};
+  nv.status = f.status || {};
+  nv.endpoints = f.endpoints || {};
+  nv.replay = f.replay || null;
+  nv.step = f.step; nv.t_s = f.t_s;
+  nv.pose = f.pose; nv.ranges = f.ranges; nv.contact = f.contact; nv.motor = f.motor;
+  for (const p of f.trail) nv.trail.push(p);
+  for (let k = 0; k < f.spikes.t.length; k++) nv.spikes.push([f.spikes.t[k], f.spikes.i[k]]);
+  for (let k = 0; k < f.pulses.t.length; k++) nv.pulses.push([f.pulses.t[k], f.pulses.i[k]]);
+  for (const r of f.rates) nv.rates.push(r);
+  for (const c of f.ca) nv.ca.push(c);
+  for (const b of f.bursts) nv.bursts.push(b);
+  const tMs = f.t_s * 1000;
+  trimBefore(nv.spikes, tMs - RASTER_S * 1000, (s) => s[0]);
+  trimBefore(nv.pulses, tMs - RASTER_S * 1000, (s) => s[0]);
+  trimBefore(nv.rates, f.t_s - RATES_S, (r) => r[0]);
+  trimBefore(nv.ca, f.t_s - CA_PATH_S, (c) => c[0]);
+  trimBefore(nv.bursts, tMs - RATES_S * 1000, (b) => b[1]);
+  nv.activity = f.activity ? Uint8Array.from(atob(f.activity), (c) => c.charCodeAt(0)) : null;
+  nv.lit = f.lit || [];
+  nv.stats.serverDropped = f.server ? f.server.dropped : 0;
+  nv.dirty = true;
+}
+
+function trimBefore(list, limit, key) {
+  let n = 0;
+  while (n < list.length && key(list[n]) < limit) n++;
+  if (n) list.splice(0, n);
+}
+
+// ------------------------------------------------------------------ drawing
+
+function frameLoop() {
+  if (nv.dirty) {
+    nv.dirty = false;
+    drawAll();
+    const now = performance.now();
+    nv.stats.drawn += 1;
+    drawnAt.push(now);
+    while (drawnAt.length && drawnAt[0] < now - 2000) drawnAt.shift();
+    if (nv.pose) {
+      nv.trace.push([nv.step, Date.now(), nv.pose[0], nv.pose[1], nv.t_s]);
+      if (nv.trace.length > TRACE_MAX) nv.trace.splice(0, nv.trace.length - TRACE_MAX);
+    }
+  }
+  nv.stats.fps = rate(receivedAt);
+  nv.stats.drawFps = rate(drawnAt);
+  requestAnimationFrame(frameLoop);
+}
+
+function rate(times) {
+  if (times.length < 2) return 0;
+  return (times.length - 1) / ((times[times.length - 1] - times[0]) / 1000);
+}
+
+function drawAll() {
+  drawHeader();
+  drawArena();
+  drawCulture();
+  drawRaster();
+  drawRates();
+  drawLoopPanel();
+  drawEndpoints();
+  $("fps").textContent =
+    `${nv.stats.fps.toFixed(1)} frames/s received, ${nv.stats.drawFps.toFixed(1)} drawn; ` +
+    `frames the server skipped for this page: ${nv.stats.serverDropped}`;
+}
+
+function fmt(x, digits) {
+  return x === null || x === undefined || Number.isNaN(x) ? "—" : Number(x).toFixed(digits);
+}
+
+function drawHeader() {
+  const src = nv.source, st = nv.status, badge = $("source");
+  if (src.kind === "live") {
+    const obs = nv.observer || {};
+    const where = obs.hub_alive ? `hub ${src.hub}` : `waiting for a hub at ${src.hub}`;
+    const bad = Object.values(obs.dropped || {}).reduce((a, b) => a + b, 0);
+    badge.textContent = `live · session ${src.session} · ${where}` + (bad ? ` · ${bad} bad messages` : "");
+    badge.className = "badge live";
+  } else if (src.kind === "replay") {
+    badge.textContent = `replay · ${src.run_dir}`;
+    badge.className = "badge replay";
+  }
+  $("state").textContent = st.state || (src.kind === "live" ? "waiting for the hub" : "—");
+  $("step").textContent = nv.step >= 0 ? nv.step : "—";
+  const n = (st.extra && st.extra.n_steps) || (nv.scene && nv.scene.n_steps);
+  $("n-steps").textContent = n ? ` / ${n}` : "";
+  $("t").textContent = fmt(nv.t_s, 2);
+  const live = src.kind === "live", replay = src.kind === "replay";
+  $("live-controls").hidden = !live;
+  $("replay-controls").hidden = !replay;
+  if (live) {
+    $("btn-pause").disabled = st.state !== "running";
+    $("btn-resume").disabled = st.state !== "paused";
+    $("btn-stop").disabled = !(st.state === "running" || st.state === "paused" || st.state === "waiting");
+  }
+  if (replay && nv.replay) {
+    const r = nv.replay;
+    $("btn-play").textContent = r.playing ? "Pause" : "Play";
+    const speed = $("speed");
+    if (speed.options.length !== r.speeds.length) {
+      speed.innerHTML = r.speeds.map((x) => `<option value="${x}">${x}×</option>`).join("");
+    }
+    if (document.activeElement !== speed) speed.value = String(r.speed);
+    const slider = $("slider");
+    slider.max = r.duration_s;
+    if (!sliding) slider.value = r.t_s;
+    $("replay-time").textContent = `${fmt(sliding ? slider.value : r.t_s, 2)} / ${fmt(r.duration_s, 2)} s`;
+  }
+}
+
+// A canvas sized to its element on screen (crisp on any display); returns its 2-D context.
+function canvas2d(id) {
+  const c = $(id);
+  const ratio = window.devicePixelRatio || 1;
+  const w = Math.round(c.clientWidth * ratio), h = Math.round(c.clientHeight * ratio);
+  if (w > 0 && h > 0 && (c.width !== w || c.height !== h)) { c.width = w; c.height = h; }
+  const ctx = c.getContext("2d");
+  ctx.setTransform(1, 0, 0, 1, 0, 0);
+  ctx.clearRect(0, 0, c.width, c.height);
+  return [ctx, c.width, c.height, ratio];
+}
+
+// world (m) -> canvas pixels, y up, fitting [xmin, xmax] x [ymin, ymax] with a margin
+function fitter(bounds, w, h, margin) {
+  const [x0, x1, y0, y1] = bounds;
+  const s = Math.min((w - 2 * margin) / (x1 - x0), (h - 2 * margin) / (y1 - y0));
+  const ox = (w - s * (x1 - x0)) / 2, oy = (h - s * (y1 - y0)) / 2;
+  return { s, x: (x) => ox + (x - x0) * s, y: (y) => h - oy - (y - y0) * s };
+}
+
+function arenaBounds() {
+  const a = nv.scene && nv.scene.arena;
+  if (a && a.shape === "circle") return [-a.radius_m, a.radius_m, -a.radius_m, a.radius_m];
+  if (a) return [-a.width_m / 2, a.width_m / 2, -a.height_m / 2, a.height_m / 2];
+  // no world known: fit the trail, at least half a metre across
+  let b = [Infinity, -Infinity, Infinity, -Infinity];
+  for (const p of nv.trail.concat(nv.pose ? [nv.pose] : [])) {
+    b = [Math.min(b[0], p[0]), Math.max(b[1], p[0]), Math.min(b[2], p[1]), Math.max(b[3], p[1])];
+  }
+  if (!Number.isFinite(b[0])) return [-0.5, 0.5, -0.5, 0.5];
+  const cx = (b[0] + b[1]) / 2, cy = (b[2] + b[3]) / 2;
+  const half = Math.max(b[1] - b[0], b[3] - b[2], 0.5) / 2 + 0.05;
+  return [cx - half, cx + half, cy - half, cy + half];
+}
+
+function drawArena() {
+  const [ctx, w, h, ratio] = canvas2d("arena");
+  const scene = nv.scene || {};
+  const f = fitter(arenaBounds(), w, h, 12 * ratio);
+  const a = scene.arena;
+  ctx.lineWidth = 2 * ratio;
+  ctx.strokeStyle = "#333";
+  if (a && a.shape === "circle") {
+    ctx.beginPath(); ctx.arc(f.x(0), f.y(0), a.radius_m * f.s, 0, 2 * Math.PI); ctx.stroke();
+  } else if (a) {
+    ctx.strokeRect(f.x(-a.width_m / 2), f.y(a.height_m / 2), a.width_m * f.s, a.height_m * f.s);
+  }
+  ctx.fillStyle = "#b9bec6"; ctx.strokeStyle = "#7d848e"; ctx.lineWidth = ratio;
+  for (const ob of scene.obstacles || []) {
+    ctx.beginPath();
+    if (ob.shape === "circle") ctx.arc(f.x(ob.center_m[0]), f.y(ob.center_m[1]), ob.radius_m * f.s, 0, 2 * Math.PI);
+    else ob.vertices_m.forEach((v, k) => (k ? ctx.lineTo(f.x(v[0]), f.y(v[1])) : ctx.moveTo(f.x(v[0]), f.y(v[1]))));
+    ctx.closePath(); ctx.fill(); ctx.stroke();
+  }
+  $("arena-note").textContent = a ? "" : "the run's world is not known here: drawn around the trail";
+  // trail
+  if (nv.trail.length > 1) {
+    ctx.strokeStyle = "rgba(31, 119, 180, 0.55)"; ctx.lineWidth = 1.5 * ratio;
+    ctx.beginPath();
+    nv.trail.forEach((p, k) => (k ? ctx.lineTo(f.x(p[0]), f.y(p[1])) : ctx.moveTo(f.x(p[0]), f.y(p[1]))));
+    if (nv.pose) ctx.lineTo(f.x(nv.pose[0]), f.y(nv.pose[1]));
+    ctx.stroke();
+  }
+  const body = scene.body;
+  if (!nv.pose) return;
+  const [x, y, th] = nv.pose;
+  const radius = body ? body.radius_m : 0.035;
+  // range finders
+  if (body && nv.ranges) {
+    const c = Math.cos(th), s = Math.sin(th);
+    body.sensor_angles_rad.forEach((ang, k) => {
+      const off = body.sensor_offsets_m[k];
+      const ox = x + c * off[0] - s * off[1], oy = y + s * off[0] + c * off[1];
+      const r = nv.ranges[k], hit = r < body.max_range_m - 1e-9;
+      ctx.strokeStyle = hit ? "#d62728" : "rgba(214, 39, 40, 0.35)";
+      ctx.lineWidth = (hit ? 1.6 : 1) * ratio;
+      ctx.setLineDash(hit ? [] : [3 * ratio, 3 * ratio]);
+      ctx.beginPath();
+      ctx.moveTo(f.x(ox), f.y(oy));
+      ctx.lineTo(f.x(ox + r * Math.cos(th + ang)), f.y(oy + r * Math.sin(th + ang)));
+      ctx.stroke();
+    });
+    ctx.setLineDash([]);
+  }
+  // the robot
+  ctx.fillStyle = nv.contact ? "#f6c6c6" : "#ffffff";
+  ctx.strokeStyle = "#1f77b4"; ctx.lineWidth = 2 * ratio;
+  ctx.beginPath(); ctx.arc(f.x(x), f.y(y), Math.max(radius * f.s, 3 * ratio), 0, 2 * Math.PI);
+  ctx.fill(); ctx.stroke();
+  ctx.beginPath(); ctx.moveTo(f.x(x), f.y(y));
+  ctx.lineTo(f.x(x + radius * Math.cos(th)), f.y(y + radius * Math.sin(th))); ctx.stroke();
+}
+
+function heat(level) {  // 0-255 -> dark grey, red, orange, yellow, white
+  const t = level / 255;
+  const r = Math.round(60 + 195 * Math.min(1, t * 2));
+  const g = Math.round(60 + 195 * Math.max(0, Math.min(1, t * 2 - 0.6)));
+  const b = Math.round(60 + 195 * Math.max(0, t * 3 - 2));
+  return `rgb(${r},${g},${b})`;
+}
+
+function drawCulture() {
+  const [ctx, w, h, ratio] = canvas2d("culture");
+  const cul = nv.scene && nv.scene.culture;
+  if (!cul) { $("culture-note").textContent = "waiting for the culture's description"; return; }
+  const xs = cul.x_um, ys = cul.y_um, n = xs.length;
+  let b = [Math.min(...xs), Math.max(...xs), Math.min(...ys), Math.max(...ys)];
+  const span = Math.max(b[1] - b[0], b[3] - b[2], 1);
+  b = [b[0] - span * 0.03, b[1] + span * 0.03, b[2] - span * 0.03, b[3] + span * 0.03];
+  const f = fitter(b, w, h, 8 * ratio);
+  const dot = Math.max(1.2 * ratio, Math.min(8 * ratio, 0.42 * f.s * span / Math.sqrt(n)));
+  const act = nv.activity;
+  for (let k = 0; k < n; k++) {
+    ctx.fillStyle = heat(act ? act[k] : 0);
+    const px = f.x(xs[k]), py = f.y(ys[k]);
+    if (cul.cell_type && cul.cell_type[k] === 1) ctx.fillRect(px - dot * 0.8, py - dot * 0.8, dot * 1.6, dot * 1.6);
+    else { ctx.beginPath(); ctx.arc(px, py, dot, 0, 2 * Math.PI); ctx.fill(); }
+  }
+  ctx.strokeStyle = "#17a34a"; ctx.lineWidth = 2 * ratio;
+  for (const k of nv.lit) {
+    ctx.beginPath(); ctx.arc(f.x(xs[k]), f.y(ys[k]), dot + 3 * ratio, 0, 2 * Math.PI); ctx.stroke();
+  }
+  if (nv.ca.length) {
+    ctx.strokeStyle = "rgba(214, 51, 108, 0.6)"; ctx.lineWidth = 1.5 * ratio;
+    ctx.beginPath();
+    nv.ca.forEach((c, k) => (k ? ctx.lineTo(f.x(c[1]), f.y(c[2])) : ctx.moveTo(f.x(c[1]), f.y(c[2]))));
+    ctx.stroke();
+    const c = nv.ca[nv.ca.length - 1], r = 6 * ratio;
+    ctx.strokeStyle = "#d6336c"; ctx.lineWidth = 3 * ratio;
+    ctx.beginPath();
+    ctx.moveTo(f.x(c[1]) - r, f.y(c[2])); ctx.lineTo(f.x(c[1]) + r, f.y(c[2]));
+    ctx.moveTo(f.x(c[1]), f.y(c[2]) - r); ctx.lineTo(f.x(c[1]), f.y(c[2]) + r);
+    ctx.stroke();
+  }
+  $("culture-note").textContent = `${n} channels (${cul.kind}); forward is up`;
+}
+
+function timeAxis(ctx, w, h, ratio, t0, t1, x, stepS) {
+  ctx.fillStyle = "#6b7380"; ctx.strokeStyle = "#eceef1"; ctx.lineWidth = ratio;
+  ctx.font = `${11 * ratio}px system-ui, sans-serif`;
+  for (let t = Math.ceil(t0 / stepS) * stepS; t <= t1; t += stepS) {
+    ctx.beginPath(); ctx.moveTo(x(t), 0); ctx.lineTo(x(t), h - 14 * ratio); ctx.stroke();
+    ctx.fillText(`${t.toFixed(stepS < 1 ? 1 : 0)} s`, x(t) + 2 * ratio, h - 3 * ratio);
+  }
+}
+
+function drawRaster() {
+  const [ctx, w, h, ratio] = canvas2d("raster");
+  const cul = nv.scene && nv.scene.culture;
+  const t1 = nv.t_s, t0 = t1 - RASTER_S;
+  const top = 12 * ratio, bottom = h - 16 * ratio;
+  const x = (t) => ((t - t0) / RASTER_S) * w;
+  timeAxis(ctx, w, h, ratio, t0, t1, x, 0.5);
+  if (!cul) return;
+  const n = cul.channel.length, rowH = (bottom - top) / n;
+  const y = (i) => top + i * rowH;
+  ctx.fillStyle = "rgba(224, 168, 0, 0.18)";
+  for (const b of nv.bursts) {
+    const a = x(b[0] / 1000), e = x(b[1] / 1000);
+    if (e < 0 || a > w) continue;
+    ctx.fillRect(a, top, Math.max(e - a, ratio), bottom - top);
+  }
+  ctx.fillStyle = "#e0a800"; ctx.font = `${11 * ratio}px system-ui, sans-serif`;
+  for (const b of nv.bursts) {
+    const m = x((b[0] + b[1]) / 2000);
+    if (m >= 0 && m <= w) ctx.fillText("▼", m - 4 * ratio, top - 1 * ratio);
+  }
+  const dotH = Math.max(rowH, ratio), dotW = Math.max(1.2 * ratio, 1);
+  const types = cul.cell_type;
+  for (const [t, i] of nv.spikes) {
+    ctx.fillStyle = types && types[i] === 1 ? "#2e6fd8" : "#c0392b";
+    ctx.fillRect(x(t / 1000), y(i), dotW, dotH);
+  }
+  ctx.fillStyle = "#17a34a";
+  for (const [t, i] of nv.pulses) ctx.fillRect(x(t / 1000) - ratio, y(i) - ratio, 3 * ratio, Math.max(dotH, 3 * ratio));
+}
+
+function drawRates() {
+  const [ctx, w, h, ratio] = canvas2d("rates");
+  const t1 = Math.max(nv.t_s, RATES_S), t0 = t1 - RATES_S;
+  const top = 8 * ratio, bottom = h - 16 * ratio, left = 40 * ratio;
+  const x = (t) => left + ((t - t0) / RATES_S) * (w - left);
+  timeAxis(ctx, w, h, ratio, t0, t1, x, 2);
+  let peak = 5;
+  for (const r of nv.rates) for (let k = 1; k < 4; k++) if (r[k] !== null && r[k] > peak) peak = r[k];
+  const y = (v) => bottom - (v / peak) * (bottom - top);
+  ctx.fillStyle = "rgba(224, 168, 0, 0.18)";
+  for (const b of nv.bursts) ctx.fillRect(x(b[0] / 1000), top, Math.max(x(b[1] / 1000) - x(b[0] / 1000), ratio), bottom - top);
+  ctx.fillStyle = "#6b7380"; ctx.font = `${11 * ratio}px system-ui, sans-serif`;
+  ctx.fillText(`${peak.toFixed(0)} Hz`, 2 * ratio, top + 10 * ratio);
+  ctx.fillText("0", 2 * ratio, bottom);
+  const colours = [null, "#222", "#c0392b", "#2e6fd8"];
+  for (let k = 1; k < 4; k++) {
+    ctx.strokeStyle = colours[k]; ctx.lineWidth = 1.4 * ratio;
+    ctx.beginPath();
+    let started = false;
+    for (const r of nv.rates) {
+      if (r[k] === null) continue;
+      if (started) ctx.lineTo(x(r[0]), y(r[k])); else { ctx.moveTo(x(r[0]), y(r[k])); started = true; }
+    }
+    ctx.stroke();
+  }
+}
+
+function byRole(obj) {
+  if (!obj || !Object.keys(obj).length) return "0";
+  return Object.entries(obj).map(([k, v]) => `${k} ${typeof v === "object" ? JSON.stringify(v) : v}`).join(", ");
+}
+
+function drawLoopPanel() {
+  const st = nv.status, ex = st.extra || {}, scene = nv.scene || {};
+  const period = ex.period_ms || scene.period_ms;
+  const rows = [
+    ["mode", st.mode || scene.mode || "—"],
+    ["period", period ? `${period} ms` : "—"],
+  ];
+  if (nv.source.kind === "replay") {
+    const t = ex.timing || {};
+    rows.push(["outcome", ex.outcome || "—"]);
+    rows.push(["steps recorded", ex.n_steps ?? "—"]);
+    rows.push(["x real time (run)", fmt(t.x_realtime, 1)]);
+    rows.push(["late steps (run)", t.late_steps ?? "—"]);
+    if (t.lateness_ms_p99 !== undefined) rows.push(["lateness p99 / max", `${fmt(t.lateness_ms_p99, 2)} / ${fmt(t.lateness_ms_max, 2)} ms`]);
+  } else {
+    rows.push(["steps/s", fmt(st.steps_per_s, 0)]);
+    rows.push(["x real time", period && st.steps_per_s ? fmt((st.steps_per_s * period) / 1000, 2) : "—"]);
+    rows.push(["wall time", st.wall_s !== undefined ? `${fmt(st.wall_s, 1)} s` : "—"]);
+    if (ex.lateness_ms !== undefined) rows.push(["lateness now / max", `${fmt(ex.lateness_ms, 2)} / ${fmt(ex.lateness_ms_max, 2)} ms`]);
+    rows.push(["late steps", ex.late_steps ?? "—"]);
+  }
+  rows.push(["late replies", byRole(st.late)]);
+  rows.push(["missing replies", byRole(st.missing)]);
+  rows.push(["dropped messages", byRole(st.dropped)]);
+  if (ex.network_bursts !== undefined) rows.push(["bursts online", `${ex.single_channel_bursts} single-channel, ${ex.network_bursts} network`]);
+  if (nv.source.kind === "live") {
+    rows.push(["alive", (st.alive || []).join(", ") || "—"]);
+    rows.push(["motor (L, R)", nv.motor ? `${fmt(nv.motor[0], 3)}, ${fmt(nv.motor[1], 3)} m/s` : "—"]);
+  }
+  $("loop-panel").innerHTML = rows.map(([k, v]) => `<tr><td>${k}</td><td>${escapeHtml(String(v))}</td></tr>`).join("");
+}
+
+function drawEndpoints() {
+  const parts = [];
+  for (const role of ["body", "culture"]) {
+    const e = nv.endpoints[role];
+    if (!e) continue;
+    const c = e.counters || {};
+    const alive = e.alive === null || e.alive === undefined ? "" :
+      e.alive ? ' <span class="ok">● alive</span>' : ' <span class="bad">● not answering</span>';
+    const dropped = c.dropped && typeof c.dropped === "object" ? c.dropped : {};
+    const nDropped = Object.values(dropped).reduce((a, b) => a + b, 0);
+    const rows = [
+      ["state", c.run ? `in run ${String(c.run).slice(0, 8)}…` : e.alive === false ? "—" : "idle"],
+      ["steps", c.steps ?? "—"],
+      ["dropped", nDropped ? `${nDropped} (${byRole(dropped)})` : "0"],
+      ["holds", c.holds ?? 0],
+      ["busy / CPU", c.busy_s !== undefined ? `${fmt(c.busy_s, 2)} / ${fmt(c.cpu_s, 2)} s` : "—"],
+    ];
+    parts.push(
+      `<div class="endpoint"><div class="head">${role}/${escapeHtml(String(e.id))} · ${escapeHtml(String(e.kind || ""))}${alive}</div>` +
+      `<table>${rows.map(([k, v]) => `<tr><td>${k}</td><td>${escapeHtml(String(v))}</td></tr>`).join("")}</table></div>`);
+  }
+  $("endpoints-panel").innerHTML = parts.join("") || '<div class="note">no endpoint seen yet</div>';
+}
+
+function escapeHtml(s) {
+  return s.replace(/[&<>"]/g, (c) => ({ "&": "&amp;", "<": "&lt;", ">": "&gt;", '"': "&quot;" })[c]);
+}
+
+// ------------------------------------------------------------------ controls
+
+let stopArmed = null;
+$("btn-pause").onclick = () => send({ cmd: "pause" });
+$("btn-resume").onclick = () => send({ cmd: "resume" });
+$("btn-stop").onclick = () => {
+  const btn = $("btn-stop");
+  if (stopArmed) {
+    clearTimeout(stopArmed); stopArmed = null;
+    btn.classList.remove("armed"); btn.textContent = "Stop";
+    send({ cmd: "stop" });
+    return;
+  }
+  btn.classList.add("armed"); btn.textContent = "Stop the run?";
+  stopArmed = setTimeout(() => { stopArmed = null; btn.classList.remove("armed"); btn.textContent = "Stop"; }, 4000);
+};
+$("btn-play").onclick = () => send({ cmd: nv.replay && nv.replay.playing ? "pause" : "play" });
+$("speed").onchange = (e) => send({ cmd: "speed", x: Number(e.target.value) });
+let sliding = false;
+$("slider").oninput = () => { sliding = true; nv.dirty = true; };
+$("slider").onchange = (e) => { sliding = false; send({ cmd: "seek", t_s: Number(e.target.value) }); };
+
+connect();
+requestAnimationFrame(frameLoop);
