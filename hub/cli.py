@@ -6,6 +6,8 @@ neuvision endpoint ROLE CONFIG   one endpoint (body or culture) of CONFIG
 neuvision record-info RUN_DIR    what a recorded run holds
 neuvision emulate khepera|intan  a Khepera II on a pseudo-terminal, an Intan RHX on TCP
 neuvision export RUN_DIR --nwb F  a recorded run as an NWB file
+neuvision dashboard [CONFIG]     the live dashboard in a browser (--replay RUN_DIR: a recorded run)
+neuvision ctl CMD [CONFIG]       status, pause, resume or stop a running hub
 """
 
 from __future__ import annotations
@@ -103,6 +105,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     _add_config_args(p)
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    _add_dashboard_flag(p)
     p = sub.add_parser(
         "hub",
         help="run the hub alone (endpoints started elsewhere)",
@@ -117,6 +120,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="where to listen for endpoints (bus.listen), e.g. 0.0.0.0:7447 for other hosts",
     )
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    _add_dashboard_flag(p)
     p = sub.add_parser(
         "endpoint",
         help="serve one endpoint of a config",
@@ -225,7 +229,50 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", type=Path, help="output folder (default: a new run folder)")
     p.add_argument("--quick", action="store_true", help="a shortened version (for tests)")
     p.add_argument("--seed", type=int, default=1)
+    _add_dashboard_commands(sub)
     return parser
+
+
+def _add_dashboard_flag(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--dashboard",
+        action="store_true",
+        help="also serve the live dashboard (dashboard.port, default 8447) while the run goes",
+    )
+
+
+def _add_dashboard_commands(sub) -> None:
+    p = sub.add_parser(
+        "dashboard",
+        help="the live dashboard in a browser, or the replay of a recorded run",
+        description="Serve a page (on localhost; dashboard.host/port) that shows a run live: the "
+        "arena and the robot, the culture's activity and Center of Activity, a raster, the "
+        "rates, the loop's timing and each endpoint; with pause, resume and stop. It observes "
+        "the bus and may run on another machine than the hub (--connect). With --replay it "
+        "plays a recorded run through the same page, with a time slider.",
+        epilog="A hub started by 'neuvision run' listens on a port of its own: give "
+        "'neuvision run --dashboard' instead, or --connect the address it prints.",
+    )
+    _add_config_args(p, shortcuts=False)
+    p.add_argument("--session", help="bus.session")
+    p.add_argument("--connect", metavar="HOST[:PORT]", help="where the hub listens (bus.connect)")
+    p.add_argument("--port", type=int, help="dashboard.port (0: a free one)")
+    p.add_argument("--host", help="dashboard.host (0.0.0.0: reachable from other machines)")
+    p.add_argument("--replay", metavar="RUN_DIR", help="replay this run folder instead")
+    p.add_argument("--speed", type=float, default=1.0, help="replay speed, x real time")
+    p = sub.add_parser(
+        "ctl",
+        help="status, pause, resume or stop a running hub",
+        description="Send a command to a running hub's control key (hub/control) and print "
+        "its reply as JSON: status (the hub's state and counters), pause (the loop holds, the "
+        "robot stops), resume, stop (the run ends as 'stopped'). Exit status 0 when the hub "
+        "took the command, 2 when it refused it or no hub answered.",
+    )
+    p.add_argument("cmd", choices=("status", "pause", "resume", "stop"))
+    _add_config_args(p, shortcuts=False)
+    p.add_argument("--session", help="bus.session")
+    p.add_argument("--connect", metavar="HOST[:PORT]", help="where the hub listens (bus.connect)")
+    p.add_argument("--timeout-s", type=float, default=5.0, help="how long to wait for the hub")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -285,6 +332,7 @@ def cmd_hub(args, local: bool = False) -> int:
         local=local,
         progress=None if args.quiet else ProgressBar(),
         announce=lambda line: print(f"neuvision: {line}", file=sys.stderr),
+        dashboard=args.dashboard,
     )
     print(_result_line(result), file=sys.stderr)
     if result.outcome == "fault":
@@ -500,6 +548,49 @@ def cmd_certs(args) -> int:
     return EXIT_OK
 
 
+def cmd_dashboard(args) -> int:
+    try:
+        from dashboard.app import run_dashboard
+        from dashboard.replay import ReplayError
+        from dashboard.server import ServeError
+    except ImportError as exc:
+        raise InputError(
+            f"the dashboard needs its web server: pip install 'neuvision[dashboard]' ({exc})"
+        ) from None
+    cfg = load_config(args.config, _overrides(args))
+    replay = _run_folder(args.replay) if args.replay else None
+    try:
+        run_dashboard(
+            cfg,
+            replay=replay,
+            speed=args.speed,
+            host=args.host,
+            port=args.port,
+            announce=lambda line: print(f"neuvision: {line}", file=sys.stderr, flush=True),
+        )
+    except ReplayError as exc:
+        raise InputError(str(exc)) from None
+    except ServeError as exc:
+        print(f"neuvision: {_one_line(exc)}", file=sys.stderr)
+        return EXIT_FAULT
+    return EXIT_OK
+
+
+def cmd_ctl(args) -> int:
+    from hub.ctl import ctl
+
+    cfg = load_config(args.config, _overrides(args))
+    reply = ctl(cfg.bus, args.cmd, timeout_s=args.timeout_s)
+    if reply is None:
+        where = ", ".join(cfg.bus.connect or cfg.bus.listen)
+        print(f"neuvision: no hub answered on session {cfg.bus.session!r} at {where}",
+              file=sys.stderr)  # fmt: skip
+        return EXIT_FAULT
+    out = {"ok": reply.ok, "state": reply.state, "reason": reply.reason, "data": reply.data}
+    print(json.dumps(out, indent=2, default=str))
+    return EXIT_OK if reply.ok else EXIT_FAULT
+
+
 COMMANDS = {
     "certs": cmd_certs,
     "run": cmd_run,
@@ -511,6 +602,8 @@ COMMANDS = {
     "reproduce": cmd_reproduce,
     "emulate": cmd_emulate,
     "export": cmd_export,
+    "dashboard": cmd_dashboard,
+    "ctl": cmd_ctl,
 }
 
 if __name__ == "__main__":

@@ -162,6 +162,58 @@ def start_local_endpoints(
     return procs
 
 
+def dashboard_address(cfg: ExperimentConfig) -> tuple[str, int]:
+    """Where a run's local dashboard will serve: ``dashboard.host`` and ``dashboard.port``,
+    a free port when it is 0.
+
+    Raises
+    ------
+    ConfigError
+        The port is taken (another dashboard?): before anything starts.
+    """
+    import socket
+
+    host, port = cfg.dashboard.host, cfg.dashboard.port
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    with socket.socket(family, socket.SOCK_STREAM) as sock:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            sock.bind((host, port))
+        except OSError as exc:
+            raise ConfigError(
+                f"dashboard.port: cannot serve on {host}:{port} ({exc.strerror or exc}; "
+                "another dashboard?); --set dashboard.port=0 picks a free one"
+            ) from None
+        return host, sock.getsockname()[1]
+
+
+def start_local_dashboard(
+    config_path: str | None, overrides: list[str], port: int, log_dir: Path | None
+) -> LocalProcess:
+    """Start ``neuvision dashboard`` on the run's bus, serving on ``port``; it ends with its
+    runner (like the endpoints, started before the hub opens its session)."""
+    cmd = [sys.executable, "-m", "hub.cli", "dashboard"]
+    if config_path:
+        cmd.append(str(config_path))
+    for item in overrides:
+        cmd += ["--set", item]
+    cmd += ["--port", str(port)]
+    log_path = log_dir / "dashboard.log" if log_dir else None
+    out = open(log_path, "wb") if log_path else subprocess.DEVNULL
+    popen = subprocess.Popen(
+        cmd,
+        stdin=subprocess.DEVNULL,
+        stdout=out,
+        stderr=subprocess.STDOUT,
+        start_new_session=True,
+        preexec_fn=die_with_parent,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"},
+    )
+    if log_path:
+        out.close()
+    return LocalProcess("dashboard", popen, log_path)
+
+
 def stop_local_endpoints(procs: list[LocalProcess], timeout_s: float = 10.0) -> dict[str, int]:
     """SIGTERM each, wait, SIGKILL what is left; return the exit codes by role."""
     for p in procs:

@@ -46,6 +46,7 @@ def run_experiment(
     progress=None,
     announce: Callable[[str], None] = lambda line: None,
     install_signals: bool = True,
+    dashboard: bool = False,
 ):
     """Run one experiment: check it, start its local endpoints, run the hub, summarise.
 
@@ -66,6 +67,9 @@ def run_experiment(
         Called with each line a user should see (the run folder, endpoint exits).
     install_signals : bool
         SIGINT/SIGTERM end the run as ``interrupted`` (main thread only).
+    dashboard : bool
+        Also serve the live dashboard (``[dashboard]``) for the run's length, as a process
+        of its own watching the run's bus (``neuvision run --dashboard``).
 
     Returns
     -------
@@ -77,7 +81,13 @@ def run_experiment(
         Naming the key, before anything starts.
     """
     from hub.bus import free_tcp_port
-    from hub.launch import start_local_endpoints, stop_local_endpoints, watch_local_endpoints
+    from hub.launch import (
+        dashboard_address,
+        start_local_dashboard,
+        start_local_endpoints,
+        stop_local_endpoints,
+        watch_local_endpoints,
+    )
     from hub.loop import Hub
     from hub.record import new_run_dir
     from hub.scheduling import check_cpus
@@ -88,8 +98,14 @@ def run_experiment(
     if local and all(cfg.endpoint(r).launch == "local" for r in ("body", "culture")):
         # Everything on this machine: a free loopback port keeps parallel runs apart.
         scheme = "tls" if cfg.bus.security == "mtls" else "tcp"
-        overrides.append(f'bus.listen=["{scheme}/127.0.0.1:{free_tcp_port()}"]')
+        port = free_tcp_port()
+        overrides.append(f'bus.listen=["{scheme}/127.0.0.1:{port}"]')
         cfg = load_config(config, overrides)
+        announce(
+            f"the hub listens on 127.0.0.1:{port}, session {cfg.bus.session!r} "
+            f"(neuvision ctl status|pause|resume|stop --connect 127.0.0.1:{port} "
+            f"--session {cfg.bus.session})"
+        )
     check_cpus("loop.cpus", cfg.loop.cpus)
     for role in ("body", "culture"):
         if local and cfg.endpoint(role).launch == "local":
@@ -98,9 +114,15 @@ def run_experiment(
     # exists; the manifest records them resolved (culture and world contents included).
     cfg = cfg.resolved()
     check_hub_sections(cfg)
+    dash_host, dash_port = dashboard_address(cfg) if dashboard else (None, None)
     run_dir = new_run_dir(cfg.experiment.runs_dir, cfg.experiment.name)
     announce(f"run folder {run_dir}")
     procs = start_local_endpoints(config, overrides, cfg, run_dir) if local else []
+    dash = None
+    if dashboard:
+        dash = start_local_dashboard(config, overrides, dash_port, run_dir)
+        shown = "127.0.0.1" if dash_host in ("0.0.0.0", "::") else dash_host
+        announce(f"dashboard at http://{shown}:{dash_port}/ for the run's length")
     hub = Hub(cfg, run_dir=run_dir, progress=progress)
     signals = install_signals and threading.current_thread() is threading.main_thread()
     if signals:
@@ -119,6 +141,11 @@ def run_experiment(
         if progress is not None:
             progress.close()
         codes = stop_local_endpoints(procs)
+        if dash is not None:
+            ended_early = dash.popen.poll()
+            stop_local_endpoints([dash])
+            if ended_early:
+                announce(f"the dashboard ended early (status {ended_early}); see {dash.log_path}")
     for role, code in codes.items():
         if code != 0:
             announce(f"{role} endpoint exited with status {code}")
