@@ -102,6 +102,8 @@ class LoopSection:
     # (0 means one period: before the next step starts).
     deadline_ms: float = field(default=0.0, metadata=bounds(ge=0))
     status_hz: float = field(default=4.0, metadata=bounds(gt=0, le=100))
+    # HubView for live displays (hub/view), this often while anyone subscribes (0: never).
+    view_hz: float = field(default=30.0, metadata=bounds(ge=0, le=100))
     # At the end of every run the body is sent a stop; the hub waits this long for the
     # body's reply to it, the proof that it was applied (the manifest says which).
     final_stop_wait_s: float = field(default=0.5, metadata=bounds(ge=0, le=60))

@@ -86,6 +86,7 @@ class HubLink:
             for role, i in ids.items()
         }
         self._status = session.declare_publisher(keys.hub_status, **TELEMETRY_PUBLISH)
+        self._view = session.declare_publisher(keys.hub_view, **TELEMETRY_PUBLISH)
         # Zenoh undeclares what is garbage-collected: keep every declaration.
         self._declared = [
             session.declare_subscriber(
@@ -109,6 +110,14 @@ class HubLink:
     def publish_status(self, raw: bytes) -> None:
         """Put a ``HubStatus`` for observers (newest wins; never blocks)."""
         self._status.put(raw)
+
+    def view_observed(self) -> bool:
+        """Whether anyone subscribes to ``hub/view`` (a live display)."""
+        return self._view.matching_status.matching
+
+    def publish_view(self, raw: bytes) -> None:
+        """Put a ``HubView`` for observers (dropped, never waited for, on a slow link)."""
+        self._view.put(raw)
 
     def query(self, key: str, payload: bytes | None = None, *, timeout_s: float) -> list[bytes]:
         """The whole payloads of every reply to a query (``describe``, ``run``)."""

@@ -75,6 +75,7 @@ from hub.scheduling import (
     restore_placement,
     restore_threads,
 )
+from hub.view import ObserverView
 
 log = logging.getLogger(__name__)
 
@@ -189,6 +190,9 @@ class Hub(LockstepSteps, RealtimeSteps):
         self._pause_started: float | None = None
         self._paused_s = 0.0
         self._next_status = 0.0
+        # What live displays get on hub/view (hub/view.py), while anyone subscribes.
+        self.view = ObserverView(self.run_id)
+        self._next_view = 0.0
         n = cfg.n_steps
         self.times = LoopTimes.for_run(cfg.loop.mode, cfg.loop.period_ms, n)
         self.recorder: Recorder | None = None
@@ -273,6 +277,7 @@ class Hub(LockstepSteps, RealtimeSteps):
             self._safe_stop_body()
             endpoint_stats = self._final_counters(session)  # those alive, whatever the outcome
             self._end_run(session, outcome)
+            self._publish_view(time.monotonic())  # the last steps, for live displays
             self.state = "stopped"
             self._publish_status()
             timing, counts = self.timing(), self.counts()
@@ -365,7 +370,9 @@ class Hub(LockstepSteps, RealtimeSteps):
         """The next event, waiting at most until ``until``, the next status, or a flush
         of the record is due."""
         now = time.monotonic()
-        timeout = min(until - now, self._next_status - now, self.cfg.record.flush_s)
+        timeout = min(
+            until - now, self._next_status - now, self._next_view - now, self.cfg.record.flush_s
+        )
         t0 = time.perf_counter()
         try:
             return self.inbox.get(timeout=max(timeout, 0.0))
@@ -407,6 +414,8 @@ class Hub(LockstepSteps, RealtimeSteps):
             self._publish_status()
             if self.progress:
                 self.progress(self._progress())
+        if now >= self._next_view:
+            self._publish_view(now)
         if self.recorder:
             self.recorder.tick()
 
@@ -471,12 +480,14 @@ class Hub(LockstepSteps, RealtimeSteps):
                 return self._drop(role, "duplicate", f"second reply for step {step}")
             self.pending[role][step] = message
             self._note_round_trip(role, step, t_arrival)
+            self.view.took(message)
             return "rx"
         if step in self.missed[role]:
             self.late[role] += 1
             self.missed[role].discard(step)
             self._record_event("late", role=role, step=step, at_step=expected)
             self._note_round_trip(role, step, t_arrival)
+            self.view.took(message)
             return "late"
         if step <= expected:
             return self._drop(role, "stale", f"reply for step {step} awaiting step {expected}")
@@ -797,6 +808,7 @@ class Hub(LockstepSteps, RealtimeSteps):
             for step in [k for k in unanswered if k < self.expect[role]]:
                 del unanswered[step]
             unanswered[message.step] = raw
+        self.view.sent(message)
         if self.recorder:
             self.recorder.message("tx", self.input_key[role], raw)
 
@@ -863,6 +875,19 @@ class Hub(LockstepSteps, RealtimeSteps):
                 **self.times.lateness_now(done),
             },
         )
+
+    def _publish_view(self, now: float) -> None:
+        """A view for live displays, if anyone subscribes and the loop moved (hub/view.py);
+        whether anyone subscribes is looked at four times a second meanwhile."""
+        hz = self.cfg.loop.view_hz
+        if self.link is None or not hz:
+            self._next_view = math.inf
+            return
+        self.view.watch(self.link.view_observed())
+        self._next_view = now + (1.0 / hz if self.view.observed else 0.25)
+        view = self.view.build(self.k_done)
+        if view is not None:
+            self.link.publish_view(view.encode())
 
     def _publish_status(self) -> None:
         if self.link is not None:

@@ -117,6 +117,11 @@ class Keys:
     def hub_control(self) -> str:
         return f"{self.root}/hub/control"
 
+    @property
+    def hub_view(self) -> str:
+        """Hub → observers: ``HubView``, what the loop carried, for live displays."""
+        return f"{self.root}/hub/view"
+
     def parse_alive(self, key: str) -> tuple[str, str] | None:
         """``nv/<s>/alive/<role>/<id>`` → ``(role, id)``, or None for another key."""
         prefix = f"{self.root}/alive/"
@@ -900,6 +905,62 @@ class HubStatus(Message):
     def _check(self):
         if self.state not in self.STATES:
             raise ProtocolError("range", f"state must be one of {self.STATES}, got {self.state!r}")
+
+
+@dataclass(frozen=True, eq=False)
+class HubView(Message):
+    """Hub → observers (``hub/view``), ``loop.view_hz`` times a second while anyone
+    subscribes: what the loop carried since the last view, for a live display.
+
+    Every spike the culture sent over the run time ``[from_s, to_s)`` (``spike_channel``,
+    ``spike_t_ms``: run time in ms), every pulse the hub sent then (``pulse_channel``,
+    ``pulse_t_ms``: onsets, run time in ms), the body's positions meanwhile (``trail_m``:
+    x, y of each reading, in step order), and the newest reading (``sensors_step``,
+    ``pose``, ``ranges_m``, ``contact``) and motor command (``left_mps``, ``right_mps``).
+    ``step`` is the number of steps done. Telemetry: published with congestion control
+    DROP, so an observer that cannot keep up misses views and never holds up the loop; a
+    view missed leaves a gap between one view's ``to_s`` and the next one's ``from_s``.
+    """
+
+    step: int
+    run: str
+    from_s: float
+    to_s: float
+    spike_channel: np.ndarray = field(default_factory=_empty("<u4"))
+    spike_t_ms: np.ndarray = field(default_factory=_empty("<f8"))
+    pulse_channel: np.ndarray = field(default_factory=_empty("<u4"))
+    pulse_t_ms: np.ndarray = field(default_factory=_empty("<f8"))
+    trail_m: np.ndarray = field(default_factory=_empty("<f8"))
+    sensors_step: int | None = None
+    pose: np.ndarray | None = None
+    ranges_m: np.ndarray | None = None
+    contact: bool | None = None
+    left_mps: float | None = None
+    right_mps: float | None = None
+
+    SCHEMA = {
+        "step": _STEP,
+        "run": _RUN,
+        "from_s": Scalar(float, min=0.0),
+        "to_s": Scalar(float, min=0.0),
+        "spike_channel": Array("<u4", group="spike"),
+        "spike_t_ms": Array("<f8", group="spike", min=0.0),
+        "pulse_channel": Array("<u4", group="pulse"),
+        "pulse_t_ms": Array("<f8", group="pulse", min=0.0),
+        "trail_m": Array("<f8"),
+        "sensors_step": Scalar(int, min=0, optional=True),
+        "pose": Array("<f8", length=3, optional=True),
+        "ranges_m": Array("<f4", min=0.0, optional=True),
+        "contact": Scalar(bool, optional=True),
+        "left_mps": Scalar(float, optional=True),
+        "right_mps": Scalar(float, optional=True),
+    }
+
+    def _check(self):
+        if self.to_s < self.from_s:
+            raise ProtocolError("inconsistent", f"to_s {self.to_s} precedes from_s {self.from_s}")
+        if self.trail_m.size % 2:
+            raise ProtocolError("array", "trail_m must hold x, y pairs")
 
 
 RUN_ID_CHARS = frozenset("0123456789abcdef")
