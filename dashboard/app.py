@@ -53,7 +53,8 @@ def run_dashboard(
     else:
         from .observer import BusObserver
 
-        source = BusObserver(cfg.bus, state)
+        # the dashboard's own experiment file, if it was given one, stands in for the hub's
+        source = BusObserver(cfg.bus, state, cfg.to_dict() if cfg.source else None)
         what = f"live: session {cfg.bus.session!r}, hub at {source.where}"
     serve(
         source,

@@ -1,21 +1,30 @@
 """The live source: an observer on the bus that feeds a :class:`~dashboard.state.FrameState`.
 
 It joins the hub's router as a client, like an endpoint, but only subscribes and queries —
-it never puts a loop message. What it hears is held by Zenoh in ring buffers (no Python
-runs per message as it arrives, and a full ring drops its oldest sample: the loop is never
-held up) and taken out by :meth:`BusObserver.tick`, a frame at a time:
+it never puts a loop message. It does not subscribe to the loop's own keys either: the
+router would then send it four messages a step with the loop's congestion control, which
+costs a lockstep loop far more than its 5 % budget and lets a slow observer hold the loop up
+(docs/dashboard.md). It hears the hub's telemetry, published with congestion control DROP,
+held by Zenoh in ring buffers (no Python runs as a sample arrives; a full ring drops its
+oldest) and taken out by :meth:`BusObserver.tick`, a frame at a time:
 
-- ``body/*/sensors`` (pose, ranges), ``body/*/motor``, ``culture/*/spikes``,
-  ``culture/*/stim``: each message read (reassembled, unsealed payloads are plain msgpack)
-  and checked against the contract; a bad one is counted and left out;
+- ``hub/view`` (:class:`~hub.protocol.HubView`, ``loop.view_hz`` times a second): every
+  spike and pulse since the last view, the body's trail, its newest reading and the newest
+  motor command — what the loop carried, relayed by the hub;
 - ``hub/status``: the hub's state, counters and recent network bursts;
 - liveliness ``alive/**``: whether the hub is there.
+
+Each message is checked against the contract; a bad one is counted and left out.
 
 A thread of its own asks the hub for the run's config (``hub/control`` ``config``: the world,
 the period) and each endpoint for its description (the geometry, then every second its
 counters), so no frame waits for a query. A new run (another run id on the wire) starts the
 histories again and the scene is asked for anew. Controls go to ``hub/control``
 (:func:`hub.ctl.request`).
+
+With ``bus.security = "mtls"`` it takes part as an ``operator`` when ``bus.certs_dir`` holds
+that role's certificate, else as an ``observer``, which may watch but not send controls
+nor ask for the config: the dashboard's own experiment file then stands in for it.
 """
 
 from __future__ import annotations
@@ -28,30 +37,19 @@ from collections import Counter
 
 import zenoh
 
-from hub import wire
+from hub import security, wire
 from hub.bus import BusError, open_session
 from hub.config import BusSection
 from hub.ctl import request
-from hub.protocol import (
-    CONTROL_COMMANDS,
-    Description,
-    HubStatus,
-    MotorCommand,
-    ProtocolError,
-    SensorReading,
-    SpikeBatch,
-    Stimulation,
-)
+from hub.protocol import CONTROL_COMMANDS, Description, HubStatus, HubView, ProtocolError
 
-from .scene import build_scene
+from .scene import build_scene, world_for
 from .state import FrameState
 
 log = logging.getLogger(__name__)
 
-# Samples each ring holds between two frames. At 30 frames/s a ring of 4096 spike batches
-# covers ~1,200 steps/s (the closed loop's lockstep pace is ~1,000-1,700); past that the
-# oldest are dropped (the raster shows a gap), the loop never waits.
-RINGS = {"sensors": 4096, "motor": 4, "spikes": 4096, "stim": 4096, "status": 16}
+# Samples each ring holds between two frames (a full ring drops its oldest).
+RINGS = {"view": 16, "status": 16}
 ENDPOINTS_EVERY_S = 1.0  # each endpoint's counters asked this often
 RETRY_S = 1.0  # between tries to reach the hub, or its scene
 QUERY_TIMEOUT_S = 2.0
@@ -60,10 +58,14 @@ COMMANDS = tuple(c for c in CONTROL_COMMANDS if c != "config")
 
 class BusObserver:
     """The dashboard's live source on ``bus`` (the experiment's ``[bus]`` section: the
-    session, and where the hub listens or ``bus.connect``)."""
+    session, and where the hub listens or ``bus.connect``). ``config`` (a plain config
+    dict, the dashboard's own experiment file) stands in for the hub's when the hub does
+    not give it."""
 
-    def __init__(self, bus: BusSection, state: FrameState):
+    def __init__(self, bus: BusSection, state: FrameState, config: dict | None = None):
         self.bus = dataclasses.replace(bus, connect_timeout_s=QUERY_TIMEOUT_S)
+        self.config = config
+        self.role = _role(bus)
         self.keys = bus.keys
         self.state = state
         self.where = ", ".join(bus.connect or bus.listen)
@@ -72,6 +74,8 @@ class BusObserver:
         self._inboxes: dict[str, wire.Inbox] = {}
         self._declared: list = []
         self.run: str | None = None  # the run id seen on the wire
+        self._hub_config: dict | None = None  # the present hub's config, once asked
+        self._world = None  # ... and its world
         self.ids: dict[str, str] | None = None  # role -> id, from the run's config
         self.dropped: Counter[str] = Counter()
         self._hub_alive = False
@@ -79,7 +83,12 @@ class BusObserver:
         self._need_scene.set()
         self._closed = threading.Event()
         self._thread = threading.Thread(target=self._watch, name="dashboard-watch", daemon=True)
-        state.source = {"kind": "live", "session": bus.session, "hub": self.where}
+        state.source = {
+            "kind": "live",
+            "session": bus.session,
+            "hub": self.where,
+            "controls": self.role == "operator",
+        }
         state.observer = {"connected": False, "hub_alive": False, "dropped": {}}
 
     # ------------------------------------------------------------------ life
@@ -101,7 +110,7 @@ class BusObserver:
         subs = self._subs
         if not subs:
             return
-        for name in ("status", "sensors", "motor", "stim", "spikes"):
+        for name in ("status", "view"):
             sub = subs[name]
             while (sample := sub.try_recv()) is not None:
                 self._take(name, sample)
@@ -132,23 +141,17 @@ class BusObserver:
             state.set_status(status)
             state.add_bursts(extra.get("recent_network_bursts") or [])
             return
-        kind = {
-            "sensors": SensorReading,
-            "motor": MotorCommand,
-            "stim": Stimulation,
-            "spikes": SpikeBatch,
-        }[name]
-        m = kind.decode(raw)
-        self._new_run(m.run)
-        if name == "sensors":
-            state.add_sensors(m.step, m.t_s, m.pose, m.ranges_m, m.contact)
-        elif name == "motor":
-            state.add_motor(m.step, m.left_mps, m.right_mps)
-        elif name == "stim":
-            if m.n_pulses:
-                state.add_pulses(m.channel, m.t0_s * 1e3 + m.onset_ms.astype(float))
-        else:
-            state.add_spikes(m.channel, m.t0_s * 1e3 + m.t_ms.astype(float), m.t1_s * 1e3)
+        v = HubView.decode(raw)
+        self._new_run(v.run)
+        state.add_spikes(v.spike_channel, v.spike_t_ms, v.from_s * 1e3, v.to_s * 1e3)
+        if v.pulse_channel.size:
+            state.add_pulses(v.pulse_channel, v.pulse_t_ms)
+        if v.trail_m.size:
+            state.add_trail(v.trail_m.reshape(-1, 2))
+        if v.pose is not None:
+            state.add_sensors(v.sensors_step, v.to_s, v.pose, v.ranges_m, v.contact, trail=False)
+        if v.left_mps is not None:
+            state.add_motor(v.step, v.left_mps, v.right_mps)
 
     def _new_run(self, run: str | None) -> None:
         if run and run != self.run:
@@ -165,6 +168,8 @@ class BusObserver:
         cmd = message.get("cmd")
         if cmd not in COMMANDS:
             return {"ok": False, "state": "", "reason": f"unknown command {cmd!r}"}
+        if self.role != "operator":
+            return {"ok": False, "state": "", "reason": "read-only: an observer's certificate"}
         if self.session is None:
             return {"ok": False, "state": "", "reason": f"no hub reached at {self.where}"}
         reply = request(self.session, self.keys, cmd, timeout_s=QUERY_TIMEOUT_S)
@@ -192,17 +197,13 @@ class BusObserver:
 
     def _connect(self) -> bool:
         try:
-            session = open_session(self.bus, listener=False)
+            session = open_session(self.bus, listener=False, role=self.role)
         except BusError as exc:
             log.debug("no hub yet: %s", exc)
             return False
         ring = zenoh.handlers.RingChannel
-        root = self.keys.root
         subs = {
-            "sensors": session.declare_subscriber(f"{root}/body/*/sensors", ring(RINGS["sensors"])),
-            "motor": session.declare_subscriber(f"{root}/body/*/motor", ring(RINGS["motor"])),
-            "spikes": session.declare_subscriber(f"{root}/culture/*/spikes", ring(RINGS["spikes"])),
-            "stim": session.declare_subscriber(f"{root}/culture/*/stim", ring(RINGS["stim"])),
+            "view": session.declare_subscriber(self.keys.hub_view, ring(RINGS["view"])),
             "status": session.declare_subscriber(self.keys.hub_status, ring(RINGS["status"])),
         }
         self._declared = [
@@ -219,15 +220,22 @@ class BusObserver:
         if self.keys.parse_alive(str(sample.key_expr)) == ("hub", "0"):
             alive = sample.kind == zenoh.SampleKind.PUT
             if alive and not self._hub_alive:
-                self._need_scene.set()  # a hub (again): its run's config and endpoints
+                self._hub_config = None  # a hub (again): its run's config and endpoints
+                self._need_scene.set()
             self._hub_alive = alive
 
     def _fetch_scene(self) -> bool:
-        """Ask the hub for the run's config and each endpoint for its description."""
-        reply = request(self.session, self.keys, "config", timeout_s=QUERY_TIMEOUT_S)
-        if reply is None or not reply.data:
-            return False
-        config = reply.data
+        """Ask the hub for the run's config (once per hub: the hub records each control
+        query; the world is read at once, most often before the run's steps begin), then
+        each endpoint for its description."""
+        if self._hub_config is None:
+            config = None
+            if self.role == "operator":
+                reply = request(self.session, self.keys, "config", timeout_s=QUERY_TIMEOUT_S)
+                config = reply.data if reply is not None else None
+            self._hub_config = config or self.config or {}
+            self._world = world_for(self._hub_config)
+        config = self._hub_config
         ids = {role: str((config.get(role) or {}).get("id", "0")) for role in ("body", "culture")}
         descriptions = {}
         for role, i in ids.items():
@@ -240,7 +248,7 @@ class BusObserver:
                     log.warning("%s/%s described itself badly: %s", role, i, exc)
         if len(descriptions) < 2:
             return False
-        scene = build_scene(descriptions, config)
+        scene = build_scene(descriptions, config, self._world)
         with self.state.lock:
             self.ids = ids
             self.state.set_scene(scene)
@@ -260,6 +268,15 @@ class BusObserver:
             endpoints[role] = entry
         with self.state.lock:
             self.state.set_endpoints(endpoints)
+
+
+def _role(bus: BusSection) -> str:
+    """``operator`` (watch and control), or ``observer`` (watch only) when the security
+    profile is on and ``bus.certs_dir`` holds no operator's certificate."""
+    if bus.security != "mtls":
+        return "operator"
+    files = security.certificate_files(bus.certs_dir, "operator")
+    return "operator" if all(path.is_file() for path in files.values()) else "observer"
 
 
 def _plain(value):

@@ -21,7 +21,7 @@ import numpy as np
 from hub.protocol import MotorCommand, SensorReading, Stimulation
 from hub.record import DATA_DIRECTIONS, read_run
 
-from .scene import build_scene
+from .scene import build_scene, world_for
 from .state import BURSTS_KEPT_S, RASTER_S, RATE_HISTORY_S, FrameState
 
 SPEEDS = (0.1, 0.25, 0.5, 1.0, 2.0, 5.0, 10.0, 20.0, 50.0)
@@ -52,7 +52,7 @@ class ReplaySource:
             raise ReplayError(f"{self.run_dir} holds no body reading to replay")
         self.manifest = rec.manifest
         config = self.manifest.get("config") or {}
-        self.scene = build_scene(rec.descriptions(), config)
+        self.scene = build_scene(rec.descriptions(), config, world_for(config))
         period_ms = self.scene["period_ms"] or 10.0
         # the body: one row per reading, in step order
         self.sensor_t = np.array([r.t_s for r in readings])
@@ -137,8 +137,7 @@ class ReplaySource:
         a, b = np.searchsorted(self.pulse_t_ms, [t0 * 1e3, t1 * 1e3], side="right")
         if b > a:
             state.add_pulses(self.pulse_channel[a:b], self.pulse_t_ms[a:b])
-        a, b = np.searchsorted(self.spike_t_ms, [t0 * 1e3, t1 * 1e3], side="right")
-        state.add_spikes(self.spike_channel[a:b], self.spike_t_ms[a:b], t1 * 1e3)
+        self._spikes(t0, t1)
         a, b = np.searchsorted(self.burst_end_s, [t0, t1], side="right")
         if b > a:
             state.add_bursts(self.bursts[a:b])
@@ -170,12 +169,15 @@ class ReplaySource:
         a, b = np.searchsorted(self.pulse_t_ms, [max(t1 - RASTER_S, 0) * 1e3, t1 * 1e3])
         if b > a:
             state.add_pulses(self.pulse_channel[a:b], self.pulse_t_ms[a:b])
-        a, b = np.searchsorted(self.spike_t_ms, [t0 * 1e3, t1 * 1e3], side="right")
-        state.begin_at(t0 * 1e3)  # the rates start where the history does
-        state.add_spikes(self.spike_channel[a:b], self.spike_t_ms[a:b], t1 * 1e3)
+        self._spikes(t0, t1)
         a, b = np.searchsorted(self.burst_end_s, [max(t1 - BURSTS_KEPT_S, 0), t1], side="right")
         if b > a:
             state.add_bursts(self.bursts[a:b])
+
+    def _spikes(self, t0: float, t1: float) -> None:
+        """The spikes of run time ``[t0, t1)`` (s)."""
+        a, b = np.searchsorted(self.spike_t_ms, [t0 * 1e3, t1 * 1e3], side="left")
+        self.state.add_spikes(self.spike_channel[a:b], self.spike_t_ms[a:b], t0 * 1e3, t1 * 1e3)
 
     def _publish(self) -> None:
         """The replay's position and the hub's counts up to it, for the page."""

@@ -4,8 +4,10 @@ geometry, the culture's channel layout, the loop's period — as one JSON-ready 
 Built from the endpoints' :class:`~hub.protocol.Description` (what they say they are) and
 the run's config (the hub's ``config`` control reply live, the manifest's ``config`` in a
 replay). The world, when the config names one, is read by the lab layer
-(:func:`lab.behaviour.world_of`); a body in a world not known here (a real robot without
-``body.params.world``) is drawn in an arena fitted to its trail.
+(:func:`lab.behaviour.world_of`, imported with this module: reading a world costs a few
+tenths of a second of CPU, better spent before a run's steps than during them); a body in a
+world not known here (a real robot without ``body.params.world``) is drawn in an arena
+fitted to its trail.
 """
 
 from __future__ import annotations
@@ -16,11 +18,12 @@ import math
 import numpy as np
 
 from hub.protocol import Description
+from lab.behaviour import world_of
 
 log = logging.getLogger(__name__)
 
 
-def build_scene(descriptions: dict[str, Description], config: dict | None) -> dict:
+def build_scene(descriptions: dict[str, Description], config: dict | None, world) -> dict:
     """The scene of a run.
 
     Parameters
@@ -29,6 +32,8 @@ def build_scene(descriptions: dict[str, Description], config: dict | None) -> di
         Role -> the endpoint's description (either may be missing).
     config : dict or None
         The run's config as a plain dict (``ExperimentConfig.to_dict()``).
+    world : sim_robot.World or None
+        The run's world (:func:`world_for` of ``config``), None if not known.
 
     Returns
     -------
@@ -51,7 +56,6 @@ def build_scene(descriptions: dict[str, Description], config: dict | None) -> di
         "body": None,
         "culture": None,
     }
-    world = _world(config)
     if world is not None:
         scene["arena"] = _arena(world.arena)
         scene["obstacles"] = [_obstacle(ob) for ob in world.obstacles]
@@ -64,12 +68,10 @@ def build_scene(descriptions: dict[str, Description], config: dict | None) -> di
     return scene
 
 
-def _world(config: dict):
+def world_for(config: dict | None):
     """The world of the run's body, or None (not named, or not readable here)."""
-    if not config.get("body"):
+    if not config or not config.get("body"):
         return None
-    from lab.behaviour import world_of
-
     try:
         return world_of(config)
     except Exception as exc:  # a world file of another machine: the page does without it

@@ -93,6 +93,7 @@ class Dashboard:
     async def lifespan(self, app):
         await asyncio.to_thread(self.source.start)
         pump = asyncio.create_task(self.pump())
+        wall0, cpu0 = time.monotonic(), time.process_time()
         try:
             yield
         finally:
@@ -100,6 +101,11 @@ class Dashboard:
             with contextlib.suppress(asyncio.CancelledError):
                 await pump
             await asyncio.to_thread(self.source.close)
+            wall, cpu = time.monotonic() - wall0, time.process_time() - cpu0
+            log.info(
+                "served %d ticks in %.1f s; the dashboard's process used %.2f s of CPU (%.1f %% "
+                "of a core)", self.ticks, wall, cpu, 100 * cpu / max(wall, 1e-9),
+            )  # fmt: skip
 
     # ------------------------------------------------------------------ http
 
@@ -169,6 +175,7 @@ class Dashboard:
                 frame = state.frame(page.reader)
                 frame["server"] = {
                     "wall_ms": time.time() * 1e3,
+                    "cpu_s": time.process_time(),
                     "sent": page.sent,
                     "dropped": page.dropped,
                 }

@@ -10,6 +10,10 @@ never data (within the histories kept below).
 
 Everything is stamped with *run time* (ms or s from the run's start, as the messages'
 windows say), so a replay computes the same rates and Center of Activity as the live run.
+Spikes come with the stretch of run time they cover; a 50 ms bin of the rates is shown
+only when at least half of it was covered (a source that skips windows, as the live one
+does in a lockstep run faster than the page, leaves gaps rather than false zeros).
+
 No bus, no web: plain numpy, unit-tested on its own. Not thread-safe by itself: callers
 hold :attr:`FrameState.lock`.
 """
@@ -145,20 +149,21 @@ class FrameState:
         self._last_trail: tuple[float, float] | None = None
         self._activity = np.zeros(self.n_channels)
         self._activity_ms = 0.0
-        self._bins: dict[int, np.ndarray] = {}  # open bins: [all, exc, inh, sum x, sum y]
-        self._next_bin: int | None = None
+        # open bins: [covered ms, all, exc, inh, sum x, sum y]; those before _closed are out
+        self._bins: dict[int, np.ndarray] = {}
+        self._closed = -(1 << 62)
         self._burst_starts: set[float] = set()
         self.raster_capped = 0
 
     # ------------------------------------------------------------------ feeding
 
-    def add_sensors(self, step: int, t_s: float, pose, ranges, contact: bool) -> None:
-        """A body's reading: the newest pose (by step) and the trail."""
-        x, y = float(pose[0]), float(pose[1])
-        last = self._last_trail
-        if last is None or math.hypot(x - last[0], y - last[1]) >= TRAIL_STEP_M:
-            self._last_trail = (x, y)
-            self.tapes["trail"].add(t_s, [round(x, 5), round(y, 5)])
+    def add_sensors(
+        self, step: int, t_s: float, pose, ranges, contact: bool, trail: bool = True
+    ) -> None:
+        """A body's reading: the newest pose (by step) and, with ``trail``, a point of the
+        trail."""
+        if trail:
+            self.add_trail([pose[:2]], t_s)
         if step >= self.step:
             self.step = int(step)
             self.pose = [float(v) for v in pose]
@@ -166,13 +171,24 @@ class FrameState:
             self.contact = bool(contact)
         self._advance(t_s * 1e3)
 
+    def add_trail(self, points, t_s: float | None = None) -> None:
+        """Positions ``[[x, y], ...]`` of the body in step order (one point kept every
+        TRAIL_STEP_M of travel)."""
+        t_s = self.t_ms / 1e3 if t_s is None else t_s
+        tape, last = self.tapes["trail"], self._last_trail
+        for x, y in np.asarray(points, np.float64).tolist():
+            if last is None or math.hypot(x - last[0], y - last[1]) >= TRAIL_STEP_M:
+                last = (x, y)
+                tape.add(t_s, [round(x, 5), round(y, 5)])
+        self._last_trail = last
+
     def add_motor(self, step: int, left_mps: float, right_mps: float) -> None:
         self.motor = [float(left_mps), float(right_mps)]
 
-    def add_spikes(self, channel, t_ms, until_ms: float) -> None:
-        """Spikes (channel ids, run times in ms) of a window that ends at ``until_ms``:
-        every spike before it has now been given."""
-        if not self.n_channels:
+    def add_spikes(self, channel, t_ms, from_ms: float, until_ms: float) -> None:
+        """Every spike (channel ids, run times in ms, in time order) of the run time
+        ``[from_ms, until_ms)``."""
+        if not self.n_channels or not until_ms > from_ms:
             return
         idx = self._index(channel)
         t_ms = np.asarray(t_ms, np.float64)
@@ -185,7 +201,7 @@ class FrameState:
             weight = np.exp(np.minimum(t_ms - now_ms, 0.0) / ACTIVITY_TAU_MS)
             self._activity += np.bincount(idx, weight, minlength=self.n_channels)
             self.tapes["spikes"].add(float(t_ms[-1]) / 1e3, (t_ms, idx))
-            self._bin(idx, t_ms)
+        self._bin(idx, t_ms, from_ms, until_ms)
         self._close_bins(until_ms)
         self._advance(until_ms)
 
@@ -208,12 +224,6 @@ class FrameState:
             self.tapes["bursts"].add(end_ms / 1e3, [start_ms, end_ms, n])
         if len(self._burst_starts) > BURSTS_SEEN_MAX:  # forget those no longer kept
             self._burst_starts = {b[0] for b in self.tapes["bursts"].since(0)}
-
-    def begin_at(self, t_ms: float) -> None:
-        """The histories (rates, activity) start at run time ``t_ms`` (after :meth:`reset`,
-        before a replay gives the spikes from there on)."""
-        self._next_bin = int(math.floor(t_ms / BIN_MS))
-        self._activity_ms = t_ms
 
     def set_status(self, status: dict) -> None:
         self.status = status
@@ -240,50 +250,53 @@ class FrameState:
             self._activity *= math.exp(-dt / ACTIVITY_TAU_MS)
             self._activity_ms = t_ms
 
-    def _bin(self, idx: np.ndarray, t_ms: np.ndarray) -> None:
-        bins = np.floor(t_ms / BIN_MS).astype(np.int64)
-        first = int(bins[0]) if bins.size else 0
-        if self._next_bin is None:
-            self._next_bin = first
-        for b in np.unique(bins).tolist():
-            if b < self._next_bin:
-                continue  # a bin already closed (a late reply): not counted again
-            sel = idx[bins == b]
-            acc = self._bins.setdefault(b, np.zeros(5))
-            acc[0] += sel.size
+    def _bin(self, idx: np.ndarray, t_ms: np.ndarray, from_ms: float, until_ms: float) -> None:
+        """Add the covered time and the spikes of ``[from_ms, until_ms)`` to their bins."""
+        b0 = int(math.floor(from_ms / BIN_MS))
+        b1 = int(math.floor(until_ms / BIN_MS - 1e-9))  # the bin holding until_ms's instant
+        n = b1 - b0 + 1
+        edges = np.arange(b0, b1 + 2) * BIN_MS
+        covered = np.minimum(edges[1:], until_ms) - np.maximum(edges[:-1], from_ms)
+        sums = np.zeros((n, 6))
+        sums[:, 0] = covered
+        if idx.size:
+            rel = np.clip(np.floor(t_ms / BIN_MS).astype(np.int64) - b0, 0, n - 1)
+            sums[:, 1] = np.bincount(rel, minlength=n)
             if self._exc.size:
-                acc[1] += np.count_nonzero(self._exc[sel])
-                acc[2] += np.count_nonzero(self._inh[sel])
-            acc[3] += self._xy[sel, 0].sum()
-            acc[4] += self._xy[sel, 1].sum()
+                sums[:, 2] = np.bincount(rel, self._exc[idx], minlength=n)
+                sums[:, 3] = np.bincount(rel, self._inh[idx], minlength=n)
+            sums[:, 4] = np.bincount(rel, self._xy[idx, 0], minlength=n)
+            sums[:, 5] = np.bincount(rel, self._xy[idx, 1], minlength=n)
+        for k in range(n):
+            b = b0 + k
+            if b < self._closed:
+                continue  # a late reply for a bin already shown: left out
+            acc = self._bins.get(b)
+            if acc is None:
+                self._bins[b] = sums[k]
+            else:
+                acc += sums[k]
 
     def _close_bins(self, until_ms: float) -> None:
-        """Emit every bin that ends at or before ``until_ms`` (as rates and a CA point)."""
+        """Emit every bin that ends at or before ``until_ms`` and was covered at least half:
+        a point of the rates and one of the Center of Activity's path."""
         last = int(math.floor(until_ms / BIN_MS + 1e-9))  # bins before this one are whole
-        if self._next_bin is None:
-            self._next_bin = last
-        history = int(RATE_HISTORY_S * 1e3 / BIN_MS)
-        if last - self._next_bin > history:  # a jump: only the bins a page would show
-            for b in [b for b in self._bins if b < last - history]:
-                del self._bins[b]
-            self._next_bin = last - history
+        self._closed = max(self._closed, last)
         n_all = max(self.n_channels, 1)
         n_exc = int(self._exc.sum()) if self._exc.size else 0
         n_inh = int(self._inh.sum()) if self._inh.size else 0
-        to_hz = 1e3 / BIN_MS
-        for b in range(self._next_bin, last):
-            acc = self._bins.pop(b, None)
+        for b in sorted(b for b in self._bins if b < last):
+            covered, n, exc, inh, sx, sy = self._bins.pop(b)
+            if covered < BIN_MS / 2:
+                continue
             t_s = round((b + 1) * BIN_MS / 1e3, 4)
-            if acc is None:
-                acc = np.zeros(5)
-            rates = [t_s, round(acc[0] / n_all * to_hz, 3)]
-            rates.append(round(acc[1] / n_exc * to_hz, 3) if n_exc else None)
-            rates.append(round(acc[2] / n_inh * to_hz, 3) if n_inh else None)
+            to_hz = 1e3 / covered
+            rates = [t_s, round(n / n_all * to_hz, 3)]
+            rates.append(round(exc / n_exc * to_hz, 3) if n_exc else None)
+            rates.append(round(inh / n_inh * to_hz, 3) if n_inh else None)
             self.tapes["rates"].add(t_s, rates)
-            if acc[0] > 0:
-                ca = [t_s, round(acc[3] / acc[0], 2), round(acc[4] / acc[0], 2)]
-                self.tapes["ca"].add(t_s, ca)
-        self._next_bin = max(self._next_bin, last)
+            if n > 0:
+                self.tapes["ca"].add(t_s, [t_s, round(sx / n, 2), round(sy / n, 2)])
 
     # ------------------------------------------------------------------ frames
 
@@ -329,15 +342,23 @@ class FrameState:
         return out
 
     def _events(self, parts: list, cap: int | None = None) -> dict:
-        """(times ms, channel indices) of a stream's items, as two lists."""
+        """A stream's (times ms, channel indices) as base64 of little-endian arrays: ``n``,
+        ``t0`` (ms), ``t`` (float32 ms after ``t0``) and ``i`` (uint32 channel indices in
+        the scene's order) — a few bytes a spike, and no per-spike Python."""
         if not parts:
-            return {"t": [], "i": []}
+            return {"n": 0, "t0": 0.0, "t": "", "i": ""}
         t_ms = np.concatenate([p[0] for p in parts])
         idx = np.concatenate([p[1] for p in parts])
         if cap is not None and t_ms.size > cap:
             self.raster_capped += t_ms.size - cap
             t_ms, idx = t_ms[-cap:], idx[-cap:]
-        return {"t": np.round(t_ms, 2).tolist(), "i": idx.tolist()}
+        t0 = float(np.floor(t_ms.min()))
+        return {
+            "n": int(t_ms.size),
+            "t0": t0,
+            "t": _b64((t_ms - t0).astype("<f4")),
+            "i": _b64(idx.astype("<u4")),
+        }
 
     def _activity_bytes(self) -> str:
         """Each channel's recent activity, 0-255 (1 - exp(-a), a the decayed spike count),
@@ -345,7 +366,7 @@ class FrameState:
         if not self.n_channels:
             return ""
         level = -np.expm1(-self._activity) * 255.0
-        return base64.b64encode(level.astype(np.uint8).tobytes()).decode("ascii")
+        return _b64(level.astype(np.uint8))
 
     def _lit(self, now_ms: float) -> list:
         """Channel indices stimulated within the last LIT_MS."""
@@ -356,3 +377,7 @@ class FrameState:
                 break
             lit.update(idx[recent].tolist())
         return sorted(lit)
+
+
+def _b64(array: np.ndarray) -> str:
+    return base64.b64encode(array.tobytes()).decode("ascii")

@@ -15,12 +15,13 @@ const nv = {
   step: -1, t_s: 0, pose: null, ranges: null, contact: false, motor: null,
   trail: [], spikes: [], pulses: [], rates: [], ca: [], bursts: [],
   activity: null, lit: [],
-  stats: { received: 0, drawn: 0, fps: 0, drawFps: 0, resets: 0, connected: false, serverDropped: 0 },
+  stats: { received: 0, drawn: 0, fps: 0, drawFps: 0, resets: 0, connected: false, serverDropped: 0, rasterSpikes: 0 },
   trace: [],   // [step, page wall ms when drawn, x, y, run time s]
   dirty: false,
 };
 window.nv = nv;
 const receivedAt = [];
+const cpuSamples = [];
 const drawnAt = [];
 
 // ------------------------------------------------------------------ connection
@@ -84,21 +85,41 @@ function takeFrame(f) {
   nv.step = f.step; nv.t_s = f.t_s;
   nv.pose = f.pose; nv.ranges = f.ranges; nv.contact = f.contact; nv.motor = f.motor;
   for (const p of f.trail) nv.trail.push(p);
-  for (let k = 0; k < f.spikes.t.length; k++) nv.spikes.push([f.spikes.t[k], f.spikes.i[k]]);
-  for (let k = 0; k < f.pulses.t.length; k++) nv.pulses.push([f.pulses.t[k], f.pulses.i[k]]);
+  if (f.spikes.n) nv.spikes.push(chunk(f.spikes));
+  if (f.pulses.n) nv.pulses.push(chunk(f.pulses));
   for (const r of f.rates) nv.rates.push(r);
   for (const c of f.ca) nv.ca.push(c);
   for (const b of f.bursts) nv.bursts.push(b);
   const tMs = f.t_s * 1000;
-  trimBefore(nv.spikes, tMs - RASTER_S * 1000, (s) => s[0]);
-  trimBefore(nv.pulses, tMs - RASTER_S * 1000, (s) => s[0]);
+  trimBefore(nv.spikes, tMs - RASTER_S * 1000, (c) => c.last);
+  trimBefore(nv.pulses, tMs - RASTER_S * 1000, (c) => c.last);
+  nv.stats.rasterSpikes = nv.spikes.reduce((n, c) => n + c.t.length, 0);
   trimBefore(nv.rates, f.t_s - RATES_S, (r) => r[0]);
   trimBefore(nv.ca, f.t_s - CA_PATH_S, (c) => c[0]);
   trimBefore(nv.bursts, tMs - RATES_S * 1000, (b) => b[1]);
-  nv.activity = f.activity ? Uint8Array.from(atob(f.activity), (c) => c.charCodeAt(0)) : null;
+  nv.activity = f.activity ? bytes(f.activity) : null;
   nv.lit = f.lit || [];
   nv.stats.serverDropped = f.server ? f.server.dropped : 0;
+  if (f.server) {  // the dashboard process's CPU share over the last few seconds
+    cpuSamples.push([f.server.wall_ms, f.server.cpu_s]);
+    while (cpuSamples.length > 2 && cpuSamples[0][0] < f.server.wall_ms - 3000) cpuSamples.shift();
+    const [w0, c0] = cpuSamples[0], [w1, c1] = cpuSamples[cpuSamples.length - 1];
+    nv.stats.serverCpu = w1 > w0 ? (c1 - c0) / ((w1 - w0) / 1000) : 0;
+  }
   nv.dirty = true;
+}
+
+function bytes(b64) {
+  return Uint8Array.from(atob(b64), (c) => c.charCodeAt(0));
+}
+
+// A stream's events (server: FrameState._events): times in ms (t0 + float32 offsets) and
+// channel indices, as typed arrays; `last` is the newest time, for trimming.
+function chunk(e) {
+  const t = new Float32Array(bytes(e.t).buffer), i = new Uint32Array(bytes(e.i).buffer);
+  let last = -Infinity;
+  for (let k = 0; k < t.length; k++) if (t[k] > last) last = t[k];
+  return { t0: e.t0, t, i, last: e.t0 + last };
 }
 
 function trimBefore(list, limit, key) {
@@ -142,7 +163,8 @@ function drawAll() {
   drawEndpoints();
   $("fps").textContent =
     `${nv.stats.fps.toFixed(1)} frames/s received, ${nv.stats.drawFps.toFixed(1)} drawn; ` +
-    `frames the server skipped for this page: ${nv.stats.serverDropped}`;
+    `frames the server skipped for this page: ${nv.stats.serverDropped}; ` +
+    `the dashboard's process: ${fmt(100 * (nv.stats.serverCpu || 0), 0)} % of a core`;
 }
 
 function fmt(x, digits) {
@@ -170,9 +192,11 @@ function drawHeader() {
   $("live-controls").hidden = !live;
   $("replay-controls").hidden = !replay;
   if (live) {
-    $("btn-pause").disabled = st.state !== "running";
-    $("btn-resume").disabled = st.state !== "paused";
-    $("btn-stop").disabled = !(st.state === "running" || st.state === "paused" || st.state === "waiting");
+    const may = src.controls !== false;  // an observer's certificate: read-only
+    $("btn-pause").disabled = !may || st.state !== "running";
+    $("btn-resume").disabled = !may || st.state !== "paused";
+    $("btn-stop").disabled = !may || !["running", "paused", "waiting"].includes(st.state);
+    $("live-controls").title = may ? "" : "read-only: this dashboard has an observer's certificate";
   }
   if (replay && nv.replay) {
     const r = nv.replay;
@@ -357,13 +381,21 @@ function drawRaster() {
     if (m >= 0 && m <= w) ctx.fillText("▼", m - 4 * ratio, top - 1 * ratio);
   }
   const dotH = Math.max(rowH, ratio), dotW = Math.max(1.2 * ratio, 1);
-  const types = cul.cell_type;
-  for (const [t, i] of nv.spikes) {
-    ctx.fillStyle = types && types[i] === 1 ? "#2e6fd8" : "#c0392b";
-    ctx.fillRect(x(t / 1000), y(i), dotW, dotH);
+  // pulses under the spikes, light: a closed loop stimulates its sites every step
+  ctx.fillStyle = "rgba(23, 163, 74, 0.28)";
+  for (const c of nv.pulses) {
+    for (let k = 0; k < c.t.length; k++) ctx.fillRect(x((c.t0 + c.t[k]) / 1000), y(c.i[k]), dotW, Math.max(dotH, ratio));
   }
-  ctx.fillStyle = "#17a34a";
-  for (const [t, i] of nv.pulses) ctx.fillRect(x(t / 1000) - ratio, y(i) - ratio, 3 * ratio, Math.max(dotH, 3 * ratio));
+  const types = cul.cell_type;
+  for (const [type, colour] of [[0, "#c0392b"], [1, "#2e6fd8"]]) {
+    ctx.fillStyle = colour;
+    for (const c of nv.spikes) {
+      for (let k = 0; k < c.t.length; k++) {
+        const i = c.i[k];
+        if ((types && types[i] === 1 ? 1 : 0) === type) ctx.fillRect(x((c.t0 + c.t[k]) / 1000), y(i), dotW, dotH);
+      }
+    }
+  }
 }
 
 function drawRates() {
@@ -384,10 +416,12 @@ function drawRates() {
   for (let k = 1; k < 4; k++) {
     ctx.strokeStyle = colours[k]; ctx.lineWidth = 1.4 * ratio;
     ctx.beginPath();
-    let started = false;
+    let prev = null;  // a gap in the bins (windows the page did not get) breaks the line
     for (const r of nv.rates) {
       if (r[k] === null) continue;
-      if (started) ctx.lineTo(x(r[0]), y(r[k])); else { ctx.moveTo(x(r[0]), y(r[k])); started = true; }
+      if (prev !== null && r[0] - prev < 0.075) ctx.lineTo(x(r[0]), y(r[k]));
+      else ctx.moveTo(x(r[0]), y(r[k]));
+      prev = r[0];
     }
     ctx.stroke();
   }
