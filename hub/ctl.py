@@ -47,14 +47,16 @@ def request(session, keys: Keys, cmd: str, *, timeout_s: float = 5.0) -> Control
 
 def ctl(bus: BusSection, cmd: str, *, timeout_s: float = 5.0) -> ControlReply | None:
     """:func:`request` over a session of its own, opened as a client of the hub's router
-    (trying to reach it for at most ``timeout_s``) and closed after.
+    (trying to reach it for at most ``timeout_s``) and closed after. With ``bus.security =
+    "mtls"`` it takes part as an ``operator`` (the role that may send controls).
 
     Raises
     ------
     hub.bus.BusError
         The hub's router was not reached.
     """
-    session = open_session(dataclasses.replace(bus, connect_timeout_s=timeout_s), listener=False)
+    bus = dataclasses.replace(bus, connect_timeout_s=timeout_s)
+    session = open_session(bus, listener=False, role="operator")
     try:
         return request(session, bus.keys, cmd, timeout_s=timeout_s)
     finally:
