@@ -6,10 +6,14 @@
    the time the hub spent waiting for replies), and the CPU time per step of each
    process: on a machine with few cores, the loop is bound by their sum.
 2. A realtime run at a 10 ms period: late steps and the lateness of step starts.
+3. The cost of the live dashboard: lockstep runs without and with ``--dashboard`` (a page
+   connected by websocket, taking every frame), interleaved A/B/B/A in this session;
+   ``x_realtime_lockstep_with_dashboard`` against ``x_realtime_lockstep_ab`` (medians).
 
-    python bench/closed_loop.py                 # 60 s lockstep + 60 s realtime
+    python bench/closed_loop.py                 # 60 s lockstep + 60 s realtime + 3 A/B pairs
     python bench/closed_loop.py --seconds 20
     python bench/closed_loop.py --realtime-priority 0   # realtime under the ordinary scheduler
+    python bench/closed_loop.py --only-dashboard --dashboard-pairs 4
 
 The last line printed is one JSON object.
 """
@@ -19,14 +23,19 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
+import statistics
 import sys
 import tempfile
+import threading
+import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from bench.host import StealMeter, child_run, end_children_on_signal  # noqa: E402
+from hub.bus import free_tcp_port  # noqa: E402
 
 
 def run(mode: str, seconds: float, runs_dir: Path, *extra: str) -> tuple[dict, float]:
@@ -42,6 +51,108 @@ def run(mode: str, seconds: float, runs_dir: Path, *extra: str) -> tuple[dict, f
     return json.loads((run_dir / "manifest.json").read_text()), steal.share
 
 
+class PageClient:
+    """A page on the dashboard's websocket that takes every frame (as a browser's would
+    arrive) without drawing it: the dashboard's own cost, not a browser's (which may run
+    on another machine)."""
+
+    def __init__(self, port: int):
+        self.url = f"ws://127.0.0.1:{port}/ws"
+        self.frames = 0
+        self.bytes = 0
+        self.first = self.last = 0.0  # when the first and the last frame came
+        self._done = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        from websockets.sync.client import connect
+
+        while not self._done.is_set():
+            try:
+                with connect(self.url, open_timeout=1.0) as ws:
+                    for text in ws:
+                        self.last = time.monotonic()
+                        self.first = self.first or self.last
+                        self.frames += 1
+                        self.bytes += len(text)
+            except OSError:
+                self._done.wait(0.2)  # not serving yet
+            except Exception:  # the run ended: its dashboard with it
+                return
+
+    def close(self) -> None:
+        self._done.set()
+        self._thread.join(timeout=5)
+
+    @property
+    def fps(self) -> float:
+        span = self.last - self.first
+        return (self.frames - 1) / span if span > 0 else 0.0
+
+
+def dashboard_ab(seconds: float, pairs: int) -> dict:
+    """Lockstep without (A) and with (B) the dashboard, interleaved A B B A ...; each B run
+    with a page connected. Besides the speed, the hub's CPU time per step (the lockstep
+    loop's bound on two cores) and the dashboard process's own CPU share (its log)."""
+    x = {"A": [], "B": []}
+    hub_us = {"A": [], "B": []}
+    fps, dash_cpu = [], []
+    order = [("A", "B") if i % 2 == 0 else ("B", "A") for i in range(pairs)]
+    with StealMeter() as steal:
+        for pair in order:
+            for which in pair:
+                extra, page = [], None
+                if which == "B":
+                    port = free_tcp_port()
+                    extra = ["--dashboard", "--set", f"dashboard.port={port}"]
+                    page = PageClient(port)
+                with tempfile.TemporaryDirectory() as tmp:
+                    m, _ = run("lockstep", seconds, Path(tmp) / "runs", *extra)
+                    log = next(Path(tmp).glob("runs/*/dashboard.log"), None)
+                    share = _dashboard_cpu(log.read_text()) if log else None
+                if page is not None:
+                    page.close()
+                    fps.append(page.fps)
+                    if share is not None:
+                        dash_cpu.append(share)
+                t = m["timing"]
+                x[which].append(t["x_realtime"])
+                hub_us[which].append(t["hub_cpu_s"] / t["steps"] * 1e6)
+                print(
+                    f"  {which}: {t['x_realtime']:.2f}x real time, hub "
+                    f"{hub_us[which][-1]:.0f} us CPU per step",
+                    flush=True,
+                )
+    a, b = statistics.median(x["A"]), statistics.median(x["B"])
+    ha, hb = statistics.median(hub_us["A"]), statistics.median(hub_us["B"])
+    ratios = [xb / xa for xa, xb in zip(x["A"], x["B"], strict=True)]
+    print(
+        f"dashboard A/B, {pairs} pairs of {seconds:g} s lockstep: without {a:.2f}x, with "
+        f"{b:.2f}x real time (medians; cost {1 - b / a:+.1%}; pairs' ratios "
+        f"{min(ratios):.2f}-{max(ratios):.2f}); hub CPU per step {ha:.0f} vs {hb:.0f} us; "
+        f"a page got {statistics.median(fps):.1f} frames/s; the dashboard's process used "
+        f"{statistics.median(dash_cpu) if dash_cpu else float('nan'):.1%} of a core over its life; "
+        f"CPU steal {steal.share:.1%}"
+    )
+    return {
+        "x_realtime_lockstep_with_dashboard": round(b, 2),
+        "x_realtime_lockstep_ab": round(a, 2),
+        "dashboard_cost_share": round(1 - b / a, 4),
+        "dashboard_ab_runs": {k: [round(v, 2) for v in vs] for k, vs in x.items()},
+        "dashboard_hub_cpu_us_per_step": {"A": round(ha, 1), "B": round(hb, 1)},
+        "dashboard_page_fps": round(statistics.median(fps), 1),
+        "dashboard_process_cpu_share": round(statistics.median(dash_cpu), 4) if dash_cpu else None,
+        "dashboard_ab_steal_share": round(steal.share, 4),
+    }
+
+
+def _dashboard_cpu(log: str) -> float | None:
+    """The dashboard process's CPU share, from the line it logs when it ends."""
+    found = re.search(r"used [\d.]+ s of CPU \(([\d.]+) %", log)
+    return float(found.group(1)) / 100 if found else None
+
+
 def _scheduling(s: dict) -> str:
     """``fifo 10`` or ``normal``: the hub's threads during a realtime run."""
     return f"fifo {s['priority']}" if s["policy"] == "fifo" else "normal"
@@ -53,9 +164,20 @@ def main() -> None:
     parser.add_argument(
         "--realtime-priority", type=int, help="loop.realtime_priority of the realtime run"
     )
+    parser.add_argument(
+        "--dashboard-pairs", type=int, default=3, help="A/B pairs for the dashboard's cost"
+    )
+    parser.add_argument(
+        "--only-dashboard", action="store_true", help="only the dashboard's A/B runs"
+    )
     args = parser.parse_args()
     end_children_on_signal()
     out = {}
+    if args.only_dashboard:
+        out.update(dashboard_ab(args.seconds, args.dashboard_pairs))
+        out["seconds"] = args.seconds
+        print(json.dumps(out))
+        return
     with tempfile.TemporaryDirectory() as tmp:
         m, steal = run("lockstep", args.seconds, Path(tmp) / "lockstep")
     t, ep = m["timing"], m["endpoints"]
@@ -111,6 +233,8 @@ def main() -> None:
     out["rt10_median_lateness_ms"] = round(t["lateness_ms_median"], 4)
     out["rt10_max_lateness_ms"] = round(t["lateness_ms_max"], 3)
     out["rt_scheduling"] = _scheduling(sched)
+    if args.dashboard_pairs > 0:
+        out.update(dashboard_ab(args.seconds, args.dashboard_pairs))
     out["seconds"] = args.seconds
     print(json.dumps(out))
 
