@@ -83,7 +83,9 @@ class ReplaySource:
         self.noted: dict[str, list] = {"late": [], "missed": []}  # (run time, role)
         for e in events:
             if e.key in self.noted:
-                self.noted[e.key].append((e.payload["step"] * period_ms / 1e3, e.payload["role"]))
+                # a reply is late or missing once its window has passed
+                t_s = (e.payload["step"] + 1) * period_ms / 1e3
+                self.noted[e.key].append((t_s, e.payload["role"]))
         for noted in self.noted.values():
             noted.sort()
         self.duration_s = float(
@@ -107,9 +109,10 @@ class ReplaySource:
 
     # ------------------------------------------------------------------ frames
 
-    def tick(self) -> None:
-        """Move the clock on and feed what happened meanwhile (caller holds the lock)."""
-        now = time.monotonic()
+    def tick(self, now: float | None = None) -> None:
+        """Move the clock on to ``now`` (``time.monotonic()``) and feed what happened
+        meanwhile (caller holds the lock)."""
+        now = time.monotonic() if now is None else now
         elapsed, self._wall = now - self._wall, now
         if self.playing:
             t1 = min(self.t_s + elapsed * self.speed, self.duration_s)

@@ -19,7 +19,9 @@ import contextlib
 import json
 import logging
 import math
+import signal
 import socket
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -257,7 +259,20 @@ def serve(
     )
     server = uvicorn.Server(config)
     on_ready(url_of(sock))
+    # uvicorn shuts down on SIGINT/SIGTERM, then raises the signal again for the handler it
+    # found: a quiet one here, so that the command ends with status 0 (the project's rule).
+    quiet = threading.current_thread() is threading.main_thread()
+    previous = {sig: signal.signal(sig, _ignore) for sig in _SIGNALS} if quiet else {}
     try:
         server.run(sockets=[sock])
     finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
         sock.close()
+
+
+_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
+def _ignore(signum, frame) -> None:
+    pass

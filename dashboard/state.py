@@ -291,12 +291,12 @@ class FrameState:
                 continue
             t_s = round((b + 1) * BIN_MS / 1e3, 4)
             to_hz = 1e3 / covered
-            rates = [t_s, round(n / n_all * to_hz, 3)]
-            rates.append(round(exc / n_exc * to_hz, 3) if n_exc else None)
-            rates.append(round(inh / n_inh * to_hz, 3) if n_inh else None)
+            rates = [t_s, round(float(n) / n_all * to_hz, 3)]
+            rates.append(round(float(exc) / n_exc * to_hz, 3) if n_exc else None)
+            rates.append(round(float(inh) / n_inh * to_hz, 3) if n_inh else None)
             self.tapes["rates"].add(t_s, rates)
             if n > 0:
-                self.tapes["ca"].add(t_s, [t_s, round(sx / n, 2), round(sy / n, 2)])
+                self.tapes["ca"].add(t_s, [t_s, round(float(sx / n), 2), round(float(sy / n), 2)])
 
     # ------------------------------------------------------------------ frames
 

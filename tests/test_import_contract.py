@@ -15,6 +15,8 @@ not imports and are fine. The rules, from the bottom up:
 - ``adapters``: ``hub``, ``devices``, ``settings``, not the simulators or ``lab`` -- except
   an emulator (``adapters/<device>/emulator.py``), a device played by a simulator;
 - ``lab``: anything but ``adapters``;
+- ``dashboard`` (the live page and replay): anything but ``adapters``, like ``lab`` (it
+  reads a run's world through ``lab.behaviour``); only ``hub/cli.py`` imports it;
 - ``neuvision`` (the Python API): anything.
 """
 
@@ -28,6 +30,7 @@ import pytest
 ROOT = Path(__file__).resolve().parent.parent
 PACKAGES = (
     "settings", "devices", "hub", "sim_network", "sim_robot", "adapters", "lab", "neuvision",
+    "dashboard",
 )  # fmt: skip
 SIMULATORS = ("sim_network", "sim_robot")
 ENDPOINT_MAY_IMPORT = ("hub.protocol", "hub.endpoint", "hub.config", "hub.wire")
@@ -80,14 +83,14 @@ def allowed(importer: str, imported: str) -> bool:
     if layer == "hub":
         if _within(importer, "hub.analysis"):
             return _within(imported, "hub.analysis", "settings", "devices")
-        if importer == "hub.cli" and target in ("lab", "adapters"):
+        if importer == "hub.cli" and target in ("lab", "adapters", "dashboard"):
             return True
         return target in ("hub", "settings", "devices")
     if layer == "adapters":
         if importer.endswith(".emulator") and target in SIMULATORS:
             return True
         return target in ("hub", "settings", "devices")
-    if layer == "lab":
+    if layer in ("lab", "dashboard"):
         return target != "adapters"
     if layer == "neuvision":  # the Python API: the top, re-exporting lab and hub
         return True
@@ -132,6 +135,10 @@ PLANTED = {
     "sim_robot/endpoint.py": "from hub.protocol import Description\nfrom hub.loop import Hub\n",
     # the lab may use everything but the device adapters
     "lab/compare.py": "import hub.record, sim_robot, sim_network\nfrom adapters import khepera\n",
+    # the hub's loop knows nothing of its observers' pages
+    "hub/loop.py": "from dashboard.state import FrameState\n",
+    # the dashboard watches the bus; it never drives a device itself
+    "dashboard/observer.py": "import hub.ctl, lab.behaviour\nfrom adapters.mea import driver\n",
 }
 
 
@@ -156,3 +163,6 @@ def test_what_each_layer_may_import():
     assert allowed("lab.reproduce", "sim_network.Network")
     assert allowed("adapters.khepera", "devices.khepera")
     assert allowed("settings.load", "tomllib")
+    assert allowed("dashboard.scene", "lab.behaviour.world_of")
+    assert allowed("hub.cli", "dashboard.app.run_dashboard")
+    assert not allowed("hub.launch", "dashboard.app")

@@ -1,0 +1,108 @@
+"""The dashboard's observer on a real bus: a hub in this process, test endpoints as
+processes; what it shows, its controls, and `neuvision ctl`."""
+
+from __future__ import annotations
+
+import json
+import threading
+
+import pytest
+
+from dashboard.observer import BusObserver
+from dashboard.state import FrameState, Reader
+from hub.cli import main
+from tests.harness import harness, wait_for
+
+pytestmark = pytest.mark.bus
+
+
+def test_the_observer_shows_the_run_and_pauses_resumes_and_stops_it(
+    tmp_path, bus_overrides, capsys
+):
+    out: dict = {}
+    with harness(
+        tmp_path,
+        bus_overrides,
+        "loop.mode=realtime",
+        "experiment.duration_s=100",
+        "loop.status_hz=20",
+    ) as h:
+        state = FrameState()
+        observer = BusObserver(h.cfg.bus, state)
+        reader = Reader()
+        port = h.cfg.bus.listen[0].rsplit(":", 1)[1]
+        ctl = ["--connect", f"127.0.0.1:{port}", "--session", h.cfg.bus.session]
+
+        def frame(page: Reader = reader) -> dict:
+            with state.lock:
+                observer.tick()
+                return state.frame(page)
+
+        def operator():
+            observer.start()
+            try:
+                wait_for(lambda: frame()["step"] >= 30 and len(state.tapes["rates"]) >= 3, 30)
+                wait_for(lambda: frame()["endpoints"].get("culture", {}).get("counters"), 10)
+                out["frame"], out["scene"] = frame(Reader()), state.scene  # all that is kept
+                out["pause"] = observer.command({"cmd": "pause"})
+                wait_for(lambda: frame()["status"]["state"] == "paused")
+                paused_at = frame()["status"]["step"]
+                n = state.status["wall_s"]
+                wait_for(lambda: frame()["status"]["wall_s"] > n + 0.25)  # statuses go on
+                out["paused_steps"] = (paused_at, frame()["status"]["step"])
+                out["ctl_status"] = main(["ctl", "status", *ctl])
+                out["ctl_resume"] = main(["ctl", "resume", *ctl])
+                wait_for(lambda: frame()["status"]["step"] > paused_at + 10)
+                out["stop"] = observer.command({"cmd": "stop"})
+                wait_for(lambda: frame()["status"]["state"] == "stopped", 10)
+                out["bad"] = observer.command({"cmd": "config"})
+            finally:
+                observer.close()
+
+        thread = threading.Thread(target=operator)
+        thread.start()
+        result = h.run()
+        thread.join(timeout=60)
+    f, scene = out["frame"], out["scene"]
+    # the scene: the endpoints' descriptions, the run's config
+    assert (
+        scene["culture"]["channel"] == [0, 1, 2, 3] and len(scene["body"]["sensor_angles_rad"]) == 3
+    )
+    assert (scene["mode"], scene["period_ms"]) == ("realtime", 10.0)
+    # the newest reading: the echo body's pose is (step, wheels of its command)
+    assert f["pose"][0] == f["step"] and len(f["ranges"]) == 3
+    assert f["spikes"]["n"] > 0 and f["pulses"]["n"] > 0 and f["rates"]
+    assert f["status"]["extra"]["run"] == h.hub.run_id and f["status"]["mode"] == "realtime"
+    assert f["endpoints"]["culture"]["alive"] and f["endpoints"]["culture"]["counters"]["steps"] > 0
+    assert f["source"] == {
+        "kind": "live",
+        "session": h.cfg.bus.session,
+        "hub": h.cfg.bus.listen[0],
+        "controls": True,
+    }
+    # the controls
+    assert out["pause"] == {"ok": True, "state": "paused", "reason": ""}
+    first, later = out["paused_steps"]
+    assert later <= first + 1  # nothing advanced while paused (the step in flight may end)
+    assert out["ctl_status"] == 0 and out["ctl_resume"] == 0
+    printed, text = [], capsys.readouterr().out.strip()
+    while text:  # the JSON objects ctl printed, one after the other
+        obj, end = json.JSONDecoder().raw_decode(text)
+        printed.append(obj)
+        text = text[end:].strip()
+    assert [(p["ok"], p["state"]) for p in printed] == [(True, "paused"), (True, "running")]
+    assert out["stop"]["ok"] and not out["bad"]["ok"]
+    assert result.outcome == "stopped"
+    # an observer: it asked the hub for the config once, and put nothing on the loop's keys
+    commands = [e.payload["cmd"] for e in h.record.events if e.key == "control"]
+    assert commands == ["config", "pause", "status", "resume", "stop"]
+    assert result.counts["dropped"] == {}
+
+
+def test_neuvision_ctl_says_when_no_hub_answers(capsys):
+    from hub.bus import free_tcp_port
+
+    code = main(["ctl", "status", "--connect", f"127.0.0.1:{free_tcp_port()}", "--timeout-s", "1"])
+    assert code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].startswith("neuvision: cannot reach the hub at tcp/127.0.0.1:")

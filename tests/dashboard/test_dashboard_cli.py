@@ -1,0 +1,69 @@
+"""`neuvision dashboard` and `run --dashboard` on the command line: what they say and do."""
+
+from __future__ import annotations
+
+import json
+import re
+import signal
+import subprocess
+import sys
+import urllib.request
+
+from dashboard.server import bind
+from hub.cli import main
+from hub.record import write_manifest
+from tests.dashboard.synthetic import write_run
+
+
+def test_a_replay_of_no_run_folder_is_one_line_and_status_3(tmp_path, capsys):
+    assert main(["dashboard", "--replay", str(tmp_path / "nothing")]) == 3
+    assert capsys.readouterr().err.strip().endswith("not found")
+    write_manifest(tmp_path, {"format": "neuvision-run", "outcome": "fault"})
+    assert main(["dashboard", "--replay", str(tmp_path)]) == 3
+    assert "holds no body reading to replay" in capsys.readouterr().err
+
+
+def test_a_port_taken_is_one_line_and_status_2(tmp_path, capsys):
+    write_run(tmp_path / "run")
+    sock = bind("127.0.0.1", 0)
+    try:
+        port = sock.getsockname()[1]
+        assert main(["dashboard", "--replay", str(tmp_path / "run"), "--port", str(port)]) == 2
+    finally:
+        sock.close()
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert line.startswith(f"neuvision: cannot serve the dashboard on 127.0.0.1:{port}")
+
+
+def test_run_with_a_dashboard_on_a_port_taken_stops_before_anything_starts(tmp_path, capsys):
+    sock = bind("127.0.0.1", 0)
+    try:
+        port = sock.getsockname()[1]
+        code = main(
+            ["run", "--dashboard", "--runs-dir", str(tmp_path), "--set", f"dashboard.port={port}"]
+        )
+    finally:
+        sock.close()
+    assert code == 3
+    assert "config error: dashboard.port: cannot serve on 127.0.0.1" in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []  # no run folder, no process
+
+
+def test_neuvision_dashboard_serves_a_replay_until_sigterm(tmp_path):
+    write_run(tmp_path / "run")
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "hub.cli", "dashboard", "--replay", str(tmp_path / "run")]
+        + ["--port", "0", "--speed", "4"],
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        line = proc.stderr.readline()  # the first line says where
+        url = re.search(r"dashboard at (http://\S+)", line).group(1)
+        assert "replay of" in line
+        frame = json.loads(urllib.request.urlopen(url + "frame", timeout=10).read())
+        assert frame["source"]["kind"] == "replay" and frame["replay"]["speed"] == 4.0
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        rest = proc.communicate(timeout=20)[1]
+    assert proc.returncode == 0, rest

@@ -1,0 +1,113 @@
+"""The replay of a recorded run: the same state as live, at any speed, with jumps."""
+
+from __future__ import annotations
+
+import base64
+
+import numpy as np
+import pytest
+
+from dashboard.replay import ReplayError, ReplaySource
+from dashboard.state import FrameState, Reader
+from hub.record import read_run, write_manifest
+from tests.dashboard.synthetic import N_STEPS, pose, write_run
+
+
+@pytest.fixture
+def run_dir(tmp_path):
+    path = tmp_path / "run"
+    write_run(path)
+    return path
+
+
+def _replay(run_dir, speed=1.0):
+    state = FrameState()
+    source = ReplaySource(run_dir, state, speed=speed)
+    source.start()
+    return source, state
+
+
+def _advance(source, wall_s):
+    """As if ``wall_s`` of wall time had passed since the last tick."""
+    with source.state.lock:
+        source.tick(now=source._wall + wall_s)
+
+
+def test_the_scene_is_the_runs_world_body_and_culture(run_dir):
+    source, state = _replay(run_dir)
+    scene = state.scene
+    assert scene["arena"] == {"shape": "circle", "radius_m": 0.5}  # the default world
+    assert len(scene["obstacles"]) == 3
+    assert scene["body"]["sensor_angles_rad"] == [-0.5, 0.0, 0.5]
+    assert scene["culture"]["channel"] == [0, 1, 2, 3]
+    assert (scene["period_ms"], scene["mode"], scene["n_steps"]) == (10.0, "lockstep", N_STEPS)
+    assert source.duration_s == pytest.approx(2.0)
+
+
+def test_playing_feeds_what_happened_in_run_time_at_the_speed_asked(run_dir):
+    source, state = _replay(run_dir, speed=10.0)
+    _advance(source, 0.0504)  # 0.504 s of the run
+    frame = state.frame(Reader())
+    assert source.t_s == pytest.approx(0.504)
+    assert frame["step"] == 49 and frame["pose"] == pose(49)
+    assert frame["replay"]["playing"] and frame["replay"]["t_s"] == pytest.approx(0.504)
+    assert frame["spikes"]["n"] == 50  # one a step, those of [0, 0.5 s)
+    assert [r[0] for r in frame["rates"]] == pytest.approx([0.05 * b for b in range(1, 11)])
+    assert frame["status"]["late"] == {} and frame["status"]["state"] == "replay"
+
+
+def test_a_jump_gives_the_state_the_history_a_page_shows_then(run_dir):
+    source, state = _replay(run_dir)
+    reader = Reader()
+    state.frame(reader)
+    reply = source.command({"cmd": "seek", "t_s": 1.0})
+    assert reply["ok"]
+    frame = state.frame(reader)
+    assert frame["reset"] and frame["step"] == 99 and frame["pose"] == pose(99)
+    assert frame["trail"][0] == [0.0, 0.0] and frame["trail"][-1] == pytest.approx([0.098, 0.0])
+    t = np.frombuffer(base64.b64decode(frame["spikes"]["t"]), "<f4") + frame["spikes"]["t0"]
+    assert t.size == 99 and t.max() == pytest.approx(995.0)  # step 70's is missing
+    assert frame["bursts"] == [[500.0, 560.0, 3]]
+    # what the hub noted up to 1 s: the late body reply of step 50, the missing one of 70
+    assert frame["status"]["late"] == {"body": 1} and frame["status"]["missing"] == {"culture": 1}
+    assert frame["status"]["dropped"] == {"body": 2}  # the run's, from the manifest
+    assert frame["endpoints"]["body"]["counters"]["steps"] == N_STEPS
+
+
+def test_the_replay_stops_at_the_end_and_plays_again_from_the_start(run_dir):
+    source, state = _replay(run_dir, speed=50.0)
+    _advance(source, 10.0)
+    assert source.t_s == pytest.approx(2.0) and not source.playing
+    assert state.step == N_STEPS - 1 and state.status["state"] == "replay paused"
+    assert source.command({"cmd": "play"})["ok"]
+    assert source.t_s == 0.0 and source.playing
+
+
+def test_pause_speed_and_bad_commands(run_dir):
+    source, state = _replay(run_dir)
+    assert source.command({"cmd": "pause"})["state"] == "replay paused"
+    _advance(source, 1.0)
+    assert source.t_s == 0.0
+    assert source.command({"cmd": "speed", "x": 4})["ok"] and source.speed == 4.0
+    assert not source.command({"cmd": "speed", "x": 0})["ok"]
+    assert not source.command({"cmd": "seek"})["ok"]
+    assert not source.command({"cmd": "stop"})["ok"]  # a replay has no run to stop
+
+
+def test_the_trajectory_replayed_is_the_records(run_dir):
+    source, state = _replay(run_dir, speed=3.0)
+    seen = {}
+    while source.playing:
+        _advance(source, 0.02)
+        frame = state.frame(Reader())
+        seen[frame["step"]] = frame["pose"]
+    t_s, poses = read_run(run_dir).trajectory()
+    assert len(seen) > 20
+    for step, p in seen.items():
+        assert p == poses[step].tolist()
+
+
+def test_a_folder_without_readings_cannot_be_replayed(tmp_path):
+    write_manifest(tmp_path, {"format": "neuvision-run", "outcome": "fault"})
+    with pytest.raises(ReplayError, match="no body reading"):
+        ReplaySource(tmp_path, FrameState())

@@ -1,0 +1,91 @@
+"""What the hub gathers for live displays (hub/view.py) and the HubView message."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from hub.protocol import (
+    HubView,
+    MotorCommand,
+    ProtocolError,
+    SensorReading,
+    SpikeBatch,
+    Stimulation,
+)
+from hub.view import ObserverView
+from tests.windows import RUN, W
+
+
+def _spikes(k, channel, t_ms):
+    return SpikeBatch(**W(k).stamp, channel=channel, t_ms=t_ms)
+
+
+def _reading(k, x):
+    return SensorReading(
+        step=k, run=RUN, t_s=(k + 1) * 0.01, ranges_m=[0.1, 0.25], pose=[x, -x, 1.0], contact=False
+    )
+
+
+def _stim(k, channel):
+    n = len(channel)
+    return Stimulation(
+        **W(k).stamp,
+        channel=channel,
+        amplitude_ua=np.full(n, 5.0),
+        width_ms=np.full(n, 0.2),
+        onset_ms=np.full(n, 1.0),
+    )
+
+
+def test_nothing_is_gathered_while_nobody_watches():
+    view = ObserverView(RUN)
+    view.took(_spikes(0, [1], [2.0]))
+    view.took(_reading(0, 0.1))
+    assert view.build(1) is None
+
+
+def test_a_view_holds_every_spike_pulse_and_position_since_the_last_and_the_newest_reading():
+    view = ObserverView(RUN)
+    view.watch(True)
+    for k in range(3):
+        view.took(_spikes(k, [k, 7], [1.0, 2.5]))
+        view.took(_reading(k, 0.1 * k))
+        view.sent(_stim(k + 1, [4, 5]))
+        view.sent(MotorCommand(**W(k + 1).stamp, left_mps=0.01 * k, right_mps=0.02))
+    view.sent(Stimulation.none(W(4)))  # no pulse: nothing to show
+    v = HubView.decode(view.build(3).encode())
+    assert v.step == 3 and v.run == RUN
+    assert (v.from_s, v.to_s) == pytest.approx((0.0, 0.03))
+    assert v.spike_channel.tolist() == [0, 7, 1, 7, 2, 7]
+    assert v.spike_t_ms.tolist() == pytest.approx([1.0, 2.5, 11.0, 12.5, 21.0, 22.5])
+    assert v.pulse_channel.tolist() == [4, 5, 4, 5, 4, 5]
+    assert v.pulse_t_ms.tolist() == pytest.approx([11.0, 11.0, 21.0, 21.0, 31.0, 31.0])
+    assert v.trail_m.tolist() == pytest.approx([0, 0, 0.1, -0.1, 0.2, -0.2])
+    assert v.sensors_step == 2 and v.pose.tolist() == pytest.approx([0.2, -0.2, 1.0])
+    assert v.ranges_m.tolist() == pytest.approx([0.1, 0.25]) and v.contact is False
+    assert (v.left_mps, v.right_mps) == pytest.approx((0.02, 0.02))
+    # the next view starts where this one ended
+    assert view.build(3) is None
+    view.took(_spikes(3, [], []))
+    nxt = view.build(4)
+    assert nxt.spike_channel.size == 0 and (nxt.from_s, nxt.to_s) == pytest.approx((0.03, 0.04))
+    assert nxt.sensors_step == 2  # still the newest reading
+
+
+def test_a_late_reading_does_not_replace_a_newer_one():
+    view = ObserverView(RUN)
+    view.watch(True)
+    view.took(_reading(5, 0.5))
+    view.took(_reading(4, 0.4))
+    assert view.build(6).sensors_step == 5
+
+
+def test_a_view_is_checked_like_any_message():
+    with pytest.raises(ProtocolError) as exc:
+        HubView(step=1, run=RUN, from_s=0.2, to_s=0.1)
+    assert exc.value.kind == "inconsistent"
+    with pytest.raises(ProtocolError):
+        HubView(step=1, run=RUN, from_s=0.0, to_s=0.1, trail_m=[0.1, 0.2, 0.3])
+    with pytest.raises(ProtocolError):
+        HubView(step=1, run=RUN, from_s=0.0, to_s=0.1, spike_channel=[1], spike_t_ms=[])
