@@ -96,6 +96,9 @@ class BusObserver:
     def start(self) -> None:
         self._thread.start()
 
+    def page_opened(self) -> None:
+        """A page connected (nothing to do: the bus goes on regardless)."""
+
     def close(self) -> None:
         self._closed.set()
         self._thread.join(timeout=5)

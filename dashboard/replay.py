@@ -92,7 +92,8 @@ class ReplaySource:
             max(self.sensor_t[-1], self.spike_t_ms[-1] / 1e3 if self.spike_t_ms.size else 0.0)
         )
         self.t_s = 0.0  # the replay's clock (run time)
-        self.playing = True
+        self.playing = False  # until the first page opens
+        self._opened = False
         self._wall = time.monotonic()
         state.source = {"kind": "replay", "run_dir": str(self.run_dir)}
 
@@ -106,6 +107,13 @@ class ReplaySource:
 
     def close(self) -> None:
         pass
+
+    def page_opened(self) -> None:
+        """A page connected: the first one starts the replay (nobody misses its start)."""
+        with self.state.lock:
+            if not self._opened:
+                self._opened = self.playing = True
+                self._wall = time.monotonic()
 
     # ------------------------------------------------------------------ frames
 
@@ -226,7 +234,7 @@ class ReplaySource:
             "duration_s": round(self.duration_s, 4),
             "playing": self.playing,
             "speed": self.speed,
-            "speeds": list(SPEEDS),
+            "speeds": sorted(set(SPEEDS) | {self.speed}),
         }
 
     # ------------------------------------------------------------------ controls

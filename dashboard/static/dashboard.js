@@ -202,7 +202,8 @@ function drawHeader() {
     const r = nv.replay;
     $("btn-play").textContent = r.playing ? "Pause" : "Play";
     const speed = $("speed");
-    if (speed.options.length !== r.speeds.length) {
+    if (speed.dataset.speeds !== String(r.speeds)) {
+      speed.dataset.speeds = String(r.speeds);
       speed.innerHTML = r.speeds.map((x) => `<option value="${x}">${x}×</option>`).join("");
     }
     if (document.activeElement !== speed) speed.value = String(r.speed);
@@ -474,8 +475,10 @@ function drawEndpoints() {
       e.alive ? ' <span class="ok">● alive</span>' : ' <span class="bad">● not answering</span>';
     const dropped = c.dropped && typeof c.dropped === "object" ? c.dropped : {};
     const nDropped = Object.values(dropped).reduce((a, b) => a + b, 0);
+    const replay = nv.source.kind === "replay";
     const rows = [
-      ["state", c.run ? `in run ${String(c.run).slice(0, 8)}…` : e.alive === false ? "—" : "idle"],
+      replay ? ["counters", "at the run's end"] :
+        ["state", c.run ? `in run ${String(c.run).slice(0, 8)}…` : e.alive === false ? "—" : "idle"],
       ["steps", c.steps ?? "—"],
       ["dropped", nDropped ? `${nDropped} (${byRole(dropped)})` : "0"],
       ["holds", c.holds ?? 0],

@@ -24,6 +24,7 @@ def _replay(run_dir, speed=1.0):
     state = FrameState()
     source = ReplaySource(run_dir, state, speed=speed)
     source.start()
+    source.page_opened()
     return source, state
 
 
@@ -81,6 +82,19 @@ def test_the_replay_stops_at_the_end_and_plays_again_from_the_start(run_dir):
     assert state.step == N_STEPS - 1 and state.status["state"] == "replay paused"
     assert source.command({"cmd": "play"})["ok"]
     assert source.t_s == 0.0 and source.playing
+
+
+def test_the_replay_waits_for_its_first_page(run_dir):
+    state = FrameState()
+    source = ReplaySource(run_dir, state, speed=10.0)
+    source.start()
+    _advance(source, 1.0)
+    assert source.t_s == 0.0 and state.status["state"] == "replay paused"
+    source.page_opened()
+    _advance(source, 0.01)
+    source.page_opened()  # a second page changes nothing
+    _advance(source, 0.01)
+    assert source.t_s == pytest.approx(0.2) and source.playing
 
 
 def test_pause_speed_and_bad_commands(run_dir):

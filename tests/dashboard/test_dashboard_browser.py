@@ -1,0 +1,243 @@
+"""The dashboard in a browser: Playwright drives a headless Chromium through a closed-loop run
+with `neuvision run --dashboard`, then through the replay of the run's folder.
+
+Checked: the robot moves across frames, the raster fills, Pause stops the step counter and
+Resume restarts it, Stop ends the run with outcome `stopped`, and the replay shows the same
+trajectory as the record and as the live page. Measured and printed: the page's frame rate
+and its lag behind the hub (from the hub's receipt of a step's reading, as the record
+stamps it, to the page drawing that step). Screenshots stay in the test's folder;
+NEUVISION_SCREENSHOTS=DIR also copies them there (docs/img/dashboard.png is the live one).
+
+Chromium: Debian's `chromium` package (what .ci/run installs), or Playwright's own if
+`python -m playwright install chromium` was run; the test is skipped without either.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+import time
+import urllib.request
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from hub.bus import free_tcp_port
+from hub.protocol import SensorReading
+from hub.record import read_run
+
+pytestmark = [pytest.mark.bus, pytest.mark.browser]
+
+ROOT = Path(__file__).resolve().parents[2]
+TIMEOUT_MS = 60_000
+
+# Coloured pixels of the raster's canvas (spikes are red or blue dots on white).
+RASTER_PIXELS = """() => {
+  const c = document.getElementById("raster");
+  const d = c.getContext("2d").getImageData(0, 0, c.width, c.height).data;
+  let n = 0;
+  for (let k = 0; k < d.length; k += 4) if (d[k + 3] > 0 && Math.abs(d[k] - d[k + 2]) > 60) n++;
+  return n;
+}"""
+
+
+@pytest.fixture(scope="module")
+def chromium() -> str:
+    """A Chromium to drive: the system's, else Playwright's own; skip without one."""
+    pytest.importorskip("playwright.sync_api", reason="playwright is not installed")
+    for name in ("chromium", "chromium-browser"):
+        path = shutil.which(name)
+        if path:
+            return path
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as pw:
+        path = pw.chromium.executable_path
+    if path and os.path.exists(path):
+        return path
+    pytest.skip(
+        "no Chromium: install Debian's (apt-get install chromium) or Playwright's own "
+        "(python -m playwright install chromium)"
+    )
+
+
+def _serving(url: str, proc: subprocess.Popen, timeout_s: float = 90.0) -> None:
+    """Wait until ``url`` answers (the process must not end meanwhile)."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        assert proc.poll() is None, f"the process ended with status {proc.returncode}"
+        try:
+            urllib.request.urlopen(url, timeout=2).read()
+            return
+        except OSError:
+            assert time.monotonic() < deadline, f"{url} did not answer in {timeout_s} s"
+            time.sleep(0.1)
+
+
+def _stop(proc: subprocess.Popen) -> None:
+    if proc.poll() is None:
+        proc.terminate()
+        try:
+            proc.wait(timeout=30)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+
+def _keep(shots: dict[str, Path]) -> None:
+    """Copy the screenshots to NEUVISION_SCREENSHOTS, if set (docs/img for the README)."""
+    folder = os.environ.get("NEUVISION_SCREENSHOTS")
+    if folder:
+        Path(folder).mkdir(parents=True, exist_ok=True)
+        for name, path in shots.items():
+            shutil.copy(path, Path(folder) / name)
+
+
+def test_a_run_watched_paused_resumed_and_stopped_in_a_browser_then_replayed(
+    tmp_path, bus_overrides, chromium, capsys
+):
+    from playwright.sync_api import sync_playwright
+
+    runs = tmp_path / "runs"
+    port = free_tcp_port()
+    sets = [a for o in bus_overrides if not o.startswith("bus.listen") for a in ("--set", o)]
+    run_log = open(tmp_path / "run.log", "w")
+    run = subprocess.Popen(
+        [sys.executable, "-m", "hub.cli", "run", "configs/closed_loop.toml", "--quiet"]
+        + ["--mode", "realtime", "--duration-s", "300", "--runs-dir", str(runs), "--dashboard"]
+        + ["--set", f"dashboard.port={port}", *sets],
+        stdout=run_log,
+        stderr=subprocess.STDOUT,
+        cwd=ROOT,
+    )
+    shots = {}
+    try:
+        _serving(f"http://127.0.0.1:{port}/", run)
+        with sync_playwright() as pw:
+            browser = pw.chromium.launch(executable_path=chromium, headless=True)
+            page = browser.new_page(viewport={"width": 1400, "height": 1150})
+            errors: list[str] = []
+            page.on("pageerror", lambda e: errors.append(str(e)))
+            page.goto(f"http://127.0.0.1:{port}/")
+            page.wait_for_function(
+                "nv.stats.connected && nv.scene && nv.scene.culture && nv.step >= 100",
+                timeout=TIMEOUT_MS,
+            )
+            # the robot moves across frames
+            x0, y0 = page.evaluate("nv.pose.slice(0, 2)")
+            page.wait_for_function(
+                f"Math.hypot(nv.pose[0] - {x0}, nv.pose[1] - {y0}) > 0.003", timeout=TIMEOUT_MS
+            )
+            # the raster fills
+            page.wait_for_function("nv.stats.rasterSpikes > 200", timeout=TIMEOUT_MS)
+            painted = page.evaluate(RASTER_PIXELS)
+            # the page's frame rate over three seconds of the run
+            r0, w0 = page.evaluate("[nv.stats.received, performance.now()]")
+            page.wait_for_function(f"performance.now() > {w0} + 3000", timeout=TIMEOUT_MS)
+            r1, w1 = page.evaluate("[nv.stats.received, performance.now()]")
+            fps = (r1 - r0) / ((w1 - w0) / 1e3)
+            shots["dashboard.png"] = tmp_path / "dashboard.png"
+            page.screenshot(path=shots["dashboard.png"], full_page=True)
+            # pause: the step counter stops while the hub's statuses go on
+            page.click("#btn-pause")
+            page.wait_for_function("nv.status.state === 'paused'", timeout=TIMEOUT_MS)
+            paused_at, wall = page.evaluate("[nv.step, nv.status.wall_s]")
+            page.wait_for_function(f"nv.status.wall_s > {wall} + 1.0", timeout=TIMEOUT_MS)
+            still = page.evaluate("nv.step")
+            shots["dashboard-paused.png"] = tmp_path / "dashboard-paused.png"
+            page.screenshot(path=shots["dashboard-paused.png"], full_page=True)
+            # resume: it counts again
+            page.click("#btn-resume")
+            page.wait_for_function(
+                f"nv.status.state === 'running' && nv.step > {still + 20}", timeout=TIMEOUT_MS
+            )
+            # stop (the button asks to be pressed twice)
+            page.click("#btn-stop")
+            page.click("#btn-stop")
+            page.wait_for_function(
+                "nv.status.state === 'stopped' || !nv.stats.connected", timeout=TIMEOUT_MS
+            )
+            live_trace = page.evaluate("nv.trace")
+            browser.close()
+        code = run.wait(timeout=120)
+    finally:
+        _stop(run)
+        run_log.close()
+    log = (tmp_path / "run.log").read_text()
+    assert code == 0, log
+    assert errors == []
+    assert painted > 200
+    assert still <= paused_at + 1, (paused_at, still)  # the step in flight may end
+    (run_dir,) = runs.iterdir()
+    rec = read_run(run_dir)
+    assert rec.manifest["outcome"] == "stopped", rec.manifest.get("reason")
+    assert rec.manifest["reason"] == "stopped by control"
+
+    # the lag behind the hub: the page's drawing of a step minus the hub's receipt of it
+    received_ms = {}
+    for f in rec.frames:
+        if f.direction == "rx" and f.key.endswith("/sensors"):
+            received_ms[SensorReading.decode(f.payload).step] = f.t_wall_ns / 1e6
+    first_drawn: dict[int, float] = {}
+    for step, drawn_ms, *_ in live_trace:
+        first_drawn.setdefault(step, drawn_ms)
+    lags = np.array([t - received_ms[s] for s, t in first_drawn.items() if s in received_ms])
+    assert lags.size > 50
+
+    # the replay of the run's folder shows the same trajectory
+    t_s, poses = rec.trajectory()
+    by_step = {int(round(t / 0.01)) - 1: p for t, p in zip(t_s, poses, strict=True)}
+    rport = free_tcp_port()
+    replay = subprocess.Popen(
+        [sys.executable, "-m", "hub.cli", "dashboard", "--replay", str(run_dir)]
+        + ["--speed", "4", "--port", str(rport)],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        cwd=ROOT,
+    )
+    try:
+        _serving(f"http://127.0.0.1:{rport}/", replay)
+        with sync_playwright() as pw:
+            browser = pw.chromium.launch(executable_path=chromium, headless=True)
+            page = browser.new_page(viewport={"width": 1400, "height": 1150})
+            page.on("pageerror", lambda e: errors.append(str(e)))
+            page.goto(f"http://127.0.0.1:{rport}/")
+            page.wait_for_function("nv.replay && nv.trace.length > 40", timeout=TIMEOUT_MS)
+            # a jump with the slider, to the middle of the run
+            middle = float(t_s[len(t_s) // 2])
+            page.eval_on_selector(
+                "#slider",
+                "(el, t) => { el.value = t; el.dispatchEvent(new Event('change')); }",
+                middle,
+            )
+            page.wait_for_function(
+                f"nv.stats.resets >= 2 && Math.abs(nv.t_s - {middle}) < 1.0", timeout=TIMEOUT_MS
+            )
+            drawn = page.evaluate("nv.stats.drawn")
+            page.wait_for_function(f"nv.stats.drawn > {drawn + 20}", timeout=TIMEOUT_MS)
+            shots["dashboard-replay.png"] = tmp_path / "dashboard-replay.png"
+            page.screenshot(path=shots["dashboard-replay.png"], full_page=True)
+            replay_trace = page.evaluate("nv.trace")
+            browser.close()
+    finally:
+        _stop(replay)
+    assert replay.returncode == 0 and errors == []
+    replayed = {step: (x, y) for step, _, x, y, _ in replay_trace}
+    live = {step: (x, y) for step, _, x, y, _ in live_trace}
+    assert len(replayed) > 40 and min(replayed) < middle / 0.01 < max(replayed)
+    # the page's poses, live and replayed, are exactly the record's
+    assert all(tuple(by_step[s][:2]) == xy for s, xy in replayed.items())
+    assert all(tuple(by_step[s][:2]) == xy for s, xy in live.items())
+    shared = set(replayed) & set(live)
+    _keep(shots)
+    with capsys.disabled():
+        print(
+            f"\ndashboard in Chromium: {fps:.1f} frames/s; lag behind the hub (its receipt of a "
+            f"step's reading to the page drawing it) median {np.median(lags):.0f} ms, p95 "
+            f"{np.percentile(lags, 95):.0f} ms, max {lags.max():.0f} ms over {lags.size} steps; "
+            f"replay: {len(replayed)} steps drawn, {len(shared)} also drawn live, all at the "
+            f"record's poses; screenshots in {tmp_path}"
+        )
