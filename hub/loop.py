@@ -84,6 +84,9 @@ log = logging.getLogger(__name__)
 ONLINE_EVERY_MS = 100.0
 # Network bursts repeated in each HubStatus (``extra.recent_network_bursts``), for observers.
 RECENT_NETWORK_BURSTS = 8
+# Realtime: a view for live displays is built after a step, and only this long or more before
+# the next step's start (else after a later step), so that it never delays a step.
+VIEW_GUARD_S = 1e-3
 # The longest a thread holds the interpreter while another wants it during the steps.
 # Python's default, 5 ms, would let live analysis hold up a step start (realtime) or keep
 # Zenoh's callback from handing the loop a reply (both modes).
@@ -277,7 +280,7 @@ class Hub(LockstepSteps, RealtimeSteps):
             self._safe_stop_body()
             endpoint_stats = self._final_counters(session)  # those alive, whatever the outcome
             self._end_run(session, outcome)
-            self._publish_view(time.monotonic())  # the last steps, for live displays
+            self._publish_view(time.monotonic(), last=True)  # the last steps, for live displays
             self.state = "stopped"
             self._publish_status()
             timing, counts = self.timing(), self.counts()
@@ -370,9 +373,9 @@ class Hub(LockstepSteps, RealtimeSteps):
         """The next event, waiting at most until ``until``, the next status, or a flush
         of the record is due."""
         now = time.monotonic()
-        timeout = min(
-            until - now, self._next_status - now, self._next_view - now, self.cfg.record.flush_s
-        )
+        timeout = min(until - now, self._next_status - now, self.cfg.record.flush_s)
+        if self.cfg.loop.mode == "lockstep":  # realtime: views go after steps (_publish_view)
+            timeout = min(timeout, self._next_view - now)
         t0 = time.perf_counter()
         try:
             return self.inbox.get(timeout=max(timeout, 0.0))
@@ -876,13 +879,17 @@ class Hub(LockstepSteps, RealtimeSteps):
             },
         )
 
-    def _publish_view(self, now: float) -> None:
+    def _publish_view(self, now: float, *, last: bool = False) -> None:
         """A view for live displays, if anyone subscribes and the loop moved (hub/view.py);
-        whether anyone subscribes is looked at four times a second meanwhile."""
+        whether anyone subscribes is looked at four times a second meanwhile. In realtime
+        steps, only in the slack before the next step (``last``: the run's last view)."""
         hz = self.cfg.loop.view_hz
         if self.link is None or not hz:
             self._next_view = math.inf
             return
+        if not last and self.state == "running" and self.cfg.loop.mode == "realtime":
+            if self._scheduled(self.k_done, self.period_s) - now < VIEW_GUARD_S:
+                return  # the tick after this step tries again
         self.view.watch(self.link.view_observed())
         self._next_view = now + (1.0 / hz if self.view.observed else 0.25)
         view = self.view.build(self.k_done)
