@@ -42,7 +42,8 @@ def test_the_observer_shows_the_run_and_pauses_resumes_and_stops_it(
             observer.start()
             try:
                 wait_for(lambda: frame()["step"] >= 30 and len(state.tapes["rates"]) >= 3, 30)
-                wait_for(lambda: frame()["endpoints"].get("culture", {}).get("counters"), 10)
+                culture = lambda: frame()["endpoints"].get("culture", {})  # noqa: E731
+                wait_for(lambda: culture().get("counters", {}).get("steps", 0) > 0, 10)
                 out["frame"], out["scene"] = frame(Reader()), state.scene  # all that is kept
                 out["pause"] = observer.command({"cmd": "pause"})
                 wait_for(lambda: frame()["status"]["state"] == "paused")
