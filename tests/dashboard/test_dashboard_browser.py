@@ -6,7 +6,8 @@ Resume restarts it, Stop ends the run with outcome `stopped`, and the replay sho
 trajectory as the record and as the live page. Measured and printed: the page's frame rate
 and its lag behind the hub (from the hub's receipt of a step's reading, as the record
 stamps it, to the page drawing that step). Screenshots stay in the test's folder;
-NEUVISION_SCREENSHOTS=DIR also copies them there (docs/img/dashboard.png is the live one).
+NEUVISION_SCREENSHOTS=DIR also copies the live one there as dashboard.png (the picture of
+docs/dashboard.md and the README: NEUVISION_SCREENSHOTS=docs/img).
 
 Chromium: Debian's `chromium` package (what .ci/run installs), or Playwright's own if
 `python -m playwright install chromium` was run; the test is skipped without either.
@@ -87,13 +88,12 @@ def _stop(proc: subprocess.Popen) -> None:
             proc.wait()
 
 
-def _keep(shots: dict[str, Path]) -> None:
-    """Copy the screenshots to NEUVISION_SCREENSHOTS, if set (docs/img for the README)."""
+def _keep(live: Path) -> None:
+    """Copy the live screenshot to NEUVISION_SCREENSHOTS, if set (docs/img for the README)."""
     folder = os.environ.get("NEUVISION_SCREENSHOTS")
     if folder:
         Path(folder).mkdir(parents=True, exist_ok=True)
-        for name, path in shots.items():
-            shutil.copy(path, Path(folder) / name)
+        shutil.copy(live, Path(folder) / "dashboard.png")
 
 
 def test_a_run_watched_paused_resumed_and_stopped_in_a_browser_then_replayed(
@@ -232,7 +232,7 @@ def test_a_run_watched_paused_resumed_and_stopped_in_a_browser_then_replayed(
     assert all(tuple(by_step[s][:2]) == xy for s, xy in replayed.items())
     assert all(tuple(by_step[s][:2]) == xy for s, xy in live.items())
     shared = set(replayed) & set(live)
-    _keep(shots)
+    _keep(shots["dashboard.png"])
     with capsys.disabled():
         print(
             f"\ndashboard in Chromium: {fps:.1f} frames/s; lag behind the hub (its receipt of a "
