@@ -86,7 +86,8 @@ class HubLink:
             for role, i in ids.items()
         }
         self._status = session.declare_publisher(keys.hub_status, **TELEMETRY_PUBLISH)
-        self._view = session.declare_publisher(keys.hub_view, **TELEMETRY_PUBLISH)
+        # framed (a view may be larger than one put of the low-latency transport), unsealed
+        self._view = wire.Outbox(session.declare_publisher(keys.hub_view, **TELEMETRY_PUBLISH))
         # Zenoh undeclares what is garbage-collected: keep every declaration.
         self._declared = [
             session.declare_subscriber(
@@ -113,7 +114,7 @@ class HubLink:
 
     def view_observed(self) -> bool:
         """Whether anyone subscribes to ``hub/view`` (a live display)."""
-        return self._view.matching_status.matching
+        return self._view.publisher.matching_status.matching
 
     def publish_view(self, raw: bytes) -> None:
         """Put a ``HubView`` for observers (dropped, never waited for, on a slow link)."""

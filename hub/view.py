@@ -21,6 +21,9 @@ from hub.protocol import HubView, Message, MotorCommand, SensorReading, SpikeBat
 
 # Held at most between two views (a loop over 30,000 steps/s at 30 views/s lets the oldest go).
 MAX_HELD = 1024
+# Spikes in one view at most (~2.4 MB): past it only the newest batches go, and the view
+# starts later (a gap for the observer, never a false silence).
+MAX_VIEW_SPIKES = 200_000
 
 
 class ObserverView:
@@ -72,7 +75,7 @@ class ObserverView:
         fresh start for the next."""
         if not self._fresh:
             return None
-        spikes, stims = list(self._spikes), list(self._stims)
+        spikes, stims = _newest(self._spikes), list(self._stims)
         self._spikes.clear()
         self._stims.clear()
         fields = {"step": steps_done, "run": self.run}
@@ -101,3 +104,14 @@ class ObserverView:
             fields.update(left_mps=self._motor.left_mps, right_mps=self._motor.right_mps)
         self._fresh = False
         return HubView(**fields)
+
+
+def _newest(batches) -> list[SpikeBatch]:
+    """The newest batches whose spikes together stay within MAX_VIEW_SPIKES, in order."""
+    kept, total = [], 0
+    for batch in reversed(batches):
+        total += batch.channel.size
+        if total > MAX_VIEW_SPIKES and kept:
+            break
+        kept.append(batch)
+    return kept[::-1]

@@ -95,17 +95,13 @@ def run_experiment(
 
     overrides = list(overrides)
     cfg = load_config(config, overrides)
+    port = None
     if local and all(cfg.endpoint(r).launch == "local" for r in ("body", "culture")):
         # Everything on this machine: a free loopback port keeps parallel runs apart.
         scheme = "tls" if cfg.bus.security == "mtls" else "tcp"
         port = free_tcp_port()
         overrides.append(f'bus.listen=["{scheme}/127.0.0.1:{port}"]')
         cfg = load_config(config, overrides)
-        announce(
-            f"the hub listens on 127.0.0.1:{port}, session {cfg.bus.session!r} "
-            f"(neuvision ctl status|pause|resume|stop --connect 127.0.0.1:{port} "
-            f"--session {cfg.bus.session})"
-        )
     check_cpus("loop.cpus", cfg.loop.cpus)
     for role in ("body", "culture"):
         if local and cfg.endpoint(role).launch == "local":
@@ -116,6 +112,12 @@ def run_experiment(
     check_hub_sections(cfg)
     dash_host, dash_port = dashboard_address(cfg) if dashboard else (None, None)
     run_dir = new_run_dir(cfg.experiment.runs_dir, cfg.experiment.name)
+    if local and port is not None:  # a port of its own: say where, for ctl and dashboards
+        announce(
+            f"the hub listens on 127.0.0.1:{port}, session {cfg.bus.session!r} "
+            f"(neuvision ctl status|pause|resume|stop --connect 127.0.0.1:{port} "
+            f"--session {cfg.bus.session})"
+        )
     announce(f"run folder {run_dir}")
     procs = start_local_endpoints(config, overrides, cfg, run_dir) if local else []
     dash = None

@@ -107,3 +107,43 @@ def test_neuvision_ctl_says_when_no_hub_answers(capsys):
     assert code == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert err[-1].startswith("neuvision: cannot reach the hub at tcp/127.0.0.1:")
+
+
+def test_views_larger_than_one_put_reach_the_observer_whole(tmp_path, bus_overrides):
+    """A culture firing 20,000 spikes a step: each view (~240 kB) goes in frames."""
+    seen: dict = {}
+    with harness(
+        tmp_path,
+        bus_overrides,
+        'culture.kind="tests.endpoints:LargeCulture"',
+        "culture.params={n_channels=4096, spikes_per_step=20000}",
+        "online.enabled=false",
+        "loop.mode=realtime",
+        "loop.period_ms=50",
+        "experiment.duration_s=60",
+    ) as h:
+        state = FrameState()
+        observer = BusObserver(h.cfg.bus, state)
+
+        def held() -> int:
+            """Spikes the state holds for the raster."""
+            with state.lock:
+                observer.tick()
+                return sum(t.size for t, _ in state.tapes["spikes"].since(0))
+
+        def operator():
+            observer.start()
+            try:
+                wait_for(lambda: held() >= 3 * 20000, 60)
+                seen["spikes"] = held()
+                seen["dropped"] = dict(observer.dropped)
+                seen["stop"] = observer.command({"cmd": "stop"})
+            finally:
+                observer.close()
+
+        thread = threading.Thread(target=operator)
+        thread.start()
+        result = h.run()
+        thread.join(timeout=60)
+    assert seen["spikes"] >= 60000 and seen["dropped"] == {} and seen["stop"]["ok"]
+    assert result.outcome == "stopped"

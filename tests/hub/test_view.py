@@ -89,3 +89,16 @@ def test_a_view_is_checked_like_any_message():
         HubView(step=1, run=RUN, from_s=0.0, to_s=0.1, trail_m=[0.1, 0.2, 0.3])
     with pytest.raises(ProtocolError):
         HubView(step=1, run=RUN, from_s=0.0, to_s=0.1, spike_channel=[1], spike_t_ms=[])
+
+
+def test_a_view_keeps_the_newest_spikes_up_to_its_bound(monkeypatch):
+    import hub.view
+
+    monkeypatch.setattr(hub.view, "MAX_VIEW_SPIKES", 5)
+    view = ObserverView(RUN)
+    view.watch(True)
+    for k in range(4):
+        view.took(_spikes(k, [k, k], [1.0, 2.0]))
+    v = view.build(4)
+    assert v.spike_channel.tolist() == [2, 2, 3, 3]
+    assert (v.from_s, v.to_s) == pytest.approx((0.02, 0.04))  # the observer sees a gap before
