@@ -482,6 +482,7 @@ function drawEndpoints() {
       ["steps", c.steps ?? "—"],
       ["dropped", nDropped ? `${nDropped} (${byRole(dropped)})` : "0"],
       ["holds", c.holds ?? 0],
+      ["reply round trip", roundTrip(role)],
       ["busy / CPU", c.busy_s !== undefined ? `${fmt(c.busy_s, 2)} / ${fmt(c.cpu_s, 2)} s` : "—"],
     ];
     parts.push(
@@ -489,6 +490,11 @@ function drawEndpoints() {
       `<table>${rows.map(([k, v]) => `<tr><td>${k}</td><td>${escapeHtml(String(v))}</td></tr>`).join("")}</table></div>`);
   }
   $("endpoints-panel").innerHTML = parts.join("") || '<div class="note">no endpoint seen yet</div>';
+}
+
+function roundTrip(role) {  // the hub's latest, from the input's put to the reply's arrival
+  const rtt = nv.source.kind === "live" ? ((nv.status.extra || {}).round_trip_ms || {})[role] : undefined;
+  return rtt === undefined ? "—" : `${fmt(rtt, 2)} ms`;
 }
 
 function escapeHtml(s) {
