@@ -46,11 +46,12 @@ import threading
 from concurrent.futures import Future
 
 import numpy as np
+from numba import njit
 
 from settings import ConfigError
 from sim_network.config import NetworkConfig
 from sim_network.connectivity import delay_steps
-from sim_network.kernels import IZH_V_PEAK_MV, V_FLOOR_MV
+from sim_network.kernels import IZH_V_PEAK_MV, STATE_DTYPE, V_FLOOR_MV, fill_noise
 from sim_network.layout import EXCITATORY, Layout
 from sim_network.network import Network
 from sim_network.neurons import initial_state
@@ -242,6 +243,21 @@ def check_expressible(cfg: NetworkConfig, prefix: str = "") -> None:
         )
 
 
+def set_each(nodes, values: list[dict]) -> None:
+    """Set each node's parameters: ``values[i]`` for ``nodes[i]`` (on the NEST thread).
+
+    PyNEST's ``NodeCollection.set`` first asks every node whether it is local, at ~6 µs a
+    node (8x the setting itself); NEST's low-level setter does not (a node of another MPI
+    rank is skipped there as well). Falls back to ``set`` if PyNEST lacks it.
+    """
+    try:
+        from nest.nestkernel_api import llapi_set_nc_status
+    except ImportError:
+        nodes.set(values)
+        return
+    llapi_set_nc_status(nodes._datum, values)
+
+
 def _launched_ranks() -> int:
     """How many ranks the MPI launcher started (1 when not started by one)."""
     for name in _MPI_SIZE_VARIABLES:
@@ -308,6 +324,27 @@ def nest_seed(seed: int) -> int:
     return int(word) % (2**31 - 2) + 1
 
 
+def nest_delay_steps(steps: np.ndarray) -> np.ndarray:
+    """NEST's delays (in steps) that make a jump arrive when sim_network's arrives.
+
+    sim_network adds a jump with a delay of d steps, sent by a spike found in step k, to V
+    at the start of step k + d, before that step's Euler update; NEST adds it at the end of
+    step k + delay, after the update. The same moment is ``delay = d - 1``; the update of
+    step k + d then starts from the jumped V in both. NEST's shortest delay is one step:
+    a one-step delay of sim_network stays one step (its jump lands a step later).
+
+    Parameters
+    ----------
+    steps : int array
+        sim_network's delays (`connectivity.delay_steps`, at least 1).
+
+    Returns
+    -------
+    int64 array
+    """
+    return np.maximum(np.asarray(steps, dtype=np.int64) - 1, 1)
+
+
 @dataclasses.dataclass
 class _Pending:
     """Pulses in neuron space on absolute steps [start, end), with their model current."""
@@ -335,6 +372,77 @@ class _Pending:
 _PENDING_FIELDS = ("neuron", "current", "start", "end")
 
 
+NOISE_SOURCES = ("culture", "nest")
+
+#: Noise windows loaded at once into each step_current_generator (at most; fewer for large
+#: cultures, so that NEST holds at most ~REPLAY_MAX_VALUES values at a time).
+REPLAY_WINDOWS = 1000
+REPLAY_MAX_VALUES = 8_000_000
+#: Generators are loaded in this many groups at staggered times, so that no single step
+#: pays for loading them all.
+REPLAY_GROUPS = 50
+
+
+@njit(cache=True, nogil=True)
+def _draw_windows(state, mean, sd, out):
+    """Draw ``out.shape[0]`` consecutive noise windows (rows of ``out``), as
+    `kernels.fill_noise` draws one: each neuron's generator advanced once per window."""
+    for w in range(out.shape[0]):
+        fill_noise(out[w], state, mean, sd)
+
+
+class _NoiseReplay:
+    """The culture's own noise — sim_network's per-neuron generators, the same currents in
+    the same windows — delivered by one ``step_current_generator`` per neuron.
+
+    A generator's amplitude stamped at step T reaches its neuron's Euler update of step
+    T + D (D: the connection's delay in steps); window w, which sim_network applies from
+    step w·m on, is stamped (w·m − D). The windows that start before step D + 1 cannot be
+    stamped so early: `early` holds them, and `NestNetwork` puts them into I_e.
+    """
+
+    def __init__(self, nest, nodes, state0, mean, sd, window_steps, delay_steps, dt):
+        n = len(nodes)
+        self.nest = nest
+        self.m = int(window_steps)
+        self.d = int(delay_steps)
+        self.dt = dt
+        self.state = state0.copy()
+        self.mean = mean
+        self.sd = sd
+        self.gens = nest.Create("step_current_generator", n)
+        nest.Connect(self.gens, nodes, "one_to_one", syn_spec={"delay": self.d * dt})
+        self.first = math.ceil((self.d + 1) / self.m)  # the first window a generator carries
+        self.early = np.zeros((self.first, n), dtype=STATE_DTYPE)
+        _draw_windows(self.state, self.mean, self.sd, self.early)
+        self.chunk = max(1, min(REPLAY_WINDOWS, REPLAY_MAX_VALUES // max(n, 1)))
+        groups = min(REPLAY_GROUPS, n)
+        self.bounds = np.linspace(0, n, groups + 1).round().astype(np.int64)
+        self.next_w = np.full(groups, self.first, dtype=np.int64)  # first window not loaded
+        # staggered first loads: group g gets (g + 1) / groups of a chunk
+        self.size = np.maximum(1, (self.chunk * (np.arange(groups) + 1)) // groups)
+
+    def load(self, k1: int) -> None:
+        """Load every group whose next window must be stamped before step ``k1``."""
+        due = np.flatnonzero(self.next_w * self.m - self.d - 1 < k1)
+        for g in due:
+            lo, hi = self.bounds[g], self.bounds[g + 1]
+            size = int(self.size[g])
+            while (self.next_w[g] + size) * self.m - self.d - 1 < k1:
+                size += self.chunk  # a long run() call: load what it needs at once
+            values = np.empty((size, hi - lo), dtype=STATE_DTYPE)
+            _draw_windows(self.state[:, lo:hi], self.mean[lo:hi], self.sd[lo:hi], values)
+            w = self.next_w[g] + np.arange(size)
+            times = (w * self.m - self.d) * self.dt
+            cols = np.ascontiguousarray(values.T, dtype=np.float64)
+            set_each(
+                self.gens[lo:hi],
+                [{"amplitude_times": times, "amplitude_values": c} for c in cols],
+            )
+            self.next_w[g] += size
+            self.size[g] = self.chunk
+
+
 class NestNetwork:
     """The culture of ``cfg`` built and run in NEST; ``run()`` as `Network.run`.
 
@@ -348,6 +456,13 @@ class NestNetwork:
         the same spikes again for the same seed and the same number of threads × ranks.
     threads : int
         NEST's threads in this process (``local_num_threads``).
+    noise_source : {"culture", "nest"}
+        ``"culture"`` (default): the culture's own noise — the same currents in the same
+        windows as ``Network(cfg, seed)`` — replayed through one ``step_current_generator``
+        per neuron (loading them costs ~65 ns per neuron and window). ``"nest"``: NEST's
+        ``noise_generator`` per population, Gaussian draws of the same mean and s.d. from
+        NEST's random numbers: cheaper at scale, but not the culture's noise, and the
+        culture's network bursts depend on it (docs/nest.md: about a third as many).
 
     Notes
     -----
@@ -359,25 +474,38 @@ class NestNetwork:
     rank 0 (mpi4py).
     """
 
-    def __init__(self, cfg: NetworkConfig, seed: int = 0, threads: int = 1):
+    def __init__(
+        self, cfg: NetworkConfig, seed: int = 0, threads: int = 1, noise_source: str = "culture"
+    ):
         if not isinstance(cfg, NetworkConfig):
             raise TypeError(f"cfg must be a NetworkConfig, got {type(cfg).__name__}")
         check_expressible(cfg)
         if int(threads) < 1:
             raise ValueError(f"threads must be >= 1, got {threads}")
+        if noise_source not in NOISE_SOURCES:
+            raise ValueError(f"noise_source must be one of {NOISE_SOURCES}, got {noise_source!r}")
         worker = nest_thread()
         self.nest = worker.call(import_nest)
         self.comm, self.rank, self.n_ranks = worker.call(mpi_world, self.nest)
         self.cfg = cfg
         self.seed = int(seed)
         self.threads = int(threads)
+        self.noise_source = noise_source
         sampler = Network(cfg, seed)  # the same seeded draws as the sim_network culture
         self.layout: Layout = sampler.layout
         self.synapses = sampler.synapses
         self.params = sampler.params.astype(np.float64)  # a, b, c, d as sim_network holds them
         self.mea = sampler.mea
         self._channels: Channels = sampler.channels
+        self._noise_state0 = sampler.noise_state.copy()  # its noise generators, as seeded
         del sampler
+        inhibitory = self.layout.cell_type != EXCITATORY
+        self._noise_mean = np.empty(self.layout.n, dtype=STATE_DTYPE)
+        self._noise_sd = np.empty(self.layout.n, dtype=STATE_DTYPE)
+        for flag in (False, True):
+            self._noise_mean[inhibitory == flag], self._noise_sd[inhibitory == flag] = (
+                cfg.noise.of_population(flag)
+            )
         self._dt = float(cfg.dt_ms)
         self._rebuilding: Future | None = None
         self._neuron_spikes = Spikes.concat([])
@@ -424,12 +552,13 @@ class NestNetwork:
         _owner = self
         nest.ResetKernel()
         nest.set(resolution=dt, local_num_threads=self.threads, rng_seed=nest_seed(self.seed))
-        steps = delay_steps(syn.delay_ms, dt).astype(np.int64)
+        steps = nest_delay_steps(delay_steps(syn.delay_ms, dt))
         d_min = int(steps.min()) if steps.size else 1
         d_max = int(steps.max()) if steps.size else 1
         # Devices are connected with the shortest synaptic delay: a shorter one would set
         # NEST's communication interval (min_delay), and with it the cost of each step.
-        nest.set(min_delay=d_min * dt, max_delay=d_max * dt)
+        # (NEST truncates these two to whole steps: half a step more lands on the step.)
+        nest.set(min_delay=(d_min + 0.5) * dt, max_delay=(d_max + 0.5) * dt)
         device_delay = d_min * dt
         v0, aux0 = initial_state(cfg, self.params)
         nodes = nest.Create(
@@ -444,24 +573,31 @@ class NestNetwork:
         first = int(nodes[0].global_id)
         pre = syn.pre().astype(np.int64)
         for model, idx, spec in self._synapse_groups(pre):
+            if idx.size == 0:
+                continue
             nest.Connect(
                 pre[idx] + first,
                 syn.post[idx].astype(np.int64) + first,
                 "one_to_one",
                 {"synapse_model": model, "delay": steps[idx] * dt, **spec},
             )
-        inhibitory = self.layout.cell_type != EXCITATORY
+        self._noise = None
         n_device = 0
-        for flag in (False, True):
-            members = np.flatnonzero(inhibitory == flag)
-            mean, sd = cfg.noise.of_population(bool(flag))
-            if members.size == 0 or (mean == 0 and sd == 0):
-                continue
-            gen = nest.Create(
-                "noise_generator", params={"mean": mean, "std": sd, "dt": cfg.noise.interval_ms}
-            )
-            nest.Connect(gen, nodes[members], syn_spec={"delay": device_delay})
-            n_device += members.size
+        if self._noise_mean.any() or self._noise_sd.any():
+            if self.noise_source == "culture":
+                self._noise = _NoiseReplay(
+                    nest,
+                    nodes,
+                    self._noise_state0,
+                    self._noise_mean,
+                    self._noise_sd,
+                    round(cfg.noise.interval_ms / dt),
+                    d_min,
+                    dt,
+                )
+                n_device += n
+            else:
+                n_device += self._noise_generators(nodes, device_delay)
         recorder = nest.Create("spike_recorder", params={"time_in_steps": True})
         nest.Connect(nodes, recorder, syn_spec={"delay": device_delay})
         n_device += n
@@ -478,6 +614,23 @@ class NestNetwork:
         # that the first step of a run does not pay for it.
         nest.Prepare()
         nest.Cleanup()
+
+    def _noise_generators(self, nodes, delay_ms: float) -> int:
+        """One noise_generator per population (``noise_source = "nest"``); connections."""
+        inhibitory = self.layout.cell_type != EXCITATORY
+        made = 0
+        for flag in (False, True):
+            members = np.flatnonzero(inhibitory == flag)
+            mean, sd = self.cfg.noise.of_population(flag)
+            if members.size == 0 or (mean == 0 and sd == 0):
+                continue
+            gen = self.nest.Create(
+                "noise_generator",
+                params={"mean": mean, "std": sd, "dt": self.cfg.noise.interval_ms},
+            )
+            self.nest.Connect(gen, nodes[members], syn_spec={"delay": delay_ms})
+            made += members.size
+        return made
 
     def _synapse_groups(self, pre: np.ndarray):
         """(synapse model, synapse indices, parameters) of each group of synapses."""
@@ -582,14 +735,18 @@ class NestNetwork:
             )
         self._pending = self._pending.alive_after(k0)
         pend = self._pending
-        edges = np.concatenate(([k0, k1], pend.start, pend.end))
+        edges = [[k0, k1], pend.start, pend.end]
+        if self._noise is not None:
+            self._noise.load(k1)
+            edges.append(np.arange(1, self._noise.first + 1) * self._noise.m)  # early windows
+        edges = np.concatenate(edges)
         edges = np.unique(edges[(edges >= k0) & (edges <= k1)])
         self._dirty = True
         if n_steps:
             nest.Prepare()
             try:
                 for a, b in zip(edges[:-1], edges[1:], strict=True):
-                    self._set_pulse_currents(int(a))
+                    self._set_currents(int(a))
                     nest.Run(float(b - a) * self._dt)
                 events = self._recorder.get("events")
             finally:
@@ -614,18 +771,28 @@ class NestNetwork:
             return self._neuron_spikes
         return self._to_electrodes(neuron, t_ms)
 
-    def _set_pulse_currents(self, k: int) -> None:
-        """Set I_e of every neuron whose pulse current at step k differs from what it has."""
+    def _set_currents(self, k: int) -> None:
+        """Set I_e of every neuron whose current from step k on differs from what it has:
+        its pulses, and in the first windows after a build its noise (`_NoiseReplay`)."""
         pend = self._pending
         on = (pend.start <= k) & (k < pend.end)
-        touched = np.union1d(pend.neuron, self._i_e_on)
-        current = np.zeros(touched.size)
+        noise = self._noise
+        if noise is not None and k < noise.first * noise.m:
+            touched = np.arange(self.layout.n)
+            current = noise.early[k // noise.m].astype(np.float64)
+        elif noise is not None and k == noise.first * noise.m:
+            touched = np.arange(self.layout.n)  # the early noise off
+            current = np.zeros(touched.size)
+        else:
+            touched = np.union1d(pend.neuron, self._i_e_on)
+            current = np.zeros(touched.size)
         np.add.at(current, np.searchsorted(touched, pend.neuron[on]), pend.current[on])
         changed = current != self._i_e[touched]
         if changed.any():
             idx = touched[changed]
-            self._nodes[idx].set(I_e=current[changed])
-            self._i_e[idx] = current[changed]
+            values = current[changed]
+            set_each(self._nodes[idx], [{"I_e": float(v)} for v in values])
+            self._i_e[idx] = values
             self._i_e_on = np.flatnonzero(self._i_e)
 
     def _to_electrodes(self, neuron: np.ndarray, t_ms: np.ndarray) -> Spikes:
