@@ -164,7 +164,9 @@ class NestEndpoint(NetworkEndpoint):
     """The same culture simulated by NEST (``culture.kind = "nest"``).
 
     Takes the parameters of the simulated culture (``config``, culture keys, ``seed``,
-    ``potentials_hz``) and ``threads`` (NEST's threads in this process, default 1); replies
+    ``potentials_hz``), ``threads`` (NEST's threads in this process, default 1) and
+    ``noise_source`` (``"culture"``, the culture's own noise, default; or ``"nest"``,
+    NEST's noise_generator: faster at scale, other statistics, docs/nest.md); replies
     what `NetworkEndpoint` replies, with ``kind = "nest"`` in its description. A culture
     feature NEST cannot express is refused by name before anything starts
     (:func:`sim_network.nest_backend.refusals`). A run starts from the network as built:
@@ -184,7 +186,7 @@ class NestEndpoint(NetworkEndpoint):
         Returns
         -------
         dict
-            ``config``, ``seed``, ``potentials_hz`` and ``threads``.
+            ``config``, ``seed``, ``potentials_hz``, ``threads`` and ``noise_source``.
 
         Raises
         ------
@@ -193,6 +195,12 @@ class NestEndpoint(NetworkEndpoint):
         """
         params = dict(section.params)
         threads = check_value("culture.params.threads", int, params.pop("threads", 1), ge=1)
+        noise_source = params.pop("noise_source", "culture")
+        if noise_source not in nest_backend.NOISE_SOURCES:
+            raise ConfigError(
+                f"culture.params.noise_source must be one of {nest_backend.NOISE_SOURCES}, "
+                f"got {noise_source!r}"
+            )
         resolved = super().check_config(dataclasses.replace(section, params=params), cfg)
         nest_backend.check_expressible(config_from_dict(resolved["config"]), "culture.params.")
         if not nest_backend.nest_available():
@@ -200,13 +208,16 @@ class NestEndpoint(NetworkEndpoint):
                 f"culture.kind = 'nest' needs NEST, which is not installed here: "
                 f"{nest_backend.INSTALL_HINT}"
             )
-        return {**resolved, "threads": threads}
+        return {**resolved, "threads": threads, "noise_source": noise_source}
 
     @classmethod
     def from_config(cls, section: EndpointSection, cfg: ExperimentConfig) -> NestEndpoint:
         params = cls.check_config(section, cfg)
         network = nest_backend.NestNetwork(
-            config_from_dict(params["config"]), seed=params["seed"], threads=params["threads"]
+            config_from_dict(params["config"]),
+            seed=params["seed"],
+            threads=params["threads"],
+            noise_source=params["noise_source"],
         )
         return cls(network, section.id, params["potentials_hz"])
 

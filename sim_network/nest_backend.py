@@ -398,12 +398,13 @@ class _NoiseReplay:
     A generator's amplitude stamped at step T reaches its neuron's Euler update of step
     T + D (D: the connection's delay in steps); window w, which sim_network applies from
     step w·m on, is stamped (w·m − D). The windows that start before step D + 1 cannot be
-    stamped so early: `early` holds them, and `NestNetwork` puts them into I_e.
+    stamped so early: `early` holds them, and `NestNetwork` puts them into I_e. Setting a
+    generator's amplitudes replaces its whole list, so a load repeats the windows loaded
+    before that it has not reached yet.
     """
 
     def __init__(self, nest, nodes, state0, mean, sd, window_steps, delay_steps, dt):
         n = len(nodes)
-        self.nest = nest
         self.m = int(window_steps)
         self.d = int(delay_steps)
         self.dt = dt
@@ -418,28 +419,37 @@ class _NoiseReplay:
         self.chunk = max(1, min(REPLAY_WINDOWS, REPLAY_MAX_VALUES // max(n, 1)))
         groups = min(REPLAY_GROUPS, n)
         self.bounds = np.linspace(0, n, groups + 1).round().astype(np.int64)
-        self.next_w = np.full(groups, self.first, dtype=np.int64)  # first window not loaded
+        # each group's windows loaded into its generators: from held_from[g] on, values held
+        self.held_from = np.full(groups, self.first, dtype=np.int64)
+        self.held = [np.zeros((0, hi - lo), STATE_DTYPE) for lo, hi in self._ranges()]
         # staggered first loads: group g gets (g + 1) / groups of a chunk
         self.size = np.maximum(1, (self.chunk * (np.arange(groups) + 1)) // groups)
 
-    def load(self, k1: int) -> None:
-        """Load every group whose next window must be stamped before step ``k1``."""
-        due = np.flatnonzero(self.next_w * self.m - self.d - 1 < k1)
-        for g in due:
-            lo, hi = self.bounds[g], self.bounds[g + 1]
+    def _ranges(self):
+        return zip(self.bounds[:-1], self.bounds[1:], strict=True)
+
+    def load(self, k0: int, k1: int) -> None:
+        """Before a Run of steps [k0, k1): load every group whose loaded windows run out."""
+        for g, (lo, hi) in enumerate(self._ranges()):
+            next_w = self.held_from[g] + len(self.held[g])
+            if next_w * self.m - self.d - 1 >= k1:
+                continue  # its next window is stamped after this Run
             size = int(self.size[g])
-            while (self.next_w[g] + size) * self.m - self.d - 1 < k1:
+            while (next_w + size) * self.m - self.d - 1 < k1:
                 size += self.chunk  # a long run() call: load what it needs at once
-            values = np.empty((size, hi - lo), dtype=STATE_DTYPE)
-            _draw_windows(self.state[:, lo:hi], self.mean[lo:hi], self.sd[lo:hi], values)
-            w = self.next_w[g] + np.arange(size)
+            new = np.empty((size, hi - lo), dtype=STATE_DTYPE)
+            _draw_windows(self.state[:, lo:hi], self.mean[lo:hi], self.sd[lo:hi], new)
+            # the windows loaded before whose stamp this Run has yet to reach (T > k0)
+            start = max(self.held_from[g], -(-(k0 + self.d + 1) // self.m))
+            values = np.concatenate((self.held[g][start - self.held_from[g] :], new))
+            w = start + np.arange(len(values))
             times = (w * self.m - self.d) * self.dt
             cols = np.ascontiguousarray(values.T, dtype=np.float64)
             set_each(
                 self.gens[lo:hi],
                 [{"amplitude_times": times, "amplitude_values": c} for c in cols],
             )
-            self.next_w[g] += size
+            self.held[g], self.held_from[g] = values, start
             self.size[g] = self.chunk
 
 
@@ -737,7 +747,7 @@ class NestNetwork:
         pend = self._pending
         edges = [[k0, k1], pend.start, pend.end]
         if self._noise is not None:
-            self._noise.load(k1)
+            self._noise.load(k0, k1)
             edges.append(np.arange(1, self._noise.first + 1) * self._noise.m)  # early windows
         edges = np.concatenate(edges)
         edges = np.unique(edges[(edges >= k0) & (edges <= k1)])

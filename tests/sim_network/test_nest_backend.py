@@ -205,13 +205,30 @@ def test_a_pulse_acts_on_the_steps_it_acts_on_in_sim_network():
 
 @needs_nest
 def test_runs_in_chunks_with_pulses_carried_over_equal_one_run():
+    # short calls, then a long one (its noise loaded while earlier windows are still due),
+    # then short ones again: the same spikes as one call
+    sizes = [10.0] * 25 + [1300.0] + [10.0] * 10 + [0.0, 0.5, 89.5]
     pulse = Pulses.single([17, 40], 80.0, 25.0, onset_ms=4.0)
     net = nb.NestNetwork(SMALL, seed=4)
-    whole = net.run(200.0, pulse)
+    whole = net.run(sum(sizes), pulse)
     net.set_state({"step": np.array(0)})  # back to the network as built
-    parts = [net.run(10.0, pulse if i == 0 else None) for i in range(20)]
-    assert len(whole) > 20 and same(whole, Spikes.concat(parts))
-    assert net.t_ms == pytest.approx(200.0)
+    parts = [net.run(size, pulse if i == 0 else None) for i, size in enumerate(sizes)]
+    assert len(whole) > 200 and same(whole, Spikes.concat(parts))
+    assert net.t_ms == pytest.approx(sum(sizes))
+
+
+@needs_nest
+def test_uncoupled_neurons_fire_as_in_sim_network_for_seconds():
+    # the noise stays the culture's over many loads of the generators
+    cfg = dataclasses.replace(
+        load_config("configs/culture_1024.toml"), connectivity=ConnectivityConfig(p_c_max=0.0)
+    )
+    sim, net = Network(cfg, seed=1), nb.NestNetwork(cfg, seed=1)
+    for size in (1000.0, *[10.0] * 100, 1000.0):
+        a, b = sim.run(size), net.run(size)
+    counts = [np.bincount(s.channel, minlength=cfg.n_neurons) for s in (a, b)]
+    assert np.mean(counts[0] == counts[1]) > 0.85  # the integrators differ slightly
+    assert abs(len(b) / len(a) - 1) < 0.05
 
 
 @needs_nest
