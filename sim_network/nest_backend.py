@@ -43,6 +43,7 @@ import math
 import os
 import queue
 import threading
+import warnings
 from concurrent.futures import Future
 
 import numpy as np
@@ -761,7 +762,7 @@ class NestNetwork:
                 events = self._recorder.get("events")
             finally:
                 nest.Cleanup()
-            self._recorder.n_events = 0  # NEST empties a recorder only outside Prepare
+            set_each(self._recorder, [{"n_events": 0}])  # emptied: only outside Prepare
             neuron = np.asarray(events["senders"], dtype=np.int64) - self._first_id
             step = np.asarray(events["times"], dtype=np.int64)  # stamps: step index + 1
         else:
@@ -819,8 +820,11 @@ class NestNetwork:
         return self._call("_potentials")
 
     def _potentials(self) -> np.ndarray | None:
-        nodes = self._nodes
-        local = nodes if self.comm is None else self.nest.GetLocalNodeCollection(nodes)
+        local = self._nodes
+        if self.comm is not None:
+            with warnings.catch_warnings():  # "inherently unsafe" for collective calls; get is not
+                warnings.simplefilter("ignore", UserWarning)
+                local = self.nest.GetLocalNodeCollection(local)
         ids = np.asarray(local.global_id, dtype=np.int64).reshape(-1) - self._first_id
         v = np.asarray(local.get("V_m"), dtype=np.float32).reshape(-1)
         if self.comm is not None:

@@ -290,3 +290,47 @@ def test_stdp_changes_excitatory_weights_within_their_bounds():
     assert not np.allclose(after[exc], np.clip(before[exc], 0, 10))
     assert after[exc].min() >= 0 and after[exc].max() <= 10.0 + 1e-9
     assert np.array_equal(after[~exc], before[~exc])
+
+
+class FakeComm:
+    """mpi4py's COMM_WORLD as rank 0 or a follower sees it, in one process: what is sent is
+    kept; a follower receives a script."""
+
+    def __init__(self, script=()):
+        self.sent, self.script = [], list(script)
+
+    def bcast(self, obj, root=0):
+        if obj is None:
+            return self.script.pop(0)
+        self.sent.append(obj)
+        return obj
+
+    def gather(self, obj, root=0):
+        return [obj, (np.zeros(0, np.int64), np.zeros(0, np.int64))]  # a second rank: none
+
+
+@needs_nest
+def test_rank_0_sends_each_call_to_the_other_ranks_before_making_it():
+    net = nb.NestNetwork(SMALL, seed=1)
+    alone = net.run(100.0)
+    net.set_state(net_state := {"step": np.array(0)})
+    net.comm, net.rank = FakeComm(), 0
+    pulses = Pulses.single([3], 100.0, 10.0)
+    together = net.run(100.0, pulses)  # the spikes of rank 0 and of an empty rank 1
+    net.potentials()
+    net.set_state(net_state)
+    net.close()
+    names = [name for name, _ in net.comm.sent]
+    assert names == ["_run", "_potentials", "_rebuild_if_run", "_stop"]
+    (n_steps, added) = net.comm.sent[0][1]
+    assert n_steps == 1000 and added.neuron.tolist() == [3]
+    assert 3 in together.channel and len(together) >= len(alone) > 0
+
+
+@needs_nest
+def test_a_follower_does_what_rank_0_sends_until_it_stops():
+    net = nb.NestNetwork(SMALL, seed=1)
+    net.comm = FakeComm([("_run", (500, None)), ("_potentials", ()), ("_stop", ())])
+    net.rank = 1
+    net.follow()
+    assert net.t_ms == pytest.approx(50.0) and net.comm.script == []
