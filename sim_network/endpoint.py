@@ -13,6 +13,7 @@ of membrane snapshots on ``culture/<id>/potentials``; 0, the default, for none).
 from __future__ import annotations
 
 import dataclasses
+import signal
 
 import numpy as np
 
@@ -237,8 +238,15 @@ class NestEndpoint(NetworkEndpoint):
             self.net.close()
 
     def serve(self, bus, **kwargs) -> int:
-        """Serve on the bus (rank 0); on any other MPI rank, follow rank 0 until it stops."""
+        """Serve on the bus (rank 0); on any other MPI rank, follow rank 0 until it stops.
+
+        A following rank ignores SIGINT and SIGTERM (``mpirun`` passes them to every rank):
+        rank 0 stops serving, then releases the others, and each exits 0.
+        """
         if self.net.rank != 0:
+            if kwargs.get("install_signals", True):
+                for sig in (signal.SIGINT, signal.SIGTERM):
+                    signal.signal(sig, signal.SIG_IGN)
             self.net.follow()
             return 0
         return super().serve(bus, **kwargs)
