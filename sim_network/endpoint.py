@@ -214,12 +214,15 @@ class NestEndpoint(NetworkEndpoint):
     @classmethod
     def from_config(cls, section: EndpointSection, cfg: ExperimentConfig) -> NestEndpoint:
         params = cls.check_config(section, cfg)
-        network = nest_backend.NestNetwork(
-            config_from_dict(params["config"]),
-            seed=params["seed"],
-            threads=params["threads"],
-            noise_source=params["noise_source"],
-        )
+        try:
+            network = nest_backend.NestNetwork(
+                config_from_dict(params["config"]),
+                seed=params["seed"],
+                threads=params["threads"],
+                noise_source=params["noise_source"],
+            )
+        except nest_backend.MpiMismatch as exc:
+            raise ConfigError(f"culture.kind = 'nest': {exc}") from None
         return cls(network, section.id, params["potentials_hz"])
 
     def warm_up(self) -> None:

@@ -16,14 +16,18 @@ culture file        NEST
                     spike inputs added to V_m as jumps in mV), each neuron's a, b, c, d;
                     V_th 30 mV, V_min −100 mV (sim_network's peak and floor)
 ``connectivity``    ``nest.Connect`` of the sampler's arrays (pre, post, weight in mV,
-                    delay rounded to whole steps as sim_network rounds it)
+                    delay in whole steps as sim_network rounds it, less one:
+                    `nest_delay_steps`)
 ``depression``      ``tsodyks2_synapse`` with U = ``u``, no facilitation, weight w / U (its
                     first spike delivers U·w / U = w; later ones x·w, as sim_network's
                     per-neuron resources, which every synapse of a neuron shares)
 ``stdp``            ``stdp_synapse`` (additive: mu 0, lambda a+/w_max, alpha a−/a+) on the
                     excitatory synapses, ``tau_minus`` on the neurons
-``noise``           one ``noise_generator`` per population (mean, s.d., held for
-                    ``interval_ms``): each neuron its own draws
+``noise``           the culture's own noise (sim_network's per-neuron generators,
+                    the same currents in the same windows) through one
+                    ``step_current_generator`` per neuron (`_NoiseReplay`); or, with
+                    ``noise_source = "nest"``, NEST's ``noise_generator`` per population
+                    (Gaussian, same mean and s.d.)
 pulses              each neuron's ``I_e``, set between ``nest.Run`` calls cut at the pulses'
                     edges: a pulse acts on exactly the steps it acts on in sim_network
 ==================  ========================================================================
@@ -76,6 +80,10 @@ _owner: NestNetwork | None = None  # the NestNetwork whose network the NEST kern
 
 class NestRetired(RuntimeError):
     """This NestNetwork's network was replaced: NEST holds one network per process."""
+
+
+class MpiMismatch(RuntimeError):
+    """This process's MPI job and its NEST do not fit (a NEST without MPI under mpirun)."""
 
 
 class _NestThread:
@@ -283,7 +291,7 @@ def mpi_world(nest):
 
     Raises
     ------
-    RuntimeError
+    MpiMismatch
         Started as one of several MPI ranks with a NEST built without MPI (each copy would
         simulate the whole culture and talk to the bus), or a NEST with MPI and no mpi4py.
     """
@@ -291,7 +299,7 @@ def mpi_world(nest):
     if size == 1:
         launched = _launched_ranks()
         if launched > 1:
-            raise RuntimeError(
+            raise MpiMismatch(
                 f"started as one of {launched} MPI ranks, but this NEST is built without MPI "
                 "(the nest-simulator wheel is): each rank would simulate the whole culture. "
                 "Build NEST with -Dwith-mpi=ON (docs/nest.md), or run one process with threads"
@@ -300,13 +308,13 @@ def mpi_world(nest):
     try:
         from mpi4py import MPI
     except ImportError as exc:
-        raise RuntimeError(
+        raise MpiMismatch(
             f"NEST runs on {size} MPI ranks; the culture gathers each step's spikes to rank 0 "
             f"with mpi4py, which is missing (pip install mpi4py): {exc}"
         ) from exc
     comm = MPI.COMM_WORLD
     if comm.Get_size() != size:
-        raise RuntimeError(f"mpi4py sees {comm.Get_size()} ranks, NEST {size}")
+        raise MpiMismatch(f"mpi4py sees {comm.Get_size()} ranks, NEST {size}")
     return comm, int(nest.Rank()), size
 
 

@@ -124,7 +124,7 @@ def test_nest_delays_land_jumps_when_sim_network_lands_them():
 
 def test_a_nest_without_mpi_started_as_several_ranks_refuses(monkeypatch):
     monkeypatch.setenv("OMPI_COMM_WORLD_SIZE", "4")
-    with pytest.raises(RuntimeError, match="built without MPI"):
+    with pytest.raises(nb.MpiMismatch, match="built without MPI"):
         nb.mpi_world(SimpleNamespace(num_processes=1))
     monkeypatch.delenv("OMPI_COMM_WORLD_SIZE")
     assert nb.mpi_world(SimpleNamespace(num_processes=1)) == (None, 0, 1)
