@@ -553,11 +553,14 @@ class NestNetwork:
 
     @property
     def n_connections(self) -> int:
-        """Connections between neurons that NEST holds (this process's share)."""
+        """Connections between neurons that NEST holds (of all ranks)."""
         return self._call("_n_connections")
 
     def _n_connections(self) -> int:
-        return int(self.nest.num_connections) - self._device_connections
+        # each rank holds the connections to its own neurons, device connections included
+        per_neuron = self._device_connections // self.layout.n
+        local = int(self.nest.num_connections) - per_neuron * self._n_local
+        return local if self.comm is None else self.comm.allreduce(local)
 
     # ------------------------------------------------------------------ building
     def _build(self) -> None:
@@ -585,10 +588,15 @@ class NestNetwork:
             n,
             params={"consistent_integration": True, "V_th": IZH_V_PEAK_MV, "V_min": V_FLOOR_MV},
         )
-        a, b, c, d = self.params
-        nodes.set(a=a, b=b, c=c, d=d, V_m=v0, U_m=aux0[0], I_e=np.zeros(n))
+        per_neuron = {"a": self.params[0], "b": self.params[1], "c": self.params[2]}
+        per_neuron.update(d=self.params[3], V_m=v0, U_m=aux0[0])
         if cfg.stdp.enabled:
-            nodes.set(tau_minus=cfg.stdp.tau_minus_ms)
+            per_neuron["tau_minus"] = np.full(n, cfg.stdp.tau_minus_ms)
+        keys = list(per_neuron)
+        rows = zip(
+            *(np.asarray(per_neuron[k], dtype=np.float64).tolist() for k in keys), strict=True
+        )
+        set_each(nodes, [dict(zip(keys, row, strict=True)) for row in rows])
         first = int(nodes[0].global_id)
         pre = syn.pre().astype(np.int64)
         for model, idx, spec in self._synapse_groups(pre):
@@ -621,6 +629,7 @@ class NestNetwork:
         nest.Connect(nodes, recorder, syn_spec={"delay": device_delay})
         n_device += n
         self._device_connections = n_device
+        self._n_local = len(self._local(nodes))
         self._nodes = nodes
         self._first_id = first
         self._recorder = recorder
@@ -823,16 +832,20 @@ class NestNetwork:
         idx = starts + np.arange(counts.sum())
         return Spikes(mea.rec_electrode[idx], np.repeat(t_ms, counts))
 
+    def _local(self, nodes):
+        """The nodes of this rank."""
+        if self.comm is None:
+            return nodes
+        with warnings.catch_warnings():  # "inherently unsafe" for collective calls; get is not
+            warnings.simplefilter("ignore", UserWarning)
+            return self.nest.GetLocalNodeCollection(nodes)
+
     def potentials(self) -> np.ndarray:
         """A snapshot of the membrane potentials (float32[n], mV)."""
         return self._call("_potentials")
 
     def _potentials(self) -> np.ndarray | None:
-        local = self._nodes
-        if self.comm is not None:
-            with warnings.catch_warnings():  # "inherently unsafe" for collective calls; get is not
-                warnings.simplefilter("ignore", UserWarning)
-                local = self.nest.GetLocalNodeCollection(local)
+        local = self._local(self._nodes)
         ids = np.asarray(local.global_id, dtype=np.int64).reshape(-1) - self._first_id
         v = np.asarray(local.get("V_m"), dtype=np.float32).reshape(-1)
         if self.comm is not None:

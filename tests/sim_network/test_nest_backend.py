@@ -247,6 +247,13 @@ def test_it_returns_to_the_network_as_built_and_refuses_other_states():
 
 
 @needs_nest
+def test_nest_threads_change_nothing_with_the_culture_s_noise():
+    one = nb.NestNetwork(SMALL, seed=2, threads=1).run(500.0)
+    two = nb.NestNetwork(SMALL, seed=2, threads=2).run(500.0)
+    assert len(one) > 50 and same(one, two)
+
+
+@needs_nest
 def test_it_runs_from_any_thread_and_one_nest_network_lives_per_process():
     net = nb.NestNetwork(SMALL, seed=1)
     out = []

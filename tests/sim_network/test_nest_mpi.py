@@ -43,7 +43,10 @@ def _why_not() -> str | None:
     return None
 
 
-pytestmark = pytest.mark.skipif(_why_not() is not None, reason=_why_not() or "")
+pytestmark = [
+    pytest.mark.skipif(_why_not() is not None, reason=_why_not() or ""),
+    pytest.mark.bus,
+]
 
 SCRIPT = textwrap.dedent(
     """
@@ -64,27 +67,80 @@ SCRIPT = textwrap.dedent(
     v = net.potentials()
     net.set_state({"step": np.array(0)})
     again = steps()
+    connections = net.n_connections
     net.close()
     print(json.dumps({"ranks": net.n_ranks, "channel": first[0], "t_ms": first[1],
-                      "v": len(v), "again": again}))
+                      "v": len(v), "again": again, "connections": connections,
+                      "synapses": net.synapses.n_synapses}))
     """
 )
 
 
-def run_ranks(n: int, threads_env: dict | None = None) -> dict:
+def mpi_env() -> dict:
+    path = os.pathsep.join(p for p in (ROOT, os.environ.get("PYTHONPATH", "")) if p)
+    return {
+        **os.environ,
+        "PYTHONPATH": path,
+        # Open MPI: as root in a container, and more ranks than cores on a small machine
+        "OMPI_ALLOW_RUN_AS_ROOT": "1",
+        "OMPI_ALLOW_RUN_AS_ROOT_CONFIRM": "1",
+        "OMPI_MCA_rmaps_base_oversubscribe": "1",
+    }
+
+
+def run_ranks(n: int) -> dict:
     out = subprocess.run(
         ["mpirun", "-n", str(n), sys.executable, "-c", SCRIPT],
-        capture_output=True, text=True, timeout=600, cwd=ROOT,
-        env={**os.environ, "PYTHONPATH": ROOT, **(threads_env or {})},
+        capture_output=True, text=True, timeout=600, cwd=ROOT, env=mpi_env(),
     )  # fmt: skip
     assert out.returncode == 0, out.stderr[-3000:]
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
 def test_two_ranks_gather_each_step_s_spikes_to_rank_0():
-    two = run_ranks(2)
-    assert two["ranks"] == 2 and two["v"] == 144
+    one, two = run_ranks(1), run_ranks(2)
+    assert one["ranks"] == 1 and two["ranks"] == 2 and two["v"] == 144
+    assert two["connections"] == one["connections"] == two["synapses"]  # all ranks together
     assert 5 in two["channel"]  # the pulse of step 2 made neuron 5 fire
-    assert sorted(two["t_ms"]) == two["t_ms"]  # in time order, as one process gives them
+    # the culture's noise draws nothing from NEST: two ranks give one process's spikes
+    assert [two["channel"], two["t_ms"]] == [one["channel"], one["t_ms"]]
     # a run from the network as built repeats the first 300 ms spike for spike
     assert two["again"] == [two["channel"], two["t_ms"]]
+
+
+def test_the_culture_endpoint_serves_from_rank_0_under_mpirun(tmp_path, bus_overrides):
+    from hub.record import read_run
+    from tests.harness import wait_for
+
+    listen = next(i for i in bus_overrides if i.startswith("bus.listen="))
+    port = json.loads(listen.split("=", 1)[1])[0].rsplit(":", 1)[1]
+    items = [
+        *bus_overrides, 'culture.launch="external"', 'culture.kind="nest"',
+        "culture.params.layout.rows=16", "culture.params.layout.cols=16",
+    ]  # fmt: skip
+    sets = [a for item in items for a in ("--set", item)]
+    log = open(tmp_path / "culture.log", "w")
+    culture = subprocess.Popen(
+        ["mpirun", "-n", "2", sys.executable, "-m", "hub.cli", "endpoint", "culture",
+         "configs/closed_loop.toml", "--connect", f"127.0.0.1:{port}", "--once", *sets],
+        cwd=ROOT, env=mpi_env(), stdout=log, stderr=subprocess.STDOUT,
+    )  # fmt: skip
+    try:
+        wait_for(lambda: "waiting for the hub" in (tmp_path / "culture.log").read_text(), 120)
+        hub = subprocess.run(
+            [sys.executable, "-m", "hub.cli", "run", "configs/closed_loop.toml", "--quiet",
+             "--duration-s", "1.0", "--runs-dir", str(tmp_path / "runs"), *sets],
+            capture_output=True, text=True, timeout=300, cwd=ROOT, env=mpi_env(),
+        )  # fmt: skip
+        assert hub.returncode == 0, hub.stderr[-2000:]
+        (run_dir,) = (tmp_path / "runs").iterdir()
+        manifest = read_run(run_dir).manifest
+        assert manifest["outcome"] == "completed" and manifest["steps"] == 100
+        assert manifest["endpoints"]["culture"]["host"]["pid"] != culture.pid  # rank 0
+        # --once: rank 0 stops serving when the run ends and releases the other rank
+        code = culture.wait(timeout=120)
+    finally:
+        if culture.poll() is None:
+            culture.kill()
+        log.close()
+    assert code == 0, (tmp_path / "culture.log").read_text()[-3000:]
