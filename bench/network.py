@@ -62,12 +62,10 @@ def per_call_us(net: Network, calls: int = 2000, period_ms: float = 10.0) -> flo
     return (time.perf_counter() - t) / calls * 1e6
 
 
-def bench_100k(seconds: float) -> dict:
-    """Build and run 316² ≈ 100k neurons at dt = 1 ms (called in a subprocess).
-
-    Connectivity is widened to d_pc_um = 200 (≈ 100 synapses per neuron, 4× the culture's)
-    and the weights are scaled by 1/4 so that the summed input per neuron stays comparable.
-    """
+def config_100k():
+    """316² ≈ 100k neurons at dt = 1 ms: the culture with its connectivity widened to
+    d_pc_um = 200 (≈ 100 synapses per neuron, 4× the culture's) and the weights scaled by
+    1/4 so that the summed input per neuron stays comparable (bench/nest.py uses it too)."""
     base = load_config(CONFIG).connectivity
     scale = 0.25
     con = dataclasses.replace(
@@ -77,7 +75,12 @@ def bench_100k(seconds: float) -> dict:
         weight_exc_mv=tuple(w * scale for w in base.weight_exc_mv),
         weight_inh_mv=tuple(w * scale for w in base.weight_inh_mv),
     )
-    cfg = sized(316, 1.0, con)
+    return sized(316, 1.0, con)
+
+
+def bench_100k(seconds: float) -> dict:
+    """Build and run `config_100k` (called in a subprocess)."""
+    cfg = config_100k()
     t = time.perf_counter()
     net = Network(cfg, seed=1)
     build_s = time.perf_counter() - t

@@ -1,8 +1,8 @@
 """Making endpoints from a config, and running them as local processes.
 
 An endpoint's ``kind`` in the experiment file is either a registered short name
-(``sim_robot``, ``sim_network``, ``khepera``, ``mea``) or ``module:Class``. The class provides
-``from_config(section, cfg) -> Endpoint`` and may provide
+(``sim_robot``, ``sim_network``, ``nest``, ``khepera``, ``mea``) or ``module:Class``. The class
+provides ``from_config(section, cfg) -> Endpoint`` and may provide
 ``check_config(section, cfg) -> dict``: a classmethod that checks the section's ``params``
 without building anything (no network, no device connection), raising
 :class:`~hub.config.ConfigError` naming ``<role>.params.<key>``, and returns the params
@@ -36,6 +36,7 @@ _PR_SET_PDEATHSIG = 1
 ENDPOINT_KINDS = {
     "sim_robot": "sim_robot.endpoint:ArenaEndpoint",
     "sim_network": "sim_network.endpoint:NetworkEndpoint",
+    "nest": "sim_network.endpoint:NestEndpoint",
     "khepera": "adapters.khepera.endpoint:KheperaEndpoint",
     "mea": "adapters.mea.endpoint:MeaEndpoint",
 }

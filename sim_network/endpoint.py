@@ -1,6 +1,8 @@
 """Serves a simulated culture on the bus: stimulation in, spikes out.
 
-A thin shell around :class:`sim_network.Network`; the model lives in the library.
+A thin shell around :class:`sim_network.Network` (``culture.kind = "sim_network"``) or the
+same culture on NEST, :class:`sim_network.nest_backend.NestNetwork` (``kind = "nest"``,
+:class:`NestEndpoint`); the model lives in the library.
 Parameters (``[culture.params]``): ``config`` (a culture file, relative to the experiment
 file, or a culture table; default: the default culture, ``sim_network.config``'s
 defaults), any key of a culture file overriding the culture's (``noise.sd``,
@@ -10,13 +12,16 @@ of membrane snapshots on ``culture/<id>/potentials``; 0, the default, for none).
 
 from __future__ import annotations
 
+import dataclasses
+import signal
+
 import numpy as np
 
 import settings
 from hub.config import ConfigError, EndpointSection, ExperimentConfig, check_value
 from hub.endpoint import Endpoint, RunRefused
 from hub.protocol import Description, Potentials, RunStart, SpikeBatch, StepWindow, Stimulation
-from sim_network import Network, PulseError, Pulses
+from sim_network import Network, PulseError, Pulses, nest_backend
 from sim_network.config import config_from_dict, config_to_dict, read_config_data
 
 # What the simulated culture takes (contract v2 limits; a real rig's are far lower): the
@@ -154,3 +159,97 @@ class NetworkEndpoint(Endpoint):
             channel=spikes.channel,
             t_ms=(spikes.t_ms - t0_ms).astype(np.float32),
         )
+
+
+class NestEndpoint(NetworkEndpoint):
+    """The same culture simulated by NEST (``culture.kind = "nest"``).
+
+    Takes the parameters of the simulated culture (``config``, culture keys, ``seed``,
+    ``potentials_hz``), ``threads`` (NEST's threads in this process, default 1) and
+    ``noise_source`` (``"culture"``, the culture's own noise, default; or ``"nest"``,
+    NEST's noise_generator: faster at scale, other statistics, docs/nest.md); replies
+    what `NetworkEndpoint` replies, with ``kind = "nest"`` in its description. A culture
+    feature NEST cannot express is refused by name before anything starts
+    (:func:`sim_network.nest_backend.refusals`). A run starts from the network as built:
+    when a run ends, the network is rebuilt in NEST in the background for the next one.
+
+    Under ``mpirun`` (a NEST built with MPI) every rank builds its share of the network;
+    rank 0 serves on the bus and the other ranks follow it (:meth:`serve`).
+    """
+
+    kind = "nest"
+
+    @classmethod
+    def check_config(cls, section: EndpointSection, cfg: ExperimentConfig) -> dict:
+        """The simulated culture's parameters checked (`NetworkEndpoint.check_config`),
+        ``threads``, the features NEST cannot express, and NEST present.
+
+        Returns
+        -------
+        dict
+            ``config``, ``seed``, ``potentials_hz``, ``threads`` and ``noise_source``.
+
+        Raises
+        ------
+        ConfigError
+            Naming ``culture.params.<key>``, or saying how to install NEST.
+        """
+        params = dict(section.params)
+        threads = check_value("culture.params.threads", int, params.pop("threads", 1), ge=1)
+        noise_source = params.pop("noise_source", "culture")
+        if noise_source not in nest_backend.NOISE_SOURCES:
+            raise ConfigError(
+                f"culture.params.noise_source must be one of {nest_backend.NOISE_SOURCES}, "
+                f"got {noise_source!r}"
+            )
+        resolved = super().check_config(dataclasses.replace(section, params=params), cfg)
+        nest_backend.check_expressible(config_from_dict(resolved["config"]), "culture.params.")
+        if not nest_backend.nest_available():
+            raise ConfigError(
+                f"culture.kind = 'nest' needs NEST, which is not installed here: "
+                f"{nest_backend.INSTALL_HINT}"
+            )
+        return {**resolved, "threads": threads, "noise_source": noise_source}
+
+    @classmethod
+    def from_config(cls, section: EndpointSection, cfg: ExperimentConfig) -> NestEndpoint:
+        params = cls.check_config(section, cfg)
+        try:
+            network = nest_backend.NestNetwork(
+                config_from_dict(params["config"]),
+                seed=params["seed"],
+                threads=params["threads"],
+                noise_source=params["noise_source"],
+            )
+        except nest_backend.MpiMismatch as exc:
+            raise ConfigError(f"culture.kind = 'nest': {exc}") from None
+        return cls(network, section.id, params["potentials_hz"])
+
+    def warm_up(self) -> None:
+        """Nothing: the network was prepared once when built (NEST sorts its connections
+        then), and a run here would cost a rebuild to undo."""
+
+    def end_run(self) -> None:
+        """The run is over: rebuild the network as built, in the background."""
+        super().end_run()
+        self.net.reset(background=True)
+
+    def close(self) -> None:
+        """Release the other MPI ranks (a rebuild under way in one process is left to die
+        with it)."""
+        if self.net.comm is not None:
+            self.net.close()
+
+    def serve(self, bus, **kwargs) -> int:
+        """Serve on the bus (rank 0); on any other MPI rank, follow rank 0 until it stops.
+
+        A following rank ignores SIGINT and SIGTERM (``mpirun`` passes them to every rank):
+        rank 0 stops serving, then releases the others, and each exits 0.
+        """
+        if self.net.rank != 0:
+            if kwargs.get("install_signals", True):
+                for sig in (signal.SIGINT, signal.SIGTERM):
+                    signal.signal(sig, signal.SIG_IGN)
+            self.net.follow()
+            return 0
+        return super().serve(bus, **kwargs)
