@@ -6,6 +6,7 @@
 """
 
 from sim_network.config import (
+    AdaptationConfig,
     ConfigError,
     ConnectivityConfig,
     DepressionConfig,
@@ -28,6 +29,7 @@ from sim_network.records import Channels, PeriodicStimulus, PulseError, Pulses, 
 
 __all__ = [
     "Channels",
+    "AdaptationConfig",
     "ConfigError",
     "ConnectivityConfig",
     "DepressionConfig",

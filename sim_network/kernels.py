@@ -7,10 +7,12 @@ One step k (time k·dt to (k+1)·dt), in this order:
    (for the Izhikevich model the draw is fused into the update pass of step 4);
 2. stimulation: the current of every pulse with start ≤ k < end is summed per neuron;
 3. synaptic input due at step k (ring-buffer slot k mod n_slots) is added to v (a voltage jump);
-4. the neuron model integrates one step; threshold crossings are recorded as spikes at step k
-   (in index order) and reset;
-5. each spike adds its weights (scaled by short-term depression) to the ring slot of step
-   k + delay of each outgoing synapse; STDP, if on, updates excitatory weights.
+4. the neuron model integrates one step (an Izhikevich neuron's input less its
+   spike-frequency adaptation current, which decays first); threshold crossings are recorded
+   as spikes at step k (in index order) and reset;
+5. each spike raises its neuron's adaptation current and adds its weights (scaled by
+   short-term depression) to the ring slot of step k + delay of each outgoing synapse; STDP,
+   if on, updates excitatory weights.
 No allocation happens inside; the output arrays have room for at least one full step, and
 the kernel returns early (with the number of steps done) when they would overflow.
 """
@@ -253,10 +255,49 @@ def _with_stim_impl(current, stim_cur, i):
     return lambda current, stim_cur, i: current + stim_cur[i]
 
 
+def _adapted(current, adapt_w, adapt_decay, i):
+    """current − w_i after w_i decays one step, or current when adaptation is off (None)."""
+    if adapt_w is None:
+        return current
+    w = adapt_w[i] * adapt_decay
+    adapt_w[i] = w
+    return current - w
+
+
+@overload(_adapted, inline="always")
+def _adapted_impl(current, adapt_w, adapt_decay, i):
+    if isinstance(adapt_w, types.NoneType):  # compiled away: a culture without adaptation
+        return lambda current, adapt_w, adapt_decay, i: current
+
+    def impl(current, adapt_w, adapt_decay, i):
+        w = adapt_w[i] * adapt_decay
+        adapt_w[i] = w
+        return current - w
+
+    return impl
+
+
+def _adapt_spike(adapt_w, adapt_inc, i):
+    """Add neuron i's increment to its adaptation current (nothing when adaptation is off)."""
+    if adapt_w is not None:
+        adapt_w[i] += adapt_inc[i]
+
+
+@overload(_adapt_spike, inline="always")
+def _adapt_spike_impl(adapt_w, adapt_inc, i):
+    if isinstance(adapt_w, types.NoneType):
+        return lambda adapt_w, adapt_inc, i: None
+
+    def impl(adapt_w, adapt_inc, i):
+        adapt_w[i] += adapt_inc[i]
+
+    return impl
+
+
 @njit(cache=True, nogil=True, fastmath=_FAST)
 def _izhikevich_update(
     v, u, a, b, row, noise_cur, noise_state, noise_mean, noise_sd, redraw, stim_cur, scratch,
-    dt, n_sub,
+    dt, n_sub, adapt_w, adapt_decay,
 ):  # fmt: skip
     """One Izhikevich step for all neurons, branch-free so that it vectorises.
 
@@ -268,6 +309,8 @@ def _izhikevich_update(
     between sub-steps; u is then updated with v. The caller scans for the neurons at the
     peak afterwards (counting them here costs more than the scan: it halves the SIMD width).
     `stim_cur` is None when no pulse is on: that variant does not read it at all.
+    `adapt_w` (float32[n], the spike-frequency adaptation current) decays by `adapt_decay`
+    and is subtracted from the input; None when adaptation is off (compiled away).
     """
     h = np.float32(dt / n_sub)
     c2 = np.float32(0.04 * dt / n_sub)
@@ -284,18 +327,17 @@ def _izhikevich_update(
                 r, s0[i], s1[i], s2[i], s3[i] = _xoshiro128pp(s0[i], s1[i], s2[i], s3[i])
                 current = noise_mean[i] + noise_sd[i] * _irwin_hall4(r)
                 noise_cur[i] = current
+                current = _with_stim(_adapted(current, adapt_w, adapt_decay, i), stim_cur, i)
                 vi = min(max(v[i] + row[i], _F_FLOOR), _F_PEAK)
                 row[i] = _F0
-                v[i], u[i] = _izh_one(
-                    vi, u[i], _with_stim(current, stim_cur, i), a[i], b[i], h, c2, c1, c0, dtf
-                )
+                v[i], u[i] = _izh_one(vi, u[i], current, a[i], b[i], h, c2, c1, c0, dtf)
         else:
             for i in range(v.size):
+                current = _adapted(noise_cur[i], adapt_w, adapt_decay, i)
+                current = _with_stim(current, stim_cur, i)
                 vi = min(max(v[i] + row[i], _F_FLOOR), _F_PEAK)
                 row[i] = _F0
-                v[i], u[i] = _izh_one(
-                    vi, u[i], _with_stim(noise_cur[i], stim_cur, i), a[i], b[i], h, c2, c1, c0, dtf
-                )
+                v[i], u[i] = _izh_one(vi, u[i], current, a[i], b[i], h, c2, c1, c0, dtf)
         return
     if n_sub == 2:  # dt in (0.5, 1] ms: Izhikevich's two half-steps, in one vectorised pass
         if redraw:
@@ -303,18 +345,17 @@ def _izhikevich_update(
                 r, s0[i], s1[i], s2[i], s3[i] = _xoshiro128pp(s0[i], s1[i], s2[i], s3[i])
                 current = noise_mean[i] + noise_sd[i] * _irwin_hall4(r)
                 noise_cur[i] = current
+                current = _with_stim(_adapted(current, adapt_w, adapt_decay, i), stim_cur, i)
                 vi = min(max(v[i] + row[i], _F_FLOOR), _F_PEAK)
                 row[i] = _F0
-                v[i], u[i] = _izh_two(
-                    vi, u[i], _with_stim(current, stim_cur, i), a[i], b[i], h, c2, c1, c0, dtf
-                )
+                v[i], u[i] = _izh_two(vi, u[i], current, a[i], b[i], h, c2, c1, c0, dtf)
         else:
             for i in range(v.size):
+                current = _adapted(noise_cur[i], adapt_w, adapt_decay, i)
+                current = _with_stim(current, stim_cur, i)
                 vi = min(max(v[i] + row[i], _F_FLOOR), _F_PEAK)
                 row[i] = _F0
-                v[i], u[i] = _izh_two(
-                    vi, u[i], _with_stim(noise_cur[i], stim_cur, i), a[i], b[i], h, c2, c1, c0, dtf
-                )
+                v[i], u[i] = _izh_two(vi, u[i], current, a[i], b[i], h, c2, c1, c0, dtf)
         return
     # more sub-steps (dt > 1 ms): loop over sub-steps outside, neurons inside, so that
     # each pass still vectorises; h·(noise + stimulation − u) + c0 is held in `scratch`
@@ -323,7 +364,8 @@ def _izhikevich_update(
     for i in range(v.size):
         v[i] = max(v[i] + row[i], _F_FLOOR)
         row[i] = _F0
-        scratch[i] = h * (_with_stim(noise_cur[i], stim_cur, i) - u[i]) + c0
+        current = _with_stim(_adapted(noise_cur[i], adapt_w, adapt_decay, i), stim_cur, i)
+        scratch[i] = h * (current - u[i]) + c0
     for _ in range(n_sub):
         for i in range(v.size):
             vi = min(v[i], _F_PEAK)
@@ -468,7 +510,7 @@ def _izhikevich_spikes(v, u, c_reset, d_jump, k, out_neuron, out_step, n_out):
 
 
 @njit(cache=True, nogil=True)
-def advance(n_steps, step0, neurons, wiring, dep, noise, stim, stdp, out, n_out):
+def advance(n_steps, step0, neurons, wiring, dep, noise, stim, stdp, adapt, out, n_out):
     """Advance the network by up to `n_steps` steps from absolute step `step0`.
 
     The state and parameters come in plain tuples, one per part of the model (plain, not
@@ -504,6 +546,11 @@ def advance(n_steps, step0, neurons, wiring, dep, noise, stim, stdp, out, n_out)
         Pair-based STDP of excitatory synapses: amplitudes (mV), per-step trace decays, the
         weight ceiling (mV), the traces float64[n], each neuron's incoming synapses (CSR
         ``in_indptr``, ``in_syn``), each synapse's presynaptic neuron, excitatory flags.
+    adapt : (w, increment, decay)
+        Spike-frequency adaptation (Izhikevich model only): ``w`` float32[n], each neuron's
+        adaptation current, subtracted from its input, decays by ``decay`` (float32,
+        exp(−dt/τ)) every step and grows by ``increment`` float32[n] at each of its spikes;
+        ``w`` and ``increment`` None when off (that variant is compiled without it).
     out : (neuron, step)
         Room for the spikes found (int32 and int64 arrays of the same length), written from
         index ``n_out`` on; a step needs room for n spikes.
@@ -522,6 +569,7 @@ def advance(n_steps, step0, neurons, wiring, dep, noise, stim, stdp, out, n_out)
     p_neuron, p_current, p_start, p_end, stim_cur = stim
     stdp_on, a_plus, a_minus, decay_plus, decay_minus, w_max = stdp[:6]
     x_pre, y_post, in_indptr, in_syn, syn_pre, is_exc = stdp[6:]
+    adapt_w, adapt_inc, adapt_decay = adapt
     out_neuron, out_step = out
     n = v.size
     n_slots = ring.shape[0]
@@ -553,12 +601,12 @@ def advance(n_steps, step0, neurons, wiring, dep, noise, stim, stdp, out, n_out)
             if n_on > 0:
                 _izhikevich_update(
                     v, aux[0], params[0], params[1], row, noise_cur, noise_state, noise_mean,
-                    noise_sd, redraw, stim_cur, aux[1], dt, n_sub,
+                    noise_sd, redraw, stim_cur, aux[1], dt, n_sub, adapt_w, adapt_decay,
                 )  # fmt: skip
             else:  # no pulse on: the variant that does not read the (all-zero) stim_cur
                 _izhikevich_update(
                     v, aux[0], params[0], params[1], row, noise_cur, noise_state, noise_mean,
-                    noise_sd, redraw, None, aux[1], dt, n_sub,
+                    noise_sd, redraw, None, aux[1], dt, n_sub, adapt_w, adapt_decay,
                 )  # fmt: skip
             n_out = _izhikevich_spikes(
                 v, aux[0], params[2], params[3], k, out_neuron, out_step, n_out
@@ -603,6 +651,7 @@ def advance(n_steps, step0, neurons, wiring, dep, noise, stim, stdp, out, n_out)
                 y_post[i] *= decay_minus
         for q in range(first, n_out):
             i = out_neuron[q]
+            _adapt_spike(adapt_w, adapt_inc, i)
             scale = 1.0
             if dep_u > 0.0:
                 x = 1.0 - (1.0 - dep_x[i]) * math.exp(-(k - dep_last[i]) / dep_tau_steps)

@@ -94,6 +94,12 @@ class Network:
         )
         self._dep_tau_steps = cfg.depression.tau_rec_ms / self._dt
         inh = self.layout.cell_type != EXCITATORY
+        ada = cfg.adaptation
+        self._adapt_on = ada.enabled and self._model == MODEL_IDS["izhikevich"]
+        self._adapt_inc = np.where(inh, ada.increment_of(True), ada.increment_of(False)).astype(
+            kernels.STATE_DTYPE
+        )
+        self._adapt_decay = kernels.STATE_DTYPE(math.exp(-self._dt / ada.tau_ms))
         self._noise_mean = np.empty(n, dtype=kernels.STATE_DTYPE)
         self._noise_sd = np.empty(n, dtype=kernels.STATE_DTYPE)
         for flag in (False, True):
@@ -214,6 +220,11 @@ class Network:
                 self._in_syn,
                 self._pre,
                 self._is_exc,
+            ),
+            (  # the adaptation current lives in aux[2] (a free row of the Izhikevich state)
+                self.aux[2] if self._adapt_on else None,
+                self._adapt_inc if self._adapt_on else None,
+                self._adapt_decay,
             ),
             (self._out_neuron, self._out_step),
         )

@@ -143,7 +143,8 @@ def initial_state(cfg: NetworkConfig, params: np.ndarray) -> tuple[np.ndarray, n
     v : float64[n]
         Membrane potential (mV).
     aux : float64[4, n]
-        Izhikevich: u; LIF: refractory steps left; HH: m, h, n, above-threshold flag.
+        Izhikevich: u, scratch, the adaptation current (0); LIF: refractory steps left; HH:
+        m, h, n, above-threshold flag.
     """
     n = params.shape[1]
     aux = np.zeros((4, n), dtype=np.float64)

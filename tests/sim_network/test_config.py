@@ -44,6 +44,12 @@ def test_culture_file_loads():
         ({"stdp": {"tau_plus_ms": 0.0}}, "stdp.tau_plus_ms"),
         ({"mea": {"pitch_um": 0.0}}, "mea.pitch_um"),
         ({"noise": 3.0}, "noise"),
+        ({"adaptation": {"increment_exc_mv_per_ms": -1.0}}, "adaptation.increment_exc_mv_per_ms"),
+        ({"adaptation": {"tau_ms": 0.0}}, "adaptation.tau_ms"),
+        (
+            {"neurons": {"model": "lif"}, "adaptation": {"increment_inh_mv_per_ms": 1.0}},
+            "adaptation applies to Izhikevich neurons only",
+        ),
     ],
 )
 def test_bad_values_are_rejected_naming_the_key(data, key):

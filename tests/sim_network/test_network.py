@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from sim_network import (
+    AdaptationConfig,
     ConnectivityConfig,
     LayoutConfig,
     Network,
@@ -181,6 +182,44 @@ def test_stdp_changes_excitatory_weights_only():
     assert not np.array_equal(net.weight[exc], w0[exc])
     assert np.array_equal(net.weight[~exc], w0[~exc])
     assert net.weight[exc].min() >= 0 and net.weight[exc].max() <= 12.0
+
+
+def test_adaptation_off_leaves_its_current_at_zero_and_tau_irrelevant():
+    a = Network(SMALL, seed=4)
+    b = Network(dataclasses.replace(SMALL, adaptation=AdaptationConfig(tau_ms=20.0)), seed=4)
+    assert same(a.run(500.0), b.run(500.0))
+    assert not a.aux[2].any()
+
+
+def test_adaptation_current_grows_per_spike_decays_and_lowers_the_rate():
+    inc, tau = 3.0, 100.0
+    cfg = dataclasses.replace(
+        SMALL, adaptation=AdaptationConfig(increment_exc_mv_per_ms=inc, tau_ms=tau)
+    )
+    free, adapted = Network(SMALL, seed=4), Network(cfg, seed=4)
+    exc = adapted.layout.cell_type == 0
+    n_free = np.bincount(free.run(2000.0).channel, minlength=free.n_neurons)
+    spikes = adapted.run(2000.0)
+    n_adapted = np.bincount(spikes.channel, minlength=adapted.n_neurons)
+    assert n_adapted[exc].sum() < 0.8 * n_free[exc].sum()
+    w = adapted.aux[2]
+    assert not w[~exc].any() and (w[exc] >= 0).all()
+    # w is the sum of the increments of each spike, decayed since: check one neuron exactly
+    i = int(np.flatnonzero(exc & (n_adapted > 0))[0])
+    t_spikes = spikes.t_ms[spikes.channel == i]
+    steps_since = np.rint((adapted.t_ms - t_spikes) / adapted.cfg.dt_ms)
+    expected = inc * np.sum(np.exp(-adapted.cfg.dt_ms / tau) ** (steps_since - 1))
+    assert w[i] == pytest.approx(expected, rel=3e-3)  # float32, decayed in ~20k steps
+
+
+def test_checkpoint_with_adaptation_continues_identically(tmp_path):
+    cfg = dataclasses.replace(SMALL, adaptation=AdaptationConfig(increment_exc_mv_per_ms=2.0))
+    ref = Network(cfg, seed=3)
+    ref.run(300.0)
+    ref.save(tmp_path / "net.ckpt")
+    expected = ref.run(300.0)
+    again = Network.load(tmp_path / "net.ckpt")
+    assert same(expected, again.run(300.0))
 
 
 def test_potentials_snapshot():
