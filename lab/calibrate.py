@@ -2,6 +2,7 @@
 
     python -m lab.calibrate --config configs/culture_1024.toml --seconds 60 \
         --set connectivity.weight_exc_mv=[0,6] --set noise.sd=3.5 [--evoked]
+    python -m lab.calibrate --seconds 300 --seeds 1-6 --jobs 2   # per seed, mean ± s.d.
 
 Spontaneous mode prints MFR, MBR, MNBR, network-burst duration and the excitatory share of
 network-burst spikes against the paper's values; `--evoked` stimulates one excitatory neuron
@@ -15,14 +16,22 @@ from __future__ import annotations
 import argparse
 import json
 import time
+from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
 
 from hub.analysis.metrics import AnalysisParams
-from hub.analysis.paper import PAPER_TARGETS, relative_error
+from hub.analysis.paper import (
+    CHECKED_KEYS,
+    PAPER_TARGETS,
+    SEED_TOLERANCE,
+    relative_error,
+    within,
+)
 from lab.activity import analyze_culture
+from lab.seeds import mean_sd, parse_seeds
 from settings import ConfigError
-from sim_network.config import load_config
+from sim_network.config import NetworkConfig, load_config
 from sim_network.network import Network
 from sim_network.records import PeriodicStimulus, Spikes
 
@@ -62,6 +71,110 @@ def record(
     return Spikes.concat(parts)
 
 
+def spontaneous_statistics(
+    cfg: NetworkConfig, seed: int, seconds: float, warmup_s: float = 5.0
+) -> dict:
+    """Simulate one seed's spontaneous activity through the library and analyse it.
+
+    The same figures as ``lab.reproduce`` computes (``hub.analysis`` through
+    ``lab.activity``), without the bus, the stimulation protocols or the figures.
+
+    Parameters
+    ----------
+    cfg : NetworkConfig
+        The culture.
+    seed : int
+        Network seed.
+    seconds : float
+        Analysed spontaneous activity (after the warm-up).
+    warmup_s : float
+        Discarded first.
+
+    Returns
+    -------
+    dict
+        ``hub.analysis.metrics`` keys, plus ``seed`` and ``wall_s`` (simulation and analysis).
+    """
+    wall = time.perf_counter()
+    net = Network(cfg, seed=seed)
+    record(net, warmup_s)
+    t0 = net.t_ms
+    spikes = record(net, seconds)
+    out = dict(analyze_culture(spikes, net.layout, t0, net.t_ms).metrics)
+    out.update(seed=seed, wall_s=time.perf_counter() - wall)
+    return out
+
+
+def statistics_over_seeds(
+    cfg: NetworkConfig, seeds, seconds: float, warmup_s: float = 5.0, jobs: int = 1
+) -> list[dict]:
+    """`spontaneous_statistics` of several seeds, up to ``jobs`` processes at a time.
+
+    Parameters
+    ----------
+    cfg : NetworkConfig
+    seeds : iterable of int
+    seconds, warmup_s : float
+        As for `spontaneous_statistics`.
+    jobs : int
+        Processes at once (1: in this process).
+
+    Returns
+    -------
+    list of dict
+        One per seed, in the order given.
+    """
+    seeds = list(seeds)
+    if jobs <= 1 or len(seeds) == 1:
+        return [spontaneous_statistics(cfg, s, seconds, warmup_s) for s in seeds]
+    with ProcessPoolExecutor(max_workers=jobs) as pool:
+        futures = [pool.submit(spontaneous_statistics, cfg, s, seconds, warmup_s) for s in seeds]
+        return [f.result() for f in futures]
+
+
+def seed_table(rows: list[dict], keys=CHECKED_KEYS, tolerance: float = SEED_TOLERANCE) -> str:
+    """A markdown table of figures per seed against the paper, with mean ± s.d. over seeds.
+
+    Parameters
+    ----------
+    rows : list of dict
+        Metrics dicts with a ``seed`` key.
+    keys : sequence of str
+        The figures (metrics keys; those in ``PAPER_TARGETS`` get the verdict).
+    tolerance : float
+        Relative band of the verdict.
+
+    Returns
+    -------
+    str
+        A value marked ``**…**`` lies outside ``±tolerance`` of the paper.
+    """
+    head = "| seed | " + " | ".join(keys) + " |"
+    lines = [head, "|" + "---|" * (len(keys) + 1)]
+    lines.append("| paper | " + " | ".join(f"{PAPER_TARGETS.get(k, '—')}" for k in keys) + " |")
+    for r in rows:
+        cells = []
+        for k in keys:
+            v, ref = r.get(k), PAPER_TARGETS.get(k)
+            if ref is None:
+                cells.append("—" if v is None else f"{v:.2f}")
+            elif v is None:
+                cells.append("**—**")
+            else:
+                text = f"{v:.2f} ({100 * relative_error(v, ref):+.0f} %)"
+                cells.append(text if within(v, ref, tolerance) else f"**{text}**")
+        lines.append(f"| {r['seed']} | " + " | ".join(cells) + " |")
+    stats = [mean_sd(r.get(k) for r in rows) for k in keys]
+    lines.append(
+        "| mean ± s.d. | "
+        + " | ".join(
+            "—" if s["mean"] is None else f"{s['mean']:.2f} ± {s['sd'] or 0.0:.2f}" for s in stats
+        )
+        + " |"
+    )
+    return "\n".join(lines)
+
+
 def central_excitatory_neuron(net: Network) -> int:
     """The excitatory neuron nearest the culture centre.
 
@@ -89,8 +202,20 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--set", action="append", default=[], help="dotted.key=toml_value")
     ap.add_argument("--evoked", action="store_true")
+    ap.add_argument(
+        "--seeds", help="several seeds (e.g. 1-6): spontaneous figures per seed and over seeds"
+    )
+    ap.add_argument("--jobs", type=int, default=1, help="seeds simulated at once (--seeds)")
     args = ap.parse_args(argv)
     cfg = load_config(args.config, args.set)  # the one loader: errors name the key
+    if args.seeds:
+        rows = statistics_over_seeds(
+            cfg, parse_seeds(args.seeds), args.seconds, args.warmup, args.jobs
+        )
+        print(seed_table(rows, CHECKED_KEYS + ("mfr_sd_hz", "nb_participation")))
+        out = {"per_seed": rows}
+        print(json.dumps(out))
+        return out
     net = Network(cfg, seed=args.seed)
     record(net, args.warmup)
     t0 = net.t_ms
