@@ -110,14 +110,20 @@ class AdaptationConfig:
 
     Each neuron carries a current w (model units: mV/ms in the Izhikevich equation, the unit
     of the noise and stimulation currents) that is subtracted from its input, decays with
-    `tau_ms` and grows by its population's increment at each of its spikes. Increments of 0
-    turn it off. Not in the paper; calibrated on: it spreads an excitatory neuron's spikes
-    within a network burst, so that fewer of them count as single-neuron bursts.
+    `tau_ms` and grows by its population's increment at each of its spikes. Excitatory cells
+    whose reset c is at least `exempt_from_reset_mv` (chattering-like) do not adapt.
+    Increments of 0 (the default culture) turn it off. Not in the paper; in
+    ``configs/culture_1024_adapting.toml`` regular-spiking cells then fire once or twice per
+    network burst instead of bursting, so that a network burst's bursting neurons are the
+    inhibitory and the chattering-like cells, about 45 % of the culture (docs/sim_network.md).
     """
 
     increment_exc_mv_per_ms: float = 0.0
     increment_inh_mv_per_ms: float = 0.0
-    tau_ms: float = 500.0
+    tau_ms: float = 25.0
+    # excitatory cells whose after-spike reset c is at least this (the chattering end of the
+    # RS -> CH spread of `neurons.heterogeneity_exc`) do not adapt; None: all of them adapt
+    exempt_from_reset_mv: float | None = None
 
     def increment_of(self, inhibitory: bool) -> float:
         """The increment per spike of one population."""

@@ -96,9 +96,11 @@ class Network:
         inh = self.layout.cell_type != EXCITATORY
         ada = cfg.adaptation
         self._adapt_on = ada.enabled and self._model == MODEL_IDS["izhikevich"]
-        self._adapt_inc = np.where(inh, ada.increment_of(True), ada.increment_of(False)).astype(
-            kernels.STATE_DTYPE
-        )
+        inc = np.where(inh, ada.increment_of(True), ada.increment_of(False))
+        if self._adapt_on and ada.exempt_from_reset_mv is not None:
+            # chattering-like excitatory cells (reset c high) do not adapt
+            inc[~inh & (self.params[2] >= kernels.STATE_DTYPE(ada.exempt_from_reset_mv))] = 0.0
+        self._adapt_inc = inc.astype(kernels.STATE_DTYPE)
         self._adapt_decay = kernels.STATE_DTYPE(math.exp(-self._dt / ada.tau_ms))
         self._noise_mean = np.empty(n, dtype=kernels.STATE_DTYPE)
         self._noise_sd = np.empty(n, dtype=kernels.STATE_DTYPE)

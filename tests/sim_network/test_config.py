@@ -77,6 +77,13 @@ def test_the_default_culture_is_the_calibrated_culture_file():
     assert NetworkConfig().noise.sd == 2.5 and NetworkConfig().connectivity.d_pc_um == 100.0
 
 
+def test_the_adapting_culture_is_the_default_culture_with_adaptation():
+    base, adapting = NetworkConfig(), load_config("configs/culture_1024_adapting.toml")
+    assert adapting.layout == base.layout and adapting.neurons == base.neurons
+    assert adapting.noise == base.noise and adapting.stimulation == base.stimulation
+    assert not base.adaptation.enabled and adapting.adaptation.enabled
+
+
 def test_overrides_are_typed_as_toml_and_validated():
     cfg = load_config(None, ["noise.sd=3.5", "connectivity.weight_exc_mv=[0, 6]"])
     assert cfg.noise.sd == 3.5 and cfg.connectivity.weight_exc_mv == (0.0, 6.0)

@@ -212,6 +212,21 @@ def test_adaptation_current_grows_per_spike_decays_and_lowers_the_rate():
     assert w[i] == pytest.approx(expected, rel=3e-3)  # float32, decayed in ~20k steps
 
 
+def test_chattering_like_cells_are_exempt_from_adaptation():
+    cfg = load_config("configs/culture_1024_adapting.toml")
+    ada = cfg.adaptation
+    assert ada.increment_exc_mv_per_ms > 0 and ada.exempt_from_reset_mv is not None
+    net = Network(cfg, seed=1)
+    exc = net.layout.cell_type == 0
+    exempt = exc & (net.params[2] >= ada.exempt_from_reset_mv)
+    assert 0.1 < exempt.sum() / exc.sum() < 0.5  # the chattering end of the RS -> CH spread
+    assert not net._adapt_inc[exempt].any() and not net._adapt_inc[~exc].any()
+    assert (net._adapt_inc[exc & ~exempt] == ada.increment_exc_mv_per_ms).all()
+    spikes = net.run(1000.0)
+    fired = np.bincount(spikes.channel, minlength=net.n_neurons) > 0
+    assert not net.aux[2][exempt].any() and net.aux[2][exc & ~exempt & fired].all()
+
+
 def test_checkpoint_with_adaptation_continues_identically(tmp_path):
     cfg = dataclasses.replace(SMALL, adaptation=AdaptationConfig(increment_exc_mv_per_ms=2.0))
     ref = Network(cfg, seed=3)
