@@ -229,6 +229,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", type=Path, help="output folder (default: a new run folder)")
     p.add_argument("--quick", action="store_true", help="a shortened version (for tests)")
     p.add_argument("--seed", type=int, default=1)
+    p.add_argument(
+        "--seeds", help="several seeds, e.g. 1-6 or 1,3,5: a table per seed and mean ± s.d."
+    )
+    p.add_argument("--jobs", type=int, default=1, help="seeds reproduced at once (--seeds)")
+    p.add_argument("--culture", type=Path, help="culture file (default configs/culture_1024.toml)")
     _add_dashboard_commands(sub)
     return parser
 
@@ -468,10 +473,19 @@ def cmd_analyze(args) -> int:
 
 def cmd_reproduce(args) -> int:
     from hub.record import new_run_dir
-    from lab.reproduce import reproduce
+    from lab.reproduce import DEFAULT_CULTURE, reproduce, reproduce_seeds
+    from lab.seeds import parse_seeds
 
     out = args.out or new_run_dir("runs", "reproduce")
-    reproduce(out, quick=args.quick, seed=args.seed)
+    culture = args.culture or DEFAULT_CULTURE
+    if args.seeds:
+        try:
+            seeds = parse_seeds(args.seeds)
+        except ValueError as exc:
+            raise InputError(str(exc)) from None
+        reproduce_seeds(out, seeds, quick=args.quick, jobs=args.jobs, config_path=culture)
+    else:
+        reproduce(out, quick=args.quick, seed=args.seed, config_path=culture)
     print(f"neuvision: reproduction in {out}", file=sys.stderr)
     return EXIT_OK
 

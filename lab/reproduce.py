@@ -15,6 +15,13 @@ calls. With the default culture (``configs/culture_1024.toml``) and one seed it:
 
 ``quick=True`` shortens every phase (60 s spontaneous, 4 pulses per protocol) for tests.
 Headline PSTH and CAT figures come from the "one excitatory neuron" protocol, as in the paper.
+
+``reproduce_seeds(out_dir, seeds, ...)`` (``neuvision reproduce --seeds 1-6``) runs the same
+for several seeds, each into ``seed_<n>/``, up to ``jobs`` at a time, and writes into
+``out_dir`` a ``reproduction.json`` holding the first seed's figures under today's keys, every
+seed's under ``per_seed`` and mean ± s.d. over seeds under ``over_seeds``, and a
+``reproduction.md`` with the table per seed (verdict: within ±20 % of the paper,
+``SEED_TOLERANCE``).
 """
 
 from __future__ import annotations
@@ -22,6 +29,7 @@ from __future__ import annotations
 import json
 import math
 import time
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -35,6 +43,7 @@ from hub.analysis.paper import (
     PAPER_PSTH_PEAK_MS,
     PAPER_TARGETS,
     PSTH_PEAK_RANGE_MS,
+    SEED_TOLERANCE,
     TOLERANCE,
     relative_error,
     within,
@@ -43,6 +52,7 @@ from hub.analysis.report import write_report
 from hub.record import new_run_dir
 from lab.activity import analyze_culture
 from lab.calibrate import record
+from lab.seeds import mean_sd
 from sim_network import Network, PeriodicStimulus, config_to_dict, load_config
 
 DEFAULT_CULTURE = Path(__file__).resolve().parents[1] / "configs" / "culture_1024.toml"
@@ -393,3 +403,157 @@ def reproduce(
     if progress:
         progress(f"reproduce: done in {r['wall_s']:.0f} s; table in {out / RESULT_TABLE}")
     return r
+
+
+#: The figures of each seed kept in ``per_seed`` and summarised over seeds.
+PER_SEED_KEYS = CHECKED_KEYS + (
+    "mfr_sd_hz",
+    "nb_duration_sd_ms",
+    "psth_peak_ms",
+    "cat_spread_evoked",
+    "cat_spread_spontaneous",
+    "cats_more_regular",
+)
+
+
+def _seed_verdicts(r: dict) -> dict:
+    """The multi-seed check of one seed: its four figures within ``SEED_TOLERANCE``, the PSTH
+    peak in range, evoked CATs more regular, MFR s.d. of the paper's order (within ±30 %)."""
+    lo, hi = PSTH_PEAK_RANGE_MS
+    v = {key: within(r[key], PAPER_TARGETS[key], SEED_TOLERANCE) for key in CHECKED_KEYS}
+    v["mfr_sd_hz"] = within(r["mfr_sd_hz"], PAPER_TARGETS["mfr_sd_hz"], TOLERANCE)
+    v["psth_peak_ms"] = r["psth_peak_ms"] is not None and lo <= r["psth_peak_ms"] <= hi
+    v["cats_more_regular"] = bool(r["cats_more_regular"])
+    return v
+
+
+def _seeds_table(per_seed: dict, over: dict, quick: bool, spont_s: float) -> str:
+    """The markdown table of the multi-seed reproduction."""
+    cols = (
+        ("MFR (/s)", "mfr_hz", 2),
+        ("MFR s.d. (/s)", "mfr_sd_hz", 2),
+        ("MBR (/min)", "mbr_per_min", 2),
+        ("MNBR (/min)", "mnbr_per_min", 2),
+        ("NB duration (ms)", "nb_duration_ms", 1),
+        ("PSTH peak (ms)", "psth_peak_ms", 1),
+        ("CAT spread ev. / spont. (µm)", None, 0),
+    )
+    lines = [
+        "# NeuVision reproduction over seeds" + (" (quick)" if quick else ""),
+        "",
+        f"Spontaneous activity: {spont_s / 60:.1f} min per seed. Verdict per seed: MFR, MBR, "
+        f"MNBR and network-burst duration within ±{100 * SEED_TOLERANCE:.0f} % of the paper, "
+        f"MFR s.d. within ±{100 * TOLERANCE:.0f} %, PSTH peak in "
+        f"{PSTH_PEAK_RANGE_MS[0]:.0f}–{PSTH_PEAK_RANGE_MS[1]:.0f} ms, evoked CATs more regular "
+        f"(spread ≤ {CAT_REGULARITY_RATIO} × spontaneous); a figure outside is in **bold**.",
+        "",
+        "| seed | " + " | ".join(c[0] for c in cols) + " | all met |",
+        "|" + "---|" * (len(cols) + 2),
+        "| paper | "
+        + " | ".join(
+            (
+                f"{PAPER_TARGETS[k]}"
+                if k in PAPER_TARGETS
+                else (f"~{PAPER_PSTH_PEAK_MS:.0f}" if k else "evoked more regular")
+            )
+            for _, k, _ in cols
+        )
+        + " | |",
+    ]
+    for seed, r in per_seed.items():
+        v = r["verdicts"]
+        cells = []
+        for _, key, digits in cols:
+            if key is None:
+                text = f"{_fmt(r['cat_spread_evoked'], 0)} / {_fmt(r['cat_spread_spontaneous'], 0)}"
+                ok = v["cats_more_regular"]
+            else:
+                text = _fmt(r[key], digits)
+                if key in PAPER_TARGETS:
+                    text += f" ({100 * relative_error(r[key], PAPER_TARGETS[key]):+.0f} %)"
+                ok = v[key]
+            cells.append(text if ok else f"**{text}**")
+        lines.append(f"| {seed} | " + " | ".join(cells) + f" | {_verdict(all(v.values()))} |")
+    summary = []
+    for _, key, digits in cols:
+        if key is None:
+            ev, sp = over["cat_spread_evoked"], over["cat_spread_spontaneous"]
+            summary.append(f"{_fmt(ev['mean'], 0)} / {_fmt(sp['mean'], 0)}")
+        else:
+            st = over[key]
+            summary.append(f"{_fmt(st['mean'], digits)} ± {_fmt(st['sd'], digits)}")
+    lines.append("| mean ± s.d. | " + " | ".join(summary) + " | |")
+    met = sum(all(r["verdicts"].values()) for r in per_seed.values())
+    lines += ["", f"All figures met on {met} of {len(per_seed)} seeds.", ""]
+    return "\n".join(lines)
+
+
+def _reproduce_quietly(out_dir, quick, seed, config_path) -> dict:
+    """`reproduce` without progress lines (one seed of `reproduce_seeds`, maybe in a worker)."""
+    return reproduce(out_dir, quick=quick, seed=seed, progress=None, config_path=config_path)
+
+
+def reproduce_seeds(
+    out_dir,
+    seeds,
+    quick: bool = False,
+    jobs: int = 1,
+    progress=print,
+    config_path=DEFAULT_CULTURE,
+) -> dict:
+    """Run the paper's validation for several seeds and tabulate them with mean ± s.d.
+
+    Parameters
+    ----------
+    out_dir : output folder (created); each seed's own outputs go into ``seed_<n>/``.
+    seeds : sequence of int
+        Network seeds; the first one's figures also fill today's top-level keys.
+    quick : shortened protocol (as for `reproduce`).
+    jobs : seeds reproduced at once (separate processes when > 1).
+    progress : called with one line per finished seed and the table (``None``: silent).
+    config_path : the culture config.
+
+    Returns
+    -------
+    The dict written to ``reproduction.json``: the first seed's `reproduce` result, plus
+    ``seeds``, ``per_seed`` (seed → its figures and ``verdicts``), ``over_seeds`` (figure →
+    ``mean``, ``sd``, ``n``) and ``all_seeds_met``.
+    """
+    seeds = [int(s) for s in seeds]
+    if not seeds:
+        raise ValueError("seeds: at least one seed is needed")
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    say = progress or (lambda *_: None)
+    args = [(out / f"seed_{s}", quick, s, config_path) for s in seeds]
+    results: dict[int, dict] = {}
+    if jobs <= 1:
+        for a in args:
+            results[a[2]] = _reproduce_quietly(*a)
+            say(f"reproduce: seed {a[2]} done ({results[a[2]]['wall_s']:.0f} s)")
+    else:
+        with ProcessPoolExecutor(max_workers=jobs) as pool:
+            futures = {a[2]: pool.submit(_reproduce_quietly, *a) for a in args}
+            for seed, fut in futures.items():
+                results[seed] = fut.result()
+                say(f"reproduce: seed {seed} done ({results[seed]['wall_s']:.0f} s)")
+    per_seed = {}
+    for seed in seeds:
+        r = results[seed]
+        row = {key: r[key] for key in PER_SEED_KEYS}
+        row["verdicts"] = _seed_verdicts(r)
+        row["out_dir"] = str(out / f"seed_{seed}")
+        per_seed[str(seed)] = row
+    over = {key: mean_sd(row[key] for row in per_seed.values()) for key in PER_SEED_KEYS[:-1]}
+    combined = dict(results[seeds[0]])
+    combined.update(
+        seeds=seeds,
+        per_seed=per_seed,
+        over_seeds=over,
+        all_seeds_met=all(all(row["verdicts"].values()) for row in per_seed.values()),
+    )
+    table = _seeds_table(per_seed, over, quick, combined["spontaneous_s"])
+    (out / RESULT_TABLE).write_text(table, encoding="utf-8")
+    (out / RESULT_JSON).write_text(json.dumps(combined, indent=2), encoding="utf-8")
+    say(table)
+    return combined

@@ -69,3 +69,27 @@ def test_stimulation_targets_are_adjacent_neurons_of_one_type_near_the_centre(ce
     if cell_type == 0:  # excitatory cells are common enough for a 2 x 2 block
         rows, cols = layout.row[list(four)], layout.col[list(four)]
         assert np.ptp(rows) == 1 and np.ptp(cols) == 1
+
+
+@pytest.mark.slow
+def test_quick_reproduction_over_seeds_tabulates_each_seed(tmp_path):
+    from lab.reproduce import reproduce_seeds
+
+    lines = []
+    r = reproduce_seeds(tmp_path, [1, 2], quick=True, jobs=1, progress=lines.append)
+    saved = json.loads((tmp_path / "reproduction.json").read_text())
+    assert saved == json.loads(json.dumps(r))
+    # today's keys hold the first seed's figures, as its own folder does
+    first = json.loads((tmp_path / "seed_1" / "reproduction.json").read_text())
+    for key in KEYS:
+        assert saved[key] == first[key]
+    assert saved["seeds"] == [1, 2] and set(saved["per_seed"]) == {"1", "2"}
+    second = json.loads((tmp_path / "seed_2" / "reproduction.json").read_text())
+    assert saved["per_seed"]["2"]["mbr_per_min"] == second["mbr_per_min"]
+    mbr = [first["mbr_per_min"], second["mbr_per_min"]]
+    assert saved["over_seeds"]["mbr_per_min"]["mean"] == pytest.approx(np.mean(mbr))
+    assert saved["over_seeds"]["mbr_per_min"]["sd"] == pytest.approx(np.std(mbr, ddof=1))
+    assert set(saved["per_seed"]["1"]["verdicts"]) >= {"mbr_per_min", "psth_peak_ms"}
+    table = (tmp_path / "reproduction.md").read_text()
+    assert "| 2 | " in table and "| mean ± s.d. | " in table
+    assert lines[-1] == table  # the table is printed
