@@ -8,8 +8,8 @@ One step k (time k·dt to (k+1)·dt), in this order:
 2. stimulation: the current of every pulse with start ≤ k < end is summed per neuron;
 3. synaptic input due at step k (ring-buffer slot k mod n_slots) is added to v (a voltage jump);
 4. the neuron model integrates one step (an Izhikevich neuron's input less its
-   spike-frequency adaptation current, which decays first); threshold crossings are recorded
-   as spikes at step k (in index order) and reset;
+   spike-frequency adaptation current); threshold crossings are recorded as spikes at step k
+   (in index order) and reset;
 5. each spike raises its neuron's adaptation current and adds its weights (scaled by
    short-term depression) to the ring slot of step k + delay of each outgoing synapse; STDP,
    if on, updates excitatory weights.
@@ -255,49 +255,64 @@ def _with_stim_impl(current, stim_cur, i):
     return lambda current, stim_cur, i: current + stim_cur[i]
 
 
-def _adapted(current, adapt_w, adapt_decay, i):
-    """current − w_i after w_i decays one step, or current when adaptation is off (None)."""
-    if adapt_w is None:
-        return current
-    w = adapt_w[i] * adapt_decay
-    adapt_w[i] = w
-    return current - w
+def _less_adaptation(current, adapt_a, adapt_g, i):
+    """current − a_i·g (the adaptation current), or current when adaptation is off (None)."""
+    return current if adapt_a is None else current - adapt_a[i] * adapt_g
 
 
-@overload(_adapted, inline="always")
-def _adapted_impl(current, adapt_w, adapt_decay, i):
-    if isinstance(adapt_w, types.NoneType):  # compiled away: a culture without adaptation
-        return lambda current, adapt_w, adapt_decay, i: current
-
-    def impl(current, adapt_w, adapt_decay, i):
-        w = adapt_w[i] * adapt_decay
-        adapt_w[i] = w
-        return current - w
-
-    return impl
+@overload(_less_adaptation, inline="always")
+def _less_adaptation_impl(current, adapt_a, adapt_g, i):
+    if isinstance(adapt_a, types.NoneType):  # compiled away: a culture without adaptation
+        return lambda current, adapt_a, adapt_g, i: current
+    return lambda current, adapt_a, adapt_g, i: current - adapt_a[i] * adapt_g
 
 
-def _adapt_spike(adapt_w, adapt_inc, i):
-    """Add neuron i's increment to its adaptation current (nothing when adaptation is off)."""
-    if adapt_w is not None:
-        adapt_w[i] += adapt_inc[i]
+def adaptation_period(decay: float, limit: int = 1024) -> int:
+    """Steps between renormalisations of the adaptation amplitudes.
+
+    The largest power of two up to `limit` over which the decay factor stays above 1e-6, so
+    that a / g stays well inside float32.
+
+    Parameters
+    ----------
+    decay : float
+        The per-step factor exp(−dt/τ), in (0, 1).
+    limit : int
+
+    Returns
+    -------
+    int
+    """
+    period = 1
+    while period < limit and decay ** (2 * period) >= 1e-6:
+        period *= 2
+    return period
 
 
-@overload(_adapt_spike, inline="always")
-def _adapt_spike_impl(adapt_w, adapt_inc, i):
-    if isinstance(adapt_w, types.NoneType):
-        return lambda adapt_w, adapt_inc, i: None
+def adaptation_factors(decay, period: int) -> np.ndarray:
+    """decay**j for j = 0..period, by repeated float32 multiplication (the kernel's g).
 
-    def impl(adapt_w, adapt_inc, i):
-        adapt_w[i] += adapt_inc[i]
+    Parameters
+    ----------
+    decay : float32
+    period : int
+        From `adaptation_period`.
 
-    return impl
+    Returns
+    -------
+    float32[period + 1]
+    """
+    g = np.empty(period + 1, dtype=STATE_DTYPE)
+    g[0] = 1.0
+    for j in range(1, period + 1):
+        g[j] = g[j - 1] * STATE_DTYPE(decay)
+    return g
 
 
 @njit(cache=True, nogil=True, fastmath=_FAST)
 def _izhikevich_update(
     v, u, a, b, row, noise_cur, noise_state, noise_mean, noise_sd, redraw, stim_cur, scratch,
-    dt, n_sub, adapt_w, adapt_decay,
+    dt, n_sub, adapt_a=None, adapt_g=1.0,
 ):  # fmt: skip
     """One Izhikevich step for all neurons, branch-free so that it vectorises.
 
@@ -309,8 +324,9 @@ def _izhikevich_update(
     between sub-steps; u is then updated with v. The caller scans for the neurons at the
     peak afterwards (counting them here costs more than the scan: it halves the SIMD width).
     `stim_cur` is None when no pulse is on: that variant does not read it at all.
-    `adapt_w` (float32[n], the spike-frequency adaptation current) decays by `adapt_decay`
-    and is subtracted from the input; None when adaptation is off (compiled away).
+    The adaptation current a_i·g (`adapt_a` float32[n], `adapt_g` float32) is subtracted from
+    the input: the loop only reads it (a store per neuron would cost the vectoriser its
+    runtime alias checks); `adapt_a` None when adaptation is off (compiled away).
     """
     h = np.float32(dt / n_sub)
     c2 = np.float32(0.04 * dt / n_sub)
@@ -327,16 +343,16 @@ def _izhikevich_update(
                 r, s0[i], s1[i], s2[i], s3[i] = _xoshiro128pp(s0[i], s1[i], s2[i], s3[i])
                 current = noise_mean[i] + noise_sd[i] * _irwin_hall4(r)
                 noise_cur[i] = current
-                current = _with_stim(_adapted(current, adapt_w, adapt_decay, i), stim_cur, i)
                 vi = min(max(v[i] + row[i], _F_FLOOR), _F_PEAK)
                 row[i] = _F0
+                current = _with_stim(_less_adaptation(current, adapt_a, adapt_g, i), stim_cur, i)
                 v[i], u[i] = _izh_one(vi, u[i], current, a[i], b[i], h, c2, c1, c0, dtf)
         else:
             for i in range(v.size):
-                current = _adapted(noise_cur[i], adapt_w, adapt_decay, i)
-                current = _with_stim(current, stim_cur, i)
                 vi = min(max(v[i] + row[i], _F_FLOOR), _F_PEAK)
                 row[i] = _F0
+                current = _less_adaptation(noise_cur[i], adapt_a, adapt_g, i)
+                current = _with_stim(current, stim_cur, i)
                 v[i], u[i] = _izh_one(vi, u[i], current, a[i], b[i], h, c2, c1, c0, dtf)
         return
     if n_sub == 2:  # dt in (0.5, 1] ms: Izhikevich's two half-steps, in one vectorised pass
@@ -345,16 +361,16 @@ def _izhikevich_update(
                 r, s0[i], s1[i], s2[i], s3[i] = _xoshiro128pp(s0[i], s1[i], s2[i], s3[i])
                 current = noise_mean[i] + noise_sd[i] * _irwin_hall4(r)
                 noise_cur[i] = current
-                current = _with_stim(_adapted(current, adapt_w, adapt_decay, i), stim_cur, i)
                 vi = min(max(v[i] + row[i], _F_FLOOR), _F_PEAK)
                 row[i] = _F0
+                current = _with_stim(_less_adaptation(current, adapt_a, adapt_g, i), stim_cur, i)
                 v[i], u[i] = _izh_two(vi, u[i], current, a[i], b[i], h, c2, c1, c0, dtf)
         else:
             for i in range(v.size):
-                current = _adapted(noise_cur[i], adapt_w, adapt_decay, i)
-                current = _with_stim(current, stim_cur, i)
                 vi = min(max(v[i] + row[i], _F_FLOOR), _F_PEAK)
                 row[i] = _F0
+                current = _less_adaptation(noise_cur[i], adapt_a, adapt_g, i)
+                current = _with_stim(current, stim_cur, i)
                 v[i], u[i] = _izh_two(vi, u[i], current, a[i], b[i], h, c2, c1, c0, dtf)
         return
     # more sub-steps (dt > 1 ms): loop over sub-steps outside, neurons inside, so that
@@ -364,7 +380,7 @@ def _izhikevich_update(
     for i in range(v.size):
         v[i] = max(v[i] + row[i], _F_FLOOR)
         row[i] = _F0
-        current = _with_stim(_adapted(noise_cur[i], adapt_w, adapt_decay, i), stim_cur, i)
+        current = _with_stim(_less_adaptation(noise_cur[i], adapt_a, adapt_g, i), stim_cur, i)
         scratch[i] = h * (current - u[i]) + c0
     for _ in range(n_sub):
         for i in range(v.size):
@@ -509,6 +525,47 @@ def _izhikevich_spikes(v, u, c_reset, d_jump, k, out_neuron, out_step, n_out):
     return n_out
 
 
+def _adaptation_factor(adapt_a, adapt_g, k, period):
+    """g[k mod P] for step k, renormalising a (a ← a·g[P]) when k is a multiple of P."""
+    j = k % period
+    if adapt_a is not None and j == 0:
+        for i in range(adapt_a.size):
+            adapt_a[i] *= adapt_g[period]
+    return adapt_g[j]
+
+
+@overload(_adaptation_factor, inline="always")
+def _adaptation_factor_impl(adapt_a, adapt_g, k, period):
+    if isinstance(adapt_a, types.NoneType):
+        return lambda adapt_a, adapt_g, k, period: adapt_g[0]
+
+    def impl(adapt_a, adapt_g, k, period):
+        j = k % period
+        if j == 0:
+            for i in range(adapt_a.size):
+                adapt_a[i] *= adapt_g[period]
+        return adapt_g[j]
+
+    return impl
+
+
+def _adapt_spike(adapt_a, adapt_inc, g_k, i):
+    """Raise neuron i's adaptation current by its increment (nothing when it is off)."""
+    if adapt_a is not None:
+        adapt_a[i] += adapt_inc[i] / g_k
+
+
+@overload(_adapt_spike, inline="always")
+def _adapt_spike_impl(adapt_a, adapt_inc, g_k, i):
+    if isinstance(adapt_a, types.NoneType):
+        return lambda adapt_a, adapt_inc, g_k, i: None
+
+    def impl(adapt_a, adapt_inc, g_k, i):
+        adapt_a[i] += adapt_inc[i] / g_k
+
+    return impl
+
+
 @njit(cache=True, nogil=True)
 def advance(n_steps, step0, neurons, wiring, dep, noise, stim, stdp, adapt, out, n_out):
     """Advance the network by up to `n_steps` steps from absolute step `step0`.
@@ -546,11 +603,15 @@ def advance(n_steps, step0, neurons, wiring, dep, noise, stim, stdp, adapt, out,
         Pair-based STDP of excitatory synapses: amplitudes (mV), per-step trace decays, the
         weight ceiling (mV), the traces float64[n], each neuron's incoming synapses (CSR
         ``in_indptr``, ``in_syn``), each synapse's presynaptic neuron, excitatory flags.
-    adapt : (w, increment, decay)
-        Spike-frequency adaptation (Izhikevich model only): ``w`` float32[n], each neuron's
-        adaptation current, subtracted from its input, decays by ``decay`` (float32,
-        exp(−dt/τ)) every step and grows by ``increment`` float32[n] at each of its spikes;
-        ``w`` and ``increment`` None when off (that variant is compiled without it).
+    adapt : (a, increment, g)
+        Spike-frequency adaptation (Izhikevich model only). Neuron i's adaptation current at
+        step k is a[i]·g[k mod P] (P = g.size − 1, `adaptation_period`): ``a`` float32[n]
+        holds the amplitudes, renormalised (a ← a·g[P]) at the start of every step that is a
+        multiple of P, so that the decay costs no store per neuron and step and the result
+        does not depend on chunking; ``g`` float32[P + 1] the decay factors
+        (`adaptation_factors`). A spike of neuron i adds ``increment[i]`` (float32[n]) to its
+        current. It is subtracted from the neuron's input. ``a`` and ``increment`` are None
+        when adaptation is off (that variant is compiled without it).
     out : (neuron, step)
         Room for the spikes found (int32 and int64 arrays of the same length), written from
         index ``n_out`` on; a step needs room for n spikes.
@@ -569,7 +630,8 @@ def advance(n_steps, step0, neurons, wiring, dep, noise, stim, stdp, adapt, out,
     p_neuron, p_current, p_start, p_end, stim_cur = stim
     stdp_on, a_plus, a_minus, decay_plus, decay_minus, w_max = stdp[:6]
     x_pre, y_post, in_indptr, in_syn, syn_pre, is_exc = stdp[6:]
-    adapt_w, adapt_inc, adapt_decay = adapt
+    adapt_a, adapt_inc, adapt_g = adapt
+    adapt_period = adapt_g.size - 1
     out_neuron, out_step = out
     n = v.size
     n_slots = ring.shape[0]
@@ -593,6 +655,7 @@ def advance(n_steps, step0, neurons, wiring, dep, noise, stim, stdp, adapt, out,
             if p_start[j] <= k and k < p_end[j]:
                 stim_cur[p_neuron[j]] += p_current[j]
                 n_on += 1
+        g_k = _adaptation_factor(adapt_a, adapt_g, k, adapt_period)
         slot = k % n_slots
         row = ring[slot]
         base = slot * n
@@ -601,12 +664,12 @@ def advance(n_steps, step0, neurons, wiring, dep, noise, stim, stdp, adapt, out,
             if n_on > 0:
                 _izhikevich_update(
                     v, aux[0], params[0], params[1], row, noise_cur, noise_state, noise_mean,
-                    noise_sd, redraw, stim_cur, aux[1], dt, n_sub, adapt_w, adapt_decay,
+                    noise_sd, redraw, stim_cur, aux[1], dt, n_sub, adapt_a, g_k,
                 )  # fmt: skip
             else:  # no pulse on: the variant that does not read the (all-zero) stim_cur
                 _izhikevich_update(
                     v, aux[0], params[0], params[1], row, noise_cur, noise_state, noise_mean,
-                    noise_sd, redraw, None, aux[1], dt, n_sub, adapt_w, adapt_decay,
+                    noise_sd, redraw, None, aux[1], dt, n_sub, adapt_a, g_k,
                 )  # fmt: skip
             n_out = _izhikevich_spikes(
                 v, aux[0], params[2], params[3], k, out_neuron, out_step, n_out
@@ -651,7 +714,7 @@ def advance(n_steps, step0, neurons, wiring, dep, noise, stim, stdp, adapt, out,
                 y_post[i] *= decay_minus
         for q in range(first, n_out):
             i = out_neuron[q]
-            _adapt_spike(adapt_w, adapt_inc, i)
+            _adapt_spike(adapt_a, adapt_inc, g_k, i)
             scale = 1.0
             if dep_u > 0.0:
                 x = 1.0 - (1.0 - dep_x[i]) * math.exp(-(k - dep_last[i]) / dep_tau_steps)

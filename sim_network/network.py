@@ -101,7 +101,9 @@ class Network:
             # chattering-like excitatory cells (reset c high) do not adapt
             inc[~inh & (self.params[2] >= kernels.STATE_DTYPE(ada.exempt_from_reset_mv))] = 0.0
         self._adapt_inc = inc.astype(kernels.STATE_DTYPE)
-        self._adapt_decay = kernels.STATE_DTYPE(math.exp(-self._dt / ada.tau_ms))
+        decay = math.exp(-self._dt / ada.tau_ms)
+        period = kernels.adaptation_period(decay) if self._adapt_on else 1
+        self._adapt_g = kernels.adaptation_factors(decay, period)
         self._noise_mean = np.empty(n, dtype=kernels.STATE_DTYPE)
         self._noise_sd = np.empty(n, dtype=kernels.STATE_DTYPE)
         for flag in (False, True):
@@ -168,6 +170,23 @@ class Network:
         """Neuron-level spikes of the most recent `run()` (`channel` holds the neuron index)."""
         return self._neuron_spikes
 
+    def adaptation_current(self) -> np.ndarray:
+        """Each neuron's spike-frequency adaptation current, as the next step will use it.
+
+        Returns
+        -------
+        float32[n_neurons]
+            Model current units (mV/ms for Izhikevich neurons), a copy; zeros when the
+            adaptation is off. The state keeps amplitudes (``aux[2]``) that the kernel scales by
+            a decay factor depending on the step (``kernels.advance``).
+        """
+        if not self._adapt_on:
+            return np.zeros(self.layout.n, dtype=np.float32)
+        period = self._adapt_g.size - 1
+        j = self.step % period
+        factor = self._adapt_g[period] if j == 0 else self._adapt_g[j]
+        return (self.aux[2] * factor).astype(np.float32)
+
     def potentials(self) -> np.ndarray:
         """A snapshot of the membrane potentials.
 
@@ -223,10 +242,10 @@ class Network:
                 self._pre,
                 self._is_exc,
             ),
-            (  # the adaptation current lives in aux[2] (a free row of the Izhikevich state)
+            (  # the adaptation amplitudes live in aux[2] (a free row of the Izhikevich state)
                 self.aux[2] if self._adapt_on else None,
                 self._adapt_inc if self._adapt_on else None,
-                self._adapt_decay,
+                self._adapt_g,
             ),
             (self._out_neuron, self._out_step),
         )

@@ -188,7 +188,7 @@ def test_adaptation_off_leaves_its_current_at_zero_and_tau_irrelevant():
     a = Network(SMALL, seed=4)
     b = Network(dataclasses.replace(SMALL, adaptation=AdaptationConfig(tau_ms=20.0)), seed=4)
     assert same(a.run(500.0), b.run(500.0))
-    assert not a.aux[2].any()
+    assert not a.aux[2].any() and not a.adaptation_current().any()
 
 
 def test_adaptation_current_grows_per_spike_decays_and_lowers_the_rate():
@@ -202,7 +202,7 @@ def test_adaptation_current_grows_per_spike_decays_and_lowers_the_rate():
     spikes = adapted.run(2000.0)
     n_adapted = np.bincount(spikes.channel, minlength=adapted.n_neurons)
     assert n_adapted[exc].sum() < 0.8 * n_free[exc].sum()
-    w = adapted.aux[2]
+    w = adapted.adaptation_current()
     assert not w[~exc].any() and (w[exc] >= 0).all()
     # w is the sum of the increments of each spike, decayed since: check one neuron exactly
     i = int(np.flatnonzero(exc & (n_adapted > 0))[0])
@@ -224,7 +224,20 @@ def test_chattering_like_cells_are_exempt_from_adaptation():
     assert (net._adapt_inc[exc & ~exempt] == ada.increment_exc_mv_per_ms).all()
     spikes = net.run(1000.0)
     fired = np.bincount(spikes.channel, minlength=net.n_neurons) > 0
-    assert not net.aux[2][exempt].any() and net.aux[2][exc & ~exempt & fired].all()
+    w = net.adaptation_current()
+    assert not w[exempt].any() and w[exc & ~exempt & fired].all()
+
+
+@pytest.mark.parametrize("sizes", [[0.1] * 7 + [99.3, 400.0, 0.0, 500.0], [10.0] * 100])
+def test_chunked_runs_with_adaptation_equal_one_run(sizes):
+    # the amplitudes are renormalised every 1024 steps (102.4 ms): chunks straddle that
+    cfg = dataclasses.replace(SMALL, adaptation=AdaptationConfig(increment_exc_mv_per_ms=2.0))
+    whole = Network(cfg, seed=2)
+    assert whole._adapt_g.size - 1 == 1024
+    expected = whole.run(1000.0)
+    parts = Network(cfg, seed=2)
+    assert same(expected, chunked(parts, sizes))
+    assert np.array_equal(whole.adaptation_current(), parts.adaptation_current())
 
 
 def test_checkpoint_with_adaptation_continues_identically(tmp_path):
