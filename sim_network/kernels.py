@@ -8,7 +8,8 @@ One step k (time k·dt to (k+1)·dt), in this order:
 2. stimulation: the current of every pulse with start ≤ k < end is summed per neuron;
 3. synaptic input due at step k (ring-buffer slot k mod n_slots) is added to v (a voltage jump);
 4. the neuron model integrates one step (an Izhikevich neuron's input less its
-   spike-frequency adaptation current); threshold crossings are recorded as spikes at step k
+   spike-frequency adaptation current, plus its slow synaptic current, which takes a share of
+   the jump arriving now); threshold crossings are recorded as spikes at step k
    (in index order) and reset;
 5. each spike raises its neuron's adaptation current and adds its weights (scaled by
    short-term depression) to the ring slot of step k + delay of each outgoing synapse; STDP,
@@ -267,6 +268,28 @@ def _less_adaptation_impl(current, adapt_a, adapt_g, i):
     return lambda current, adapt_a, adapt_g, i: current - adapt_a[i] * adapt_g
 
 
+def _with_slow(current, slow, gain, decay, jump, i):
+    """current + the slow synaptic current after it decays one step and takes this step's
+    jump, or current when the slow current is off (None)."""
+    if slow is None:
+        return current
+    slow[i] = slow[i] * decay + gain * jump
+    return current + slow[i]
+
+
+@overload(_with_slow, inline="always")
+def _with_slow_impl(current, slow, gain, decay, jump, i):
+    if isinstance(slow, types.NoneType):  # compiled away: a culture without it
+        return lambda current, slow, gain, decay, jump, i: current
+
+    def impl(current, slow, gain, decay, jump, i):
+        x = slow[i] * decay + gain * jump
+        slow[i] = x
+        return current + x
+
+    return impl
+
+
 def adaptation_period(decay: float, limit: int = 1024) -> int:
     """Steps between renormalisations of the adaptation amplitudes.
 
@@ -312,7 +335,7 @@ def adaptation_factors(decay, period: int) -> np.ndarray:
 @njit(cache=True, nogil=True, fastmath=_FAST)
 def _izhikevich_update(
     v, u, a, b, row, noise_cur, noise_state, noise_mean, noise_sd, redraw, stim_cur, scratch,
-    dt, n_sub, adapt_a=None, adapt_g=1.0,
+    dt, n_sub, adapt_a=None, adapt_g=1.0, slow=None, slow_gain=0.0, slow_decay=1.0,
 ):  # fmt: skip
     """One Izhikevich step for all neurons, branch-free so that it vectorises.
 
@@ -327,6 +350,8 @@ def _izhikevich_update(
     The adaptation current a_i·g (`adapt_a` float32[n], `adapt_g` float32) is subtracted from
     the input: the loop only reads it (a store per neuron would cost the vectoriser its
     runtime alias checks); `adapt_a` None when adaptation is off (compiled away).
+    `slow` (float32[n]) is the slow synaptic current: it decays by `slow_decay`, grows by
+    `slow_gain` × the jump arriving now and is added to the input; None when off.
     """
     h = np.float32(dt / n_sub)
     c2 = np.float32(0.04 * dt / n_sub)
@@ -343,16 +368,20 @@ def _izhikevich_update(
                 r, s0[i], s1[i], s2[i], s3[i] = _xoshiro128pp(s0[i], s1[i], s2[i], s3[i])
                 current = noise_mean[i] + noise_sd[i] * _irwin_hall4(r)
                 noise_cur[i] = current
-                vi = min(max(v[i] + row[i], _F_FLOOR), _F_PEAK)
+                jump = row[i]
+                vi = min(max(v[i] + jump, _F_FLOOR), _F_PEAK)
                 row[i] = _F0
                 current = _with_stim(_less_adaptation(current, adapt_a, adapt_g, i), stim_cur, i)
+                current = _with_slow(current, slow, slow_gain, slow_decay, jump, i)
                 v[i], u[i] = _izh_one(vi, u[i], current, a[i], b[i], h, c2, c1, c0, dtf)
         else:
             for i in range(v.size):
-                vi = min(max(v[i] + row[i], _F_FLOOR), _F_PEAK)
+                jump = row[i]
+                vi = min(max(v[i] + jump, _F_FLOOR), _F_PEAK)
                 row[i] = _F0
                 current = _less_adaptation(noise_cur[i], adapt_a, adapt_g, i)
                 current = _with_stim(current, stim_cur, i)
+                current = _with_slow(current, slow, slow_gain, slow_decay, jump, i)
                 v[i], u[i] = _izh_one(vi, u[i], current, a[i], b[i], h, c2, c1, c0, dtf)
         return
     if n_sub == 2:  # dt in (0.5, 1] ms: Izhikevich's two half-steps, in one vectorised pass
@@ -361,16 +390,20 @@ def _izhikevich_update(
                 r, s0[i], s1[i], s2[i], s3[i] = _xoshiro128pp(s0[i], s1[i], s2[i], s3[i])
                 current = noise_mean[i] + noise_sd[i] * _irwin_hall4(r)
                 noise_cur[i] = current
-                vi = min(max(v[i] + row[i], _F_FLOOR), _F_PEAK)
+                jump = row[i]
+                vi = min(max(v[i] + jump, _F_FLOOR), _F_PEAK)
                 row[i] = _F0
                 current = _with_stim(_less_adaptation(current, adapt_a, adapt_g, i), stim_cur, i)
+                current = _with_slow(current, slow, slow_gain, slow_decay, jump, i)
                 v[i], u[i] = _izh_two(vi, u[i], current, a[i], b[i], h, c2, c1, c0, dtf)
         else:
             for i in range(v.size):
-                vi = min(max(v[i] + row[i], _F_FLOOR), _F_PEAK)
+                jump = row[i]
+                vi = min(max(v[i] + jump, _F_FLOOR), _F_PEAK)
                 row[i] = _F0
                 current = _less_adaptation(noise_cur[i], adapt_a, adapt_g, i)
                 current = _with_stim(current, stim_cur, i)
+                current = _with_slow(current, slow, slow_gain, slow_decay, jump, i)
                 v[i], u[i] = _izh_two(vi, u[i], current, a[i], b[i], h, c2, c1, c0, dtf)
         return
     # more sub-steps (dt > 1 ms): loop over sub-steps outside, neurons inside, so that
@@ -378,9 +411,11 @@ def _izhikevich_update(
     if redraw:
         fill_noise(noise_cur, noise_state, noise_mean, noise_sd)
     for i in range(v.size):
-        v[i] = max(v[i] + row[i], _F_FLOOR)
+        jump = row[i]
+        v[i] = max(v[i] + jump, _F_FLOOR)
         row[i] = _F0
         current = _with_stim(_less_adaptation(noise_cur[i], adapt_a, adapt_g, i), stim_cur, i)
+        current = _with_slow(current, slow, slow_gain, slow_decay, jump, i)
         scratch[i] = h * (current - u[i]) + c0
     for _ in range(n_sub):
         for i in range(v.size):
@@ -567,7 +602,7 @@ def _adapt_spike_impl(adapt_a, adapt_inc, g_k, i):
 
 
 @njit(cache=True, nogil=True)
-def advance(n_steps, step0, neurons, wiring, dep, noise, stim, stdp, adapt, out, n_out):
+def advance(n_steps, step0, neurons, wiring, dep, noise, stim, stdp, adapt, slow, out, n_out):
     """Advance the network by up to `n_steps` steps from absolute step `step0`.
 
     The state and parameters come in plain tuples, one per part of the model (plain, not
@@ -612,6 +647,11 @@ def advance(n_steps, step0, neurons, wiring, dep, noise, stim, stdp, adapt, out,
         (`adaptation_factors`). A spike of neuron i adds ``increment[i]`` (float32[n]) to its
         current. It is subtracted from the neuron's input. ``a`` and ``increment`` are None
         when adaptation is off (that variant is compiled without it).
+    slow : (current, gain, decay)
+        Slow synaptic current (Izhikevich model only): ``current`` float32[n] decays by
+        ``decay`` (float32, exp(−dt/τ)) every step, grows by ``gain`` (float32, share/τ per
+        ms) × the jump arriving in that step, and is added to the neuron's input; so a jump of
+        J mV brings in about share·J mV more over τ. ``current`` None when off.
     out : (neuron, step)
         Room for the spikes found (int32 and int64 arrays of the same length), written from
         index ``n_out`` on; a step needs room for n spikes.
@@ -632,6 +672,7 @@ def advance(n_steps, step0, neurons, wiring, dep, noise, stim, stdp, adapt, out,
     x_pre, y_post, in_indptr, in_syn, syn_pre, is_exc = stdp[6:]
     adapt_a, adapt_inc, adapt_g = adapt
     adapt_period = adapt_g.size - 1
+    slow_cur, slow_gain, slow_decay = slow
     out_neuron, out_step = out
     n = v.size
     n_slots = ring.shape[0]
@@ -665,11 +706,13 @@ def advance(n_steps, step0, neurons, wiring, dep, noise, stim, stdp, adapt, out,
                 _izhikevich_update(
                     v, aux[0], params[0], params[1], row, noise_cur, noise_state, noise_mean,
                     noise_sd, redraw, stim_cur, aux[1], dt, n_sub, adapt_a, g_k,
+                    slow_cur, slow_gain, slow_decay,
                 )  # fmt: skip
             else:  # no pulse on: the variant that does not read the (all-zero) stim_cur
                 _izhikevich_update(
                     v, aux[0], params[0], params[1], row, noise_cur, noise_state, noise_mean,
                     noise_sd, redraw, None, aux[1], dt, n_sub, adapt_a, g_k,
+                    slow_cur, slow_gain, slow_decay,
                 )  # fmt: skip
             n_out = _izhikevich_spikes(
                 v, aux[0], params[2], params[3], k, out_neuron, out_step, n_out

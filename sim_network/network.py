@@ -104,6 +104,10 @@ class Network:
         decay = math.exp(-self._dt / ada.tau_ms)
         period = kernels.adaptation_period(decay) if self._adapt_on else 1
         self._adapt_g = kernels.adaptation_factors(decay, period)
+        slow = cfg.slow_current
+        self._slow_on = slow.share > 0.0 and self._model == MODEL_IDS["izhikevich"]
+        self._slow_gain = kernels.STATE_DTYPE(slow.share / slow.tau_ms)
+        self._slow_decay = kernels.STATE_DTYPE(math.exp(-self._dt / slow.tau_ms))
         self._noise_mean = np.empty(n, dtype=kernels.STATE_DTYPE)
         self._noise_sd = np.empty(n, dtype=kernels.STATE_DTYPE)
         for flag in (False, True):
@@ -246,6 +250,11 @@ class Network:
                 self.aux[2] if self._adapt_on else None,
                 self._adapt_inc if self._adapt_on else None,
                 self._adapt_g,
+            ),
+            (  # the slow synaptic current lives in aux[3] (free in the Izhikevich state)
+                self.aux[3] if self._slow_on else None,
+                self._slow_gain,
+                self._slow_decay,
             ),
             (self._out_neuron, self._out_step),
         )

@@ -46,10 +46,8 @@ def test_culture_file_loads():
         ({"noise": 3.0}, "noise"),
         ({"adaptation": {"increment_exc_mv_per_ms": -1.0}}, "adaptation.increment_exc_mv_per_ms"),
         ({"adaptation": {"tau_ms": 0.0}}, "adaptation.tau_ms"),
-        (
-            {"neurons": {"model": "lif"}, "adaptation": {"increment_inh_mv_per_ms": 1.0}},
-            "adaptation applies to Izhikevich neurons only",
-        ),
+        ({"slow_current": {"share": -0.5}}, "slow_current.share"),
+        ({"slow_current": {"tau_ms": 0.0}}, "slow_current.tau_ms"),
     ],
 )
 def test_bad_values_are_rejected_naming_the_key(data, key):
@@ -74,14 +72,16 @@ def test_the_default_culture_is_the_calibrated_culture_file():
     # one default culture: the file lists the code's defaults, with their reasons
     assert load_config("configs/culture_1024.toml") == NetworkConfig()
     assert load_config() == NetworkConfig()
-    assert NetworkConfig().noise.sd == 2.5 and NetworkConfig().connectivity.d_pc_um == 100.0
+    assert NetworkConfig().noise.sd == 2.5 and NetworkConfig().connectivity.d_pc_um == 150.0
 
 
-def test_the_adapting_culture_is_the_default_culture_with_adaptation():
-    base, adapting = NetworkConfig(), load_config("configs/culture_1024_adapting.toml")
-    assert adapting.layout == base.layout and adapting.neurons == base.neurons
-    assert adapting.noise == base.noise and adapting.stimulation == base.stimulation
-    assert not base.adaptation.enabled and adapting.adaptation.enabled
+def test_the_local_culture_is_the_default_without_the_issue_21_changes():
+    base, local = NetworkConfig(), load_config("configs/culture_1024_local.toml")
+    assert local.layout == base.layout and local.neurons == base.neurons
+    assert local.noise == base.noise
+    assert base.adaptation.enabled and not local.adaptation.enabled
+    assert base.slow_current.share > 0 and local.slow_current.share == 0
+    assert local.connectivity.d_pc_um == 100.0 and local.depression.u == 0.15
 
 
 def test_overrides_are_typed_as_toml_and_validated():

@@ -16,6 +16,7 @@ from sim_network import (
     PeriodicStimulus,
     PulseError,
     Pulses,
+    SlowCurrentConfig,
     Spikes,
     StdpConfig,
     load_config,
@@ -24,10 +25,12 @@ from sim_network.connectivity import build_synapses
 from sim_network.kernels import fill_noise, seed_noise_state
 from sim_network.layout import build_layout
 
-SMALL = NetworkConfig(
+SMALL = NetworkConfig(  # the paper's model: no adaptation, no slow current
     layout=LayoutConfig(rows=12, cols=12),
     connectivity=ConnectivityConfig(weight_exc_mv=(0.0, 12.0)),
     noise=NoiseConfig(sd=4.5),
+    adaptation=AdaptationConfig(increment_exc_mv_per_ms=0.0),
+    slow_current=SlowCurrentConfig(share=0.0),
 )
 
 
@@ -186,7 +189,8 @@ def test_stdp_changes_excitatory_weights_only():
 
 def test_adaptation_off_leaves_its_current_at_zero_and_tau_irrelevant():
     a = Network(SMALL, seed=4)
-    b = Network(dataclasses.replace(SMALL, adaptation=AdaptationConfig(tau_ms=20.0)), seed=4)
+    off = AdaptationConfig(increment_exc_mv_per_ms=0.0, tau_ms=20.0)
+    b = Network(dataclasses.replace(SMALL, adaptation=off), seed=4)
     assert same(a.run(500.0), b.run(500.0))
     assert not a.aux[2].any() and not a.adaptation_current().any()
 
@@ -212,8 +216,34 @@ def test_adaptation_current_grows_per_spike_decays_and_lowers_the_rate():
     assert w[i] == pytest.approx(expected, rel=3e-3)  # float32, decayed in ~20k steps
 
 
+def test_slow_current_takes_a_share_of_each_jump_and_decays():
+    share, tau = 0.8, 40.0
+    cfg = dataclasses.replace(SMALL, slow_current=SlowCurrentConfig(share=share, tau_ms=tau))
+    net = Network(cfg, seed=3)
+    net.run(200.0)
+    # 5 mV more due next step at neuron 0: its slow current grows by share / tau x the jump
+    slot = net.step % net.ring.shape[0]
+    net.ring[slot, 0] += 5.0
+    jump, before = float(net.ring[slot, 0]), float(net.aux[3, 0])
+    net.run(net.cfg.dt_ms)
+    arrived = float(net.aux[3, 0]) - before * np.exp(-net.cfg.dt_ms / tau)
+    assert arrived == pytest.approx(share * jump / tau, rel=1e-4, abs=1e-6)
+    assert not Network(SMALL, seed=3).aux[3].any()
+
+
+def test_slow_current_lengthens_the_response_to_a_pulse():
+    def late_spikes(cfg):
+        net = Network(cfg, seed=5)
+        net.run(500.0)
+        sp = net.run(100.0, pulses=Pulses.single(list(range(40)), 100.0, 10.0))
+        return int(np.sum(sp.t_ms > net.t_ms - 100.0 + 30.0))
+
+    slow = dataclasses.replace(SMALL, slow_current=SlowCurrentConfig(share=0.8, tau_ms=40.0))
+    assert late_spikes(slow) > late_spikes(SMALL)
+
+
 def test_chattering_like_cells_are_exempt_from_adaptation():
-    cfg = load_config("configs/culture_1024_adapting.toml")
+    cfg = load_config("configs/culture_1024.toml")
     ada = cfg.adaptation
     assert ada.increment_exc_mv_per_ms > 0 and ada.exempt_from_reset_mv is not None
     net = Network(cfg, seed=1)

@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from sim_network import (
+    AdaptationConfig,
     ConnectivityConfig,
     LayoutConfig,
     Network,
@@ -26,6 +27,7 @@ def lone_neuron(model="izhikevich", exc_type="RS", dt_ms=0.1, inhibitory=False):
         connectivity=ConnectivityConfig(p_c_max=0.0),
         noise=NoiseConfig(sd=0.0, inhibitory_mean=None),
         stimulation=StimulationConfig(model_current_per_ua=1.0),  # pulse amplitude = current
+        adaptation=AdaptationConfig(increment_exc_mv_per_ms=0.0),  # the published model
     )
     return Network(cfg, seed=0)
 
