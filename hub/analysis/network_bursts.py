@@ -252,13 +252,16 @@ def evoked_mask(
     Returns
     -------
     bool[len(network_bursts)]
-        True where the burst starts within ``[s, s + max_latency_ms]`` of the latest
-        stimulus s before it.
+        True where the burst's core starts within ``[s, s + max_latency_ms]`` of the latest
+        stimulus s before it. The core start (the moment the threshold is reached), not the
+        extent's: a participant whose burst began a few ms before the pulse (a fast-spiking
+        cell) puts the extent's start before the stimulus that evoked the network burst.
     """
     stim = np.sort(np.asarray(stim_ms, dtype=np.float64).ravel())
     if stim.size == 0 or len(network_bursts) == 0:
         return np.zeros(len(network_bursts), dtype=bool)
-    idx = np.searchsorted(stim, network_bursts.start_ms, side="right") - 1
+    start = network_bursts.core_start_ms
+    idx = np.searchsorted(stim, start, side="right") - 1
     ok = idx >= 0
-    latency = network_bursts.start_ms - stim[np.maximum(idx, 0)]
+    latency = start - stim[np.maximum(idx, 0)]
     return ok & (latency <= max_latency_ms)

@@ -86,6 +86,16 @@ def test_ibi_and_evoked_split():
     assert nbs.select([False, True, True]).start_ms.tolist() == [3_000.0, 6_000.0]
 
 
+def test_a_burst_already_running_at_the_pulse_does_not_unmake_an_evoked_network_burst():
+    # one channel of 10 bursts from 995 ms; at 1000 ms a pulse, from 1015 ms four more burst
+    # together: the extent starts before the pulse, the core (>= 3 of 10) after it
+    ch, t = merge(network_burst([0], 995.0, 40.0), network_burst([1, 2, 3, 4], 1_015.0, 40.0))
+    nbs = detect_network_bursts(detect_bursts(ch, t), 10)
+    assert nbs.start_ms.tolist() == [995.0] and nbs.core_start_ms[0] >= 1_015.0
+    assert evoked_mask(nbs, [1_000.0], max_latency_ms=100.0).tolist() == [True]
+    assert evoked_mask(nbs, [1_000.0], max_latency_ms=10.0).tolist() == [False]
+
+
 def test_bad_parameters_are_named():
     with pytest.raises(AnalysisInputError, match="network_bursts.min_fraction"):
         NetworkBurstParams(min_fraction=0.0)
