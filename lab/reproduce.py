@@ -131,6 +131,73 @@ def stimulation_targets(layout, cell_type: int, n_targets: int) -> tuple[int, ..
     return tuple(sorted(int(i) for i in best))
 
 
+def protocol_stimulus(layout, protocol: Protocol, t0_ms: float, n_pulses: int):
+    """The paper's pulses of one protocol: its targets and their `PeriodicStimulus`.
+
+    Parameters
+    ----------
+    layout : the culture's layout (`Network.layout`).
+    protocol : Protocol
+    t0_ms : float
+        Start of the protocol (absolute ms); the first pulse comes ``FIRST_PULSE_AFTER_MS`` later.
+    n_pulses : int
+
+    Returns
+    -------
+    (tuple of int, PeriodicStimulus)
+    """
+    targets = stimulation_targets(layout, protocol.cell_type, protocol.n_targets)
+    stim = PeriodicStimulus(
+        targets,
+        PULSE_AMPLITUDE_UA,
+        PULSE_WIDTH_MS,
+        PULSE_PERIOD_MS,
+        t0_ms + FIRST_PULSE_AFTER_MS,
+        n_pulses,
+    )
+    return targets, stim
+
+
+def headline_evoked_statistics(
+    cfg, seed: int, n_pulses: int = PULSES_PER_PROTOCOL, warmup_s: float = WARMUP_S
+) -> dict:
+    """The headline protocol (one excitatory neuron, ``HEADLINE``) of one seed, without the
+    spontaneous phase, the other protocols or the figures: what `reproduce` measures for it
+    (the same warm-up, pulses and analysis, so the same figures for the same culture and seed).
+
+    Parameters
+    ----------
+    cfg : NetworkConfig
+        The culture.
+    seed : int
+    n_pulses : int
+    warmup_s : float
+
+    Returns
+    -------
+    dict
+        ``seed``, ``targets``, ``psth_peak_ms``, ``n_evoked_nb``, ``n_network_bursts`` and
+        ``cat_spread_evoked`` (None without evoked network bursts).
+    """
+    head = next(p for p in PROTOCOLS if p.name == HEADLINE)
+    net = Network(cfg, seed=seed)
+    record(net, warmup_s, CHUNK_MS)
+    t0 = net.t_ms
+    targets, stim = protocol_stimulus(net.layout, head, t0, n_pulses)
+    seconds = (FIRST_PULSE_AFTER_MS + n_pulses * PULSE_PERIOD_MS) / 1000.0
+    sp = record(net, seconds, CHUNK_MS, stim)
+    params = AnalysisParams(psth_min_latency_ms=PULSE_WIDTH_MS)  # skip the pulse itself
+    m = analyze_culture(sp, net.layout, t0, net.t_ms, stim.onsets_ms(), params).metrics
+    return {
+        "seed": seed,
+        "targets": list(targets),
+        "psth_peak_ms": _num(m["psth_peak_ms"]),
+        "n_evoked_nb": m["n_evoked_nb"],
+        "n_network_bursts": m["n_network_bursts"],
+        "cat_spread_evoked": _num(m.get("cat_spread_evoked")),
+    }
+
+
 class _Clock:
     """Simulated-time bookkeeping for the progress messages."""
 
@@ -299,15 +366,7 @@ def reproduce(
     evoked_cats = {}
     for p in PROTOCOLS:
         net.set_state(warm)
-        targets = stimulation_targets(layout, p.cell_type, p.n_targets)
-        stim = PeriodicStimulus(
-            targets,
-            PULSE_AMPLITUDE_UA,
-            PULSE_WIDTH_MS,
-            PULSE_PERIOD_MS,
-            t0 + FIRST_PULSE_AFTER_MS,
-            n_pulses,
-        )
+        targets, stim = protocol_stimulus(layout, p, t0, n_pulses)
         sp = _simulate(net, protocol_s, clock, f"stimulation {p.name}", stim)
         res = analyze_culture(sp, layout, t0, net.t_ms, stim.onsets_ms(), params)
         cats = [c for c, e in zip(res.cats, res.evoked, strict=True) if e]

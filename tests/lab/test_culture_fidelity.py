@@ -2,18 +2,31 @@
 
 Seeds 1–6, 300 s of spontaneous activity each after a 5 s warm-up, the figures computed by
 ``hub.analysis`` as ``neuvision reproduce`` computes them (``lab.calibrate``), two seeds at a
-time: about 25 s for both cultures on this 2-core machine.
+time: about 25 s for both cultures on this 2-core machine. Then the default culture's headline
+stimulation protocol per seed (one excitatory neuron, 60 pulses, as ``neuvision reproduce``
+runs it: about 20 s more): its PSTH peak and the regularity of its evoked CATs.
 
-The default culture meets all four on every seed. The culture before issue 21
-(``culture_1024_local.toml``, kept to compare against) does not: the figures it misses are
-listed in ``KNOWN_MISSES`` and expected to fail (strictly: a miss that starts passing fails the
-test, so that the list is kept true).
+The default culture meets all four spontaneous figures, the MFR spread and the CAT regularity on
+every seed, and the PSTH peak on seeds 2-6. What is missed is listed (``KNOWN_MISSES``,
+``PSTH_MISSES``) and expected to fail (strictly: a miss that starts passing fails the test, so
+that the lists are kept true); the culture before issue 21 (``culture_1024_local.toml``, kept to
+compare against) misses three of the four spontaneous figures.
 """
+
+from concurrent.futures import ProcessPoolExecutor
 
 import pytest
 
-from hub.analysis.paper import CHECKED_KEYS, PAPER_TARGETS, SEED_TOLERANCE, relative_error, within
+from hub.analysis.paper import (
+    CHECKED_KEYS,
+    PAPER_TARGETS,
+    PSTH_PEAK_RANGE_MS,
+    SEED_TOLERANCE,
+    relative_error,
+    within,
+)
 from lab.calibrate import statistics_over_seeds
+from lab.reproduce import CAT_REGULARITY_RATIO, headline_evoked_statistics
 from sim_network import load_config
 
 SEEDS = range(1, 7)
@@ -26,7 +39,14 @@ KNOWN_MISSES = {
     (LOCAL, "mnbr_per_min"): "MNBR -9 to -38 %",
     (LOCAL, "nb_duration_ms"): "network bursts of 57-59 ms: seed 4 at -21 %",
 }
+#: seeds whose PSTH peak after one excitatory neuron misses the paper's 30-100 ms
+PSTH_MISSES = {
+    # the central excitatory neuron of seed 1 is chattering-like (exempt from adaptation): the
+    # 100 µA pulse makes it fire 14 spikes at ~1.4 kHz, which ignites a network burst at once
+    1: "peak 27.5 ms: a chattering-like target fires 14 spikes in the 10 ms pulse",
+}
 _cache: dict[str, list[dict]] = {}
+_evoked: dict[int, dict] = {}
 
 
 def per_seed(culture: str) -> list[dict]:
@@ -64,3 +84,38 @@ def test_firing_rates_spread_across_neurons_as_in_the_paper(culture):
     paper = PAPER_TARGETS["mfr_sd_hz"] / PAPER_TARGETS["mfr_hz"]  # s.d. ≈ 1.85 × mean
     for r in per_seed(culture):
         assert r["mfr_sd_hz"] / r["mfr_hz"] == pytest.approx(paper, rel=0.3), r["seed"]
+
+
+def evoked(seed: int) -> dict:
+    """The headline protocol of the default culture, every seed simulated once per session."""
+    if not _evoked:
+        cfg = load_config(DEFAULT)
+        with ProcessPoolExecutor(max_workers=2) as pool:
+            rows = pool.map(headline_evoked_statistics, [cfg] * len(SEEDS), SEEDS)
+            _evoked.update({r["seed"]: r for r in rows})
+    return _evoked[seed]
+
+
+def _seed_cases(misses: dict):
+    for seed in SEEDS:
+        miss = misses.get(seed)
+        marks = [pytest.mark.xfail(strict=True, reason=f"issue 21, not met: {miss}")]
+        yield pytest.param(seed, marks=marks if miss else [], id=f"seed{seed}")
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", list(_seed_cases(PSTH_MISSES)))
+def test_one_stimulated_excitatory_neuron_evokes_a_psth_peak_at_30_to_100_ms(seed):
+    # the paper's 60 pulses of 10 ms, 100 µA, 0.2 Hz, as neuvision reproduce gives them
+    r = evoked(seed)
+    lo, hi = PSTH_PEAK_RANGE_MS
+    assert r["n_evoked_nb"] >= 10, r  # a peak made by evoked network bursts
+    assert lo <= r["psth_peak_ms"] <= hi, r
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", list(_seed_cases({})))
+def test_evoked_cats_are_more_regular_than_spontaneous_ones(seed):
+    spont = next(r for r in per_seed(DEFAULT) if r["seed"] == seed)["cat_spread"]
+    ev = evoked(seed)["cat_spread_evoked"]
+    assert ev is not None and ev <= CAT_REGULARITY_RATIO * spont, (ev, spont)
