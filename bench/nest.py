@@ -39,7 +39,7 @@ sys.path.insert(0, str(ROOT))
 from bench.host import StealMeter, child_run, end_children_on_signal  # noqa: E402
 
 #: The culture measured at 1024 neurons (repoint it when the default culture changes).
-CULTURE = ROOT / "configs" / "culture_1024.toml"
+CULTURE = ROOT / "configs" / "culture_1024_local.toml"
 
 
 def _config(name: str):

@@ -167,20 +167,8 @@ def import_nest():
     return nest
 
 
-def _increments(section) -> dict[str, float]:
-    """The section's non-zero per-spike increments (fields named ``increment*``)."""
-    return {
-        key: value
-        for key, value in vars(section).items()
-        if key.startswith("increment") and isinstance(value, int | float) and value
-    }
-
-
 def refusals(cfg: NetworkConfig) -> list[str]:
     """What of this culture NEST cannot express, each named by its key, with the reason.
-
-    Checks sections that a culture file may not have yet (``adaptation``,
-    ``slow_current``) when they are present, so it holds before and after they exist.
 
     Parameters
     ----------
@@ -203,18 +191,18 @@ def refusals(cfg: NetworkConfig) -> list[str]:
             "neurons.model = 'hh': NEST's Hodgkin-Huxley neurons take synaptic input as "
             "alpha-shaped currents, not as the voltage jumps of this culture's synapses"
         )
-    adaptation = getattr(cfg, "adaptation", None)
-    if adaptation is not None and _increments(adaptation):
-        keys = ", ".join(f"adaptation.{k} = {v}" for k, v in _increments(adaptation).items())
+    ada = cfg.adaptation
+    if ada.enabled:
         out.append(
-            f"{keys}: NEST's izhikevich has no spike-frequency adaptation current "
-            "(run an adapting culture on sim_network)"
+            f"adaptation.increment_exc_mv_per_ms = {ada.increment_exc_mv_per_ms}, "
+            f"adaptation.increment_inh_mv_per_ms = {ada.increment_inh_mv_per_ms}: NEST's "
+            "izhikevich has no spike-frequency adaptation current (run an adapting culture "
+            "on sim_network, or configs/culture_1024_local.toml on NEST)"
         )
-    slow = getattr(cfg, "slow_current", None)
-    if slow is not None and getattr(slow, "share", 0.0) > 0:
+    if cfg.slow_current.share > 0:
         out.append(
-            f"slow_current.share = {slow.share}: NEST's izhikevich takes a spike only as a "
-            "voltage jump, with no slow current beside it"
+            f"slow_current.share = {cfg.slow_current.share}: NEST's izhikevich takes a spike "
+            "only as a voltage jump, with no slow current beside it"
         )
     st = cfg.stdp
     if st.enabled and cfg.depression.u > 0:

@@ -22,7 +22,7 @@ from sim_network import load_config
 from sim_network import nest_backend as nb
 
 #: The culture compared: main's default culture (repoint it when the default changes).
-CULTURE = "configs/culture_1024.toml"
+CULTURE = "configs/culture_1024_local.toml"
 
 pytestmark = [
     pytest.mark.slow,

@@ -10,7 +10,7 @@ import pytest
 from hub import conformance
 from hub.config import ConfigError, load_config
 from hub.protocol import SpikeBatch
-from sim_network import LayoutConfig, NetworkConfig
+from sim_network import AdaptationConfig, LayoutConfig, NetworkConfig, SlowCurrentConfig
 from sim_network import nest_backend as nb
 from sim_network.endpoint import NestEndpoint
 from tests.harness import harness
@@ -18,14 +18,20 @@ from tests.harness import harness
 needs_nest = pytest.mark.skipif(
     not nb.nest_available(), reason=f"NEST is not installed: {nb.INSTALL_HINT}"
 )
-NEST = ['culture.kind="nest"', "culture.params.seed=3"]
+#: The closed loop's culture on NEST: the culture before issue 21 (NEST has no adaptation
+#: current and no slow current beside its voltage jumps; the default culture is refused).
+NEST_CULTURE = ['culture.kind="nest"', 'culture.params.config="configs/culture_1024_local.toml"']
+NEST = [*NEST_CULTURE, "culture.params.seed=3"]
 
 
 def test_a_culture_nest_cannot_express_is_refused_by_name_before_anything_starts():
     cfg = load_config(
-        "configs/closed_loop.toml", ['culture.kind="nest"', 'culture.params.neurons.model="hh"']
+        "configs/closed_loop.toml", [*NEST_CULTURE, 'culture.params.neurons.model="hh"']
     )
     with pytest.raises(ConfigError, match=r"culture.params.neurons.model = 'hh'"):
+        cfg.resolved()
+    cfg = load_config("configs/closed_loop.toml", ['culture.kind="nest"'])  # the default culture
+    with pytest.raises(ConfigError, match=r"culture.params.adaptation.increment_exc_mv_per_ms"):
         cfg.resolved()
     cfg = load_config("configs/closed_loop.toml", [*NEST, 'culture.params.noise_source="gauss"'])
     with pytest.raises(ConfigError, match="culture.params.noise_source must be one of"):
@@ -33,8 +39,8 @@ def test_a_culture_nest_cannot_express_is_refused_by_name_before_anything_starts
 
 
 @needs_nest
-def test_the_closed_loop_file_takes_the_nest_culture_with_one_override():
-    cfg = load_config("configs/closed_loop.toml", ['culture.kind="nest"']).resolved()
+def test_the_closed_loop_file_takes_the_nest_culture_with_two_overrides():
+    cfg = load_config("configs/closed_loop.toml", NEST_CULTURE).resolved()
     params = cfg.culture.params
     assert params["threads"] == 1 and params["noise_source"] == "culture"
     assert params["config"]["layout"]["rows"] == 32  # the culture file, resolved
@@ -76,7 +82,12 @@ def test_the_nest_endpoint_answers_a_pulse_in_step_windows_run_after_run(tmp_pat
 
 
 def small_nest_culture() -> NestEndpoint:
-    return NestEndpoint(nb.NestNetwork(NetworkConfig(layout=LayoutConfig(rows=4, cols=4)), 1))
+    cfg = NetworkConfig(
+        layout=LayoutConfig(rows=4, cols=4),
+        adaptation=AdaptationConfig(increment_exc_mv_per_ms=0.0),
+        slow_current=SlowCurrentConfig(share=0.0),
+    )
+    return NestEndpoint(nb.NestNetwork(cfg, 1))
 
 
 @needs_nest

@@ -13,6 +13,7 @@ import pytest
 
 from settings import ConfigError
 from sim_network import (
+    AdaptationConfig,
     ConnectivityConfig,
     DepressionConfig,
     LayoutConfig,
@@ -21,6 +22,7 @@ from sim_network import (
     NeuronConfig,
     NoiseConfig,
     Pulses,
+    SlowCurrentConfig,
     Spikes,
     StdpConfig,
     load_config,
@@ -32,7 +34,12 @@ needs_nest = pytest.mark.skipif(
     not nb.nest_available(), reason=f"NEST is not installed: {nb.INSTALL_HINT}"
 )
 
-SMALL = NetworkConfig(layout=LayoutConfig(rows=8, cols=8))
+#: A small culture NEST can express: no adaptation, no slow current (issue 21's additions).
+SMALL = NetworkConfig(
+    layout=LayoutConfig(rows=8, cols=8),
+    adaptation=AdaptationConfig(increment_exc_mv_per_ms=0.0),
+    slow_current=SlowCurrentConfig(share=0.0),
+)
 #: Uncoupled neurons, driven above threshold by their noise: each one's spikes show its drive.
 UNCOUPLED = dataclasses.replace(
     SMALL,
@@ -57,13 +64,8 @@ def first_spikes(spikes: Spikes, n: int) -> np.ndarray:
 # ------------------------------------------------------------------ refusals (no NEST needed)
 
 
-def with_sections(cfg: NetworkConfig, **sections) -> SimpleNamespace:
-    """The culture with sections the config may not have yet (issue 21's)."""
-    return SimpleNamespace(**vars(cfg), **sections)
-
-
-def test_the_default_culture_is_expressible():
-    assert nb.refusals(load_config("configs/culture_1024.toml")) == []
+def test_the_culture_before_issue_21_is_expressible():
+    assert nb.refusals(load_config("configs/culture_1024_local.toml")) == []
 
 
 @pytest.mark.parametrize(
@@ -81,16 +83,11 @@ def test_the_default_culture_is_expressible():
             "stdp.a_plus_mv = 0",
         ),
         (
-            with_sections(
-                SMALL,
-                adaptation=SimpleNamespace(
-                    increment_exc_mv_per_ms=40.0, increment_inh_mv_per_ms=0.0, tau_ms=25.0
-                ),
-            ),
+            dataclasses.replace(SMALL, adaptation=AdaptationConfig()),
             "adaptation.increment_exc_mv_per_ms = 40.0",
         ),
         (
-            with_sections(SMALL, slow_current=SimpleNamespace(share=0.8, tau_ms=40.0)),
+            dataclasses.replace(SMALL, slow_current=SlowCurrentConfig(share=0.8)),
             "slow_current.share = 0.8",
         ),
     ],
@@ -102,15 +99,12 @@ def test_what_nest_cannot_express_is_refused_by_name(cfg, named):
         nb.check_expressible(cfg, "culture.params.")
 
 
-def test_sections_that_are_off_are_not_refused():
-    cfg = with_sections(
-        SMALL,
-        adaptation=SimpleNamespace(
-            increment_exc_mv_per_ms=0.0, increment_inh_mv_per_ms=0.0, exempt_from_reset_mv=-59.0
-        ),
-        slow_current=SimpleNamespace(share=0.0, tau_ms=40.0),
-    )
-    assert nb.refusals(cfg) == []
+def test_the_default_culture_is_refused_for_its_adaptation_and_slow_current():
+    found = nb.refusals(load_config("configs/culture_1024.toml"))
+    assert [f.split(" ")[0] for f in found] == [
+        "adaptation.increment_exc_mv_per_ms",
+        "slow_current.share",
+    ]
 
 
 def test_every_section_of_a_culture_file_is_known_to_the_nest_backend():
@@ -221,7 +215,7 @@ def test_runs_in_chunks_with_pulses_carried_over_equal_one_run():
 def test_uncoupled_neurons_fire_as_in_sim_network_for_seconds():
     # the noise stays the culture's over many loads of the generators
     cfg = dataclasses.replace(
-        load_config("configs/culture_1024.toml"), connectivity=ConnectivityConfig(p_c_max=0.0)
+        load_config("configs/culture_1024_local.toml"), connectivity=ConnectivityConfig(p_c_max=0.0)
     )
     sim, net = Network(cfg, seed=1), nb.NestNetwork(cfg, seed=1)
     for size in (1000.0, *[10.0] * 100, 1000.0):
@@ -269,7 +263,7 @@ def test_it_runs_from_any_thread_and_one_nest_network_lives_per_process():
 @needs_nest
 def test_virtual_mea_channels_are_sim_network_s():
     cfg = dataclasses.replace(
-        load_config("configs/culture_1024.toml"), channels="mea", layout=LayoutConfig(16, 16)
+        load_config("configs/culture_1024_local.toml"), channels="mea", layout=LayoutConfig(16, 16)
     )
     ref = Network(cfg, seed=1)
     net = nb.NestNetwork(cfg, seed=1)
