@@ -67,6 +67,7 @@ def test_the_closed_loop_on_nest_avoids_obstacles_better_than_blind(tmp_path):
         sys.executable, "-m", "hub.cli", "compare", "configs/closed_loop.toml",
         "configs/closed_loop_blind.toml", "--seeds", "4", "--jobs", "1", "--out", str(out),
         "--set", 'culture.kind="nest"',
+        "--set", 'culture.params.config="configs/culture_1024_local.toml"',
     ]  # fmt: skip
     done = subprocess.run(cmd, capture_output=True, text=True, timeout=3000)
     assert done.returncode == 0, done.stderr[-3000:]

@@ -116,6 +116,7 @@ def test_the_culture_endpoint_serves_from_rank_0_under_mpirun(tmp_path, bus_over
     port = json.loads(listen.split("=", 1)[1])[0].rsplit(":", 1)[1]
     items = [
         *bus_overrides, 'culture.launch="external"', 'culture.kind="nest"',
+        'culture.params.config="configs/culture_1024_local.toml"',
         "culture.params.layout.rows=16", "culture.params.layout.cols=16",
     ]  # fmt: skip
     sets = [a for item in items for a in ("--set", item)]
