@@ -70,6 +70,12 @@ WARMUP_S = 5.0
 SPONTANEOUS_S = 900.0
 PULSES_PER_PROTOCOL = 60
 QUICK = {"warmup_s": 2.0, "spontaneous_s": 60.0, "pulses": 4}
+#: What a quick table says under its title: its verdicts are a smoke test, not a result.
+QUICK_CAVEAT = (
+    "**Quick mode**: 1 min of spontaneous activity and 4 pulses per protocol are too short "
+    "to judge against the paper (a few network bursts, a PSTH of 4 trials); the verdicts "
+    "below only show that every phase ran. Run without `--quick` for a result."
+)
 CHUNK_MS = 1000.0
 #: CATs are "measurably more regular" when evoked spread <= this fraction of the spontaneous one.
 CAT_REGULARITY_RATIO = 0.8
@@ -248,6 +254,7 @@ def _table(r: dict) -> str:
         + (", quick" if r["quick"] else "")
         + ")",
         "",
+        *([QUICK_CAVEAT, ""] if r["quick"] else []),
         f"Spontaneous activity: {r['spontaneous_s'] / 60:.1f} min of the default 1024-neuron "
         f"culture; stimulation: {r['pulses_per_protocol']} pulses of 10 ms, 100 µA at 0.2 Hz "
         "per protocol. Verdict: within ±30 % of the paper (PSTH: peak 30–100 ms; CATs: evoked "
@@ -500,6 +507,7 @@ def _seeds_table(per_seed: dict, over: dict, quick: bool, spont_s: float) -> str
     lines = [
         "# NeuVision reproduction over seeds" + (" (quick)" if quick else ""),
         "",
+        *([QUICK_CAVEAT, ""] if quick else []),
         f"Spontaneous activity: {spont_s / 60:.1f} min per seed. Verdict per seed: MFR, MBR, "
         f"MNBR and network-burst duration within ±{100 * SEED_TOLERANCE:.0f} % of the paper, "
         f"MFR s.d. within ±{100 * TOLERANCE:.0f} %, PSTH peak in "

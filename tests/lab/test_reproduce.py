@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from hub.analysis.paper import PAPER_TARGETS
-from lab.reproduce import PROTOCOLS, reproduce, stimulation_targets
+from lab.reproduce import PROTOCOLS, QUICK_CAVEAT, reproduce, stimulation_targets
 from sim_network import load_config
 from sim_network.layout import build_layout
 
@@ -38,6 +38,7 @@ def test_quick_reproduction_end_to_end(tmp_path):
     table = (tmp_path / "reproduction.md").read_text()
     assert "| MFR mean (spikes/s) | 3.41 |" in table
     assert str(PAPER_TARGETS["mnbr_per_min"]) in table
+    assert QUICK_CAVEAT in table  # a quick table says its verdicts prove nothing
     for name in ("spontaneous/raster.png", "spontaneous/cats_all.png", "exc_1/psth.png"):
         assert (tmp_path / name).stat().st_size > 1000
     html = (tmp_path / "report.html").read_text()
@@ -92,4 +93,5 @@ def test_quick_reproduction_over_seeds_tabulates_each_seed(tmp_path):
     assert set(saved["per_seed"]["1"]["verdicts"]) >= {"mbr_per_min", "psth_peak_ms"}
     table = (tmp_path / "reproduction.md").read_text()
     assert "| 2 | " in table and "| mean ± s.d. | " in table
+    assert QUICK_CAVEAT in table
     assert lines[-1] == table  # the table is printed
