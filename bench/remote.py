@@ -9,7 +9,9 @@
   link; null, with the reason, where this kernel has no netem.
 - ``mtls_overhead_us``: median round trip hub → body → hub (a motor command out, a reading
   back, through the hub's router) over mutual TLS with the access policy, minus the same
-  over plain TCP; A and B interleaved in ``--rounds`` rounds of ``--n`` round trips.
+  over plain TCP; ``password_overhead_us`` the same over TLS with a password per role
+  (``bus.security = "password"``); the three interleaved in ``--rounds`` rounds of ``--n``
+  round trips (``--only-round-trip``: these alone).
 - ``rejoin_s``: a lockstep run whose body is SIGKILLed at step 50 and started again: the
   time from its liveliness vanishing to its rejoining (process start-up included).
 
@@ -48,12 +50,12 @@ TRIVIAL = [
 ]
 
 
-def _bus_overrides(secure: bool, certs: Path) -> list[str]:
+def _bus_overrides(security: str, certs: Path) -> list[str]:
     port = free_tcp_port()
-    scheme = "tls" if secure else "tcp"
+    scheme = "tcp" if security == "none" else "tls"
     out = [f'bus.session="bench-{os.getpid()}"', f'bus.listen=["{scheme}/127.0.0.1:{port}"]']
-    if secure:
-        out += ['bus.security="mtls"', f'bus.certs_dir="{certs}"']
+    if security != "none":
+        out += [f'bus.security="{security}"', f'bus.certs_dir="{certs}"']
     return out
 
 
@@ -136,6 +138,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--rounds", type=int, default=4)
     parser.add_argument("--n", type=int, default=1000, help="round trips per round")
+    parser.add_argument("--only-round-trip", action="store_true", help="the round trips alone")
     parser.add_argument("--echo", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.echo:
@@ -145,7 +148,9 @@ def main() -> None:
 
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
-        if UNAVAILABLE:
+        if args.only_round_trip:
+            pass
+        elif UNAVAILABLE:
             print(f"across hosts: not measured ({UNAVAILABLE})")
             out["lockstep_steps_per_s_netns"] = None
         else:
@@ -161,35 +166,44 @@ def main() -> None:
             out["lockstep_steps_per_s_one_host"] = round(a, 1)
             out["lockstep_steps_per_s_netns"] = round(b, 1)
             out["netns_steal_share"] = round(steal.share, 4)
-        netem = netem_available()
-        if netem:
+        netem = None if args.only_round_trip else netem_available()
+        if args.only_round_trip:
+            pass
+        elif netem:
             print(f"realtime 20 ms with netem 5 +- 2 ms: not measured ({netem})")
             out["rt20_late_steps_netem5"] = None
             out["rt20_netem5_not_measured"] = netem
         else:  # pragma: no cover - a kernel with sch_netem
             raise SystemExit("netem is available here: measure rt20_late_steps_netem5")
 
-        from hub.certs import make_certificates
+        from hub.certs import make_certificates, make_passwords
 
         certs = tmp / "certs"
         make_certificates(certs, ["hub", "body"], hub_hosts=["127.0.0.1"])
-        plain, mtls = [], []
+        make_passwords(certs, ["hub", "body"])
+        rounds: dict[str, list[float]] = {"none": [], "mtls": [], "password": []}
         with StealMeter() as steal:
-            for _ in range(args.rounds):  # interleaved: A, B, A, B, ...
-                plain.append(round_trip_us(_bus_overrides(False, certs), args.n))
-                mtls.append(round_trip_us(_bus_overrides(True, certs), args.n))
-        p, m = statistics.median(plain), statistics.median(mtls)
+            for _ in range(args.rounds):  # interleaved: A, B, C, A, B, C, ...
+                for security, got in rounds.items():
+                    got.append(round_trip_us(_bus_overrides(security, certs), args.n))
+        p, m, w = (statistics.median(rounds[k]) for k in ("none", "mtls", "password"))
         print(
             f"round trip hub -> body -> hub, median of {args.rounds} interleaved rounds of "
-            f"{args.n}: plain TCP {p:.1f} us, mutual TLS + access policy {m:.1f} us, "
-            f"overhead {m - p:+.1f} us  (rounds: plain {[round(x) for x in plain]}, "
-            f"mtls {[round(x) for x in mtls]}; CPU steal {steal.share:.1%})"
+            f"{args.n}: plain TCP {p:.1f} us, mutual TLS + access policy {m:.1f} us "
+            f"({m - p:+.1f} us), TLS + password + access policy {w:.1f} us ({w - p:+.1f} us)  "
+            f"(rounds: { ({k: [round(x) for x in v] for k, v in rounds.items()}) }; "
+            f"CPU steal {steal.share:.1%})"
         )
         out["round_trip_us_plain"] = round(p, 1)
         out["round_trip_us_mtls"] = round(m, 1)
+        out["round_trip_us_password"] = round(w, 1)
         out["mtls_overhead_us"] = round(m - p, 1)
+        out["password_overhead_us"] = round(w - p, 1)
         out["round_trip_steal_share"] = round(steal.share, 4)
 
+    if args.only_round_trip:
+        print(json.dumps(out))
+        return
     gap = rejoin_gap_s()
     print(f"rejoin: body SIGKILLed at step 50 and started again, back in the run after {gap:.2f} s")
     out["rejoin_s"] = gap

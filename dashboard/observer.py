@@ -22,9 +22,10 @@ counters), so no frame waits for a query. A new run (another run id on the wire)
 histories again and the scene is asked for anew. Controls go to ``hub/control``
 (:func:`hub.ctl.request`).
 
-With ``bus.security = "mtls"`` it takes part as an ``operator`` when ``bus.certs_dir`` holds
-that role's certificate, else as an ``observer``, which may watch but not send controls
-nor ask for the config: the dashboard's own experiment file then stands in for it.
+With ``bus.security`` on it takes part as an ``operator`` when ``bus.certs_dir`` holds that
+role's certificate ("mtls") or password ("password"), else as an ``observer``, which may
+watch but not send controls nor ask for the config: the dashboard's own experiment file
+then stands in for it.
 """
 
 from __future__ import annotations
@@ -276,8 +277,14 @@ class BusObserver:
 def _role(bus: BusSection) -> str:
     """``operator`` (watch and control), or ``observer`` (watch only) when the security
     profile is on and ``bus.certs_dir`` holds no operator's certificate."""
-    if bus.security != "mtls":
+    if bus.security == "none":
         return "operator"
+    if bus.security == "password":
+        return (
+            "operator"
+            if security.password_file(bus.certs_dir, "operator").is_file()
+            else "observer"
+        )
     files = security.certificate_files(bus.certs_dir, "operator")
     return "operator" if all(path.is_file() for path in files.values()) else "observer"
 

@@ -52,13 +52,14 @@ def zenoh_config(bus: BusSection, *, listener: bool, role: str | None = None) ->
         endpoint, which listens nowhere and connects to ``bus.connect`` (or,
         when empty, to where the hub listens).
     role : str, optional
-        Who takes part (:data:`hub.security.PARTICIPANTS`): with ``bus.security =
-        "mtls"`` it picks the certificate; the hub's is ``"hub"``.
+        Who takes part (:data:`hub.security.PARTICIPANTS`): with ``bus.security`` on it
+        picks the certificate or the password; the hub's is ``"hub"``.
 
     Raises
     ------
     BusError
-        With ``bus.security = "mtls"``: no certificate for ``role`` (the message names it).
+        With ``bus.security`` on: no certificate or password for ``role`` (the message
+        names the file).
     """
     cfg = zenoh.Config()
 
@@ -83,16 +84,22 @@ def zenoh_config(bus: BusSection, *, listener: bool, role: str | None = None) ->
         put("connect/endpoints", list(bus.connect or bus.listen))
         # Wait for the hub to come up (endpoints are often started first).
         put("connect/timeout_ms", int(bus.connect_timeout_s * 1000))
-    if bus.security == "mtls":
+    if bus.security != "none":
+        who = "hub" if listener else role
         try:
-            tls = security.tls_settings(
-                bus.certs_dir, "hub" if listener else role, listener=listener
+            put(
+                "transport/link/tls",
+                security.tls_settings(bus.certs_dir, who, listener=listener, mode=bus.security),
             )
+            if bus.security == "password":
+                put(
+                    "transport/auth/usrpwd",
+                    security.password_settings(bus.certs_dir, who, listener=listener),
+                )
         except security.SecurityError as exc:
             raise BusError(str(exc)) from None
-        put("transport/link/tls", tls)
         if listener:
-            put("access_control", security.access_control(bus.keys))
+            put("access_control", security.access_control(bus.keys, bus.security))
     return cfg
 
 
@@ -108,7 +115,7 @@ def open_session(
     An endpoint (``listener`` False) whose hub is not up yet keeps trying for
     ``bus.connect_timeout_s``, calling ``on_wait(where, waited_s)`` before each new try
     (to tell the user where it is trying). ``role`` picks the participant's certificate
-    when ``bus.security = "mtls"``.
+    or password when ``bus.security`` is on.
 
     Raises
     ------
@@ -131,9 +138,10 @@ def open_session(
             return zenoh.open(zenoh_config(try_bus, listener=False, role=role))
         except zenoh.ZError as exc:
             if time.monotonic() - start >= bus.connect_timeout_s:
+                proof = {"mtls": "certificate", "password": "password"}.get(bus.security)
                 refused = (
-                    f" (bus.security = 'mtls': or the hub refused the {role}'s certificate)"
-                    if bus.security == "mtls"
+                    f" (bus.security = {bus.security!r}: or the hub refused the {role}'s {proof})"
+                    if proof
                     else ""
                 )
                 raise BusError(

@@ -15,10 +15,11 @@ from __future__ import annotations
 import datetime
 import ipaddress
 import os
+import secrets
 import socket
 from pathlib import Path
 
-from hub.security import CA_FILE, PARTICIPANTS, certificate_files
+from hub.security import CA_FILE, PARTICIPANTS, PASSWORDS_FILE, certificate_files, password_file
 
 CA_KEY_FILE = "ca.key"
 CA_NAME = "NeuVision experiment CA"
@@ -146,6 +147,54 @@ def make_certificates(
         write(files["key"], key_pem(key), secret=True)
         write(files["certificate"], cert.public_bytes(serialization.Encoding.PEM), secret=False)
     return written
+
+
+def make_passwords(folder: str | Path, roles: list[str]) -> list[Path]:
+    """Write a fresh random password for each role but the hub (``<role>.password``) and
+    the hub's dictionary of them (``passwords``), keeping other roles' entries; both
+    readable by their owner only.
+
+    Returns
+    -------
+    list of Path
+        The files written.
+
+    Raises
+    ------
+    ValueError
+        A role that is not a participant.
+    """
+    unknown = [r for r in roles if r not in PARTICIPANTS]
+    if unknown or not roles:
+        raise ValueError(f"roles must be some of {', '.join(PARTICIPANTS)}; got {roles}")
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    dictionary = folder / PASSWORDS_FILE
+    known = {}
+    if dictionary.is_file():
+        for line in dictionary.read_text().splitlines():
+            user, sep, password = line.partition(":")
+            if sep:
+                known[user] = password
+    written = []
+    for role in roles:
+        if role == "hub":  # the hub checks passwords; it shows its certificate
+            continue
+        known[role] = secrets.token_urlsafe(24)
+        written.append(_write_secret(password_file(folder, role), known[role] + "\n"))
+    text = "".join(f"{user}:{password}\n" for user, password in known.items())
+    written.append(_write_secret(dictionary, text))
+    return written
+
+
+def _write_secret(path: Path, text: str) -> Path:
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.unlink(missing_ok=True)
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+    with os.fdopen(fd, "w") as f:
+        f.write(text)
+    os.replace(tmp, path)
+    return path
 
 
 def _san(host: str):

@@ -63,7 +63,7 @@ def _address(text: str, args) -> str:
         listen = load_config(args.config, list(args.set or [])).bus.listen
         port = listen[0].rsplit(":", 1)[-1] if listen else "7447"
     scheme = (
-        "tls" if load_config(args.config, list(args.set or [])).bus.security == "mtls" else "tcp"
+        "tls" if load_config(args.config, list(args.set or [])).bus.security != "none" else "tcp"
     )
     return f"{scheme}/{host}:{port}"
 
@@ -210,7 +210,10 @@ def build_parser() -> argparse.ArgumentParser:
         description="Make a small certificate authority in DIR (kept if there) and, for "
         "each role, ROLE.pem and ROLE.key, for runs with bus.security = 'mtls' and "
         "bus.certs_dir = DIR. Copy to each machine ca.pem and its participant's two files; "
-        "keep ca.key where certificates are made. Needs 'cryptography' (pip install "
+        "keep ca.key where certificates are made. With --passwords, also a password per "
+        "role (ROLE.password) and the hub's dictionary of them (passwords), for "
+        "bus.security = 'password': then a machine needs ca.pem and its ROLE.password, the "
+        "hub's machine hub.pem, hub.key and passwords. Needs 'cryptography' (pip install "
         "'neuvision[security]').",
     )
     p.add_argument("dir", type=Path, help="folder of the certificates")
@@ -225,6 +228,11 @@ def build_parser() -> argparse.ArgumentParser:
         "127.0.0.1, localhost and this machine's name)",
     )
     p.add_argument("--days", type=int, default=365, help="validity (default 365)")
+    p.add_argument(
+        "--passwords",
+        action="store_true",
+        help="also a fresh password per role, for bus.security = 'password'",
+    )
     p = sub.add_parser("reproduce", help="run the paper's validation of the simulated culture")
     p.add_argument("--out", type=Path, help="output folder (default: a new run folder)")
     p.add_argument("--quick", action="store_true", help="a shortened version (for tests)")
@@ -542,7 +550,7 @@ def cmd_emulate(args) -> int:
 
 def cmd_certs(args) -> int:
     try:
-        from hub.certs import make_certificates
+        from hub.certs import make_certificates, make_passwords
     except ImportError:
         raise InputError(
             "neuvision certs needs the 'cryptography' package: pip install 'neuvision[security]'"
@@ -550,10 +558,11 @@ def cmd_certs(args) -> int:
     hosts = [h.strip() for h in args.hub_hosts.split(",")] if args.hub_hosts else None
     if args.days < 1:
         raise InputError(f"--days must be >= 1, got {args.days}")
+    roles = [r.strip() for r in args.roles.split(",")]
     try:
-        written = make_certificates(
-            args.dir, [r.strip() for r in args.roles.split(",")], hub_hosts=hosts, days=args.days
-        )
+        written = make_certificates(args.dir, roles, hub_hosts=hosts, days=args.days)
+        if args.passwords:
+            written += make_passwords(args.dir, roles)
     except ValueError as exc:
         raise InputError(f"--roles / --hub-hosts: {exc}") from None
     for path in written:

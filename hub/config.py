@@ -162,9 +162,12 @@ class BusSection:
     low_latency: bool = True
     # "mtls": TLS links, each participant proving its role with a certificate of the
     # experiment's CA (`neuvision certs`), and the hub's router admitting each role's
-    # messages only on its own keys (hub.security). "none": plain TCP, no authentication.
+    # messages only on its own keys (hub.security). "password": the same, but TLS with the
+    # hub's certificate only, each participant proving its role with a password
+    # (`neuvision certs --passwords`). "none": plain TCP, no authentication.
     security: str = field(default="none", metadata=bounds(choices=SECURITY_MODES))
-    # ca.pem, <role>.pem, <role>.key of this participant (relative to the experiment file)
+    # ca.pem, and <role>.pem + <role>.key ("mtls") or <role>.password ("password") of this
+    # participant; the hub's folder also holds `passwords` (relative to the experiment file)
     certs_dir: str = ""
 
     def __post_init__(self) -> None:
@@ -174,12 +177,12 @@ class BusSection:
             plain = [loc for loc in getattr(self, key) if not loc.startswith("tls/")]
             if plain:
                 raise ConfigError(
-                    f"{key}: with bus.security = 'mtls' every address is a TLS one "
+                    f"{key}: with bus.security = {self.security!r} every address is a TLS one "
                     f"(tls/HOST:PORT), got {plain}"
                 )
         if self.mode != "client" or self.hub_mode != "router":
             raise ConfigError(
-                "mode, hub_mode: with bus.security = 'mtls' the hub is the router "
+                f"mode, hub_mode: with bus.security = {self.security!r} the hub is the router "
                 "(its access control sees every message) and the others its clients; got "
                 f"mode = {self.mode!r}, hub_mode = {self.hub_mode!r}"
             )

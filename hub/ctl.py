@@ -47,8 +47,8 @@ def request(session, keys: Keys, cmd: str, *, timeout_s: float = 5.0) -> Control
 
 def ctl(bus: BusSection, cmd: str, *, timeout_s: float = 5.0) -> ControlReply | None:
     """:func:`request` over a session of its own, opened as a client of the hub's router
-    (trying to reach it for at most ``timeout_s``) and closed after. With ``bus.security =
-    "mtls"`` it takes part as an ``operator`` (the role that may send controls).
+    (trying to reach it for at most ``timeout_s``) and closed after. With ``bus.security``
+    on it takes part as an ``operator`` (the role that may send controls).
 
     Raises
     ------

@@ -1,15 +1,19 @@
-"""The security profile of a session: TLS links, a certificate per role, access control.
+"""The security profile of a session: TLS links, a role per participant, access control.
 
-With ``bus.security = "mtls"`` every link is TLS with a client certificate (Zenoh's own
-TLS, mutual authentication), issued by the experiment's certificate authority
-(``neuvision certs``, :mod:`hub.certs`); the certificate's common name is the participant's
-role. The hub's router admits each role's messages only on that role's own keys (Zenoh's
-access control, enforced where the message enters the router): only the culture may put
-``spikes``, only the body ``sensors``; observers may subscribe, and query descriptions
-and ``hub/status``; only an operator may send ``hub/control`` (pause, resume, stop). The
-hub itself is the router: what it puts (``stim``, ``motor``, ``hub/status``) enters
-through no link, and no link may put on those keys. Nobody but a role may declare that
-role's liveliness token.
+With ``bus.security = "mtls"`` every link is TLS with a client certificate (Zenoh's own TLS,
+mutual authentication), issued by the experiment's certificate authority (``neuvision
+certs``, :mod:`hub.certs`); the certificate's common name is the participant's role. With
+``bus.security = "password"`` every link is TLS too, but only the hub shows a certificate; a
+participant proves its role with Zenoh's user/password authentication (user = role, password
+from ``<role>.password``; the hub checks them against ``passwords``, both made by
+``neuvision certs --passwords``): a lab hands out a CA and a password, not a key pair, per
+machine. In either mode the hub's router admits each role's messages only on that role's own
+keys (Zenoh's access control, enforced where the message enters the router): only the
+culture may put ``spikes``, only the body ``sensors``; observers may subscribe, and query
+descriptions and ``hub/status``; only an operator may send ``hub/control`` (pause, resume,
+stop). The hub itself is the router: what it puts (``stim``, ``motor``, ``hub/status``)
+enters through no link, and no link may put on those keys. Nobody but a role may declare
+that role's liveliness token.
 
 Plain data only: these functions return Zenoh configuration values; :mod:`hub.bus` puts
 them into the configuration.
@@ -24,9 +28,16 @@ from hub.protocol import Keys
 #: who may take part: the hub, the two endpoint roles, observers (dashboards, recorders)
 #: that only watch, and operators that may also pause, resume and stop the run
 PARTICIPANTS = ("hub", "body", "culture", "observer", "operator")
-SECURITY_MODES = ("none", "mtls")
+SECURITY_MODES = ("none", "mtls", "password")
 
 CA_FILE = "ca.pem"
+#: the hub's dictionary of every participant's password (``role:password`` lines)
+PASSWORDS_FILE = "passwords"
+
+
+def password_file(certs_dir: str | Path, role: str) -> Path:
+    """The file that holds one participant's password (``bus.security = "password"``)."""
+    return Path(certs_dir) / f"{role}.password"
 
 
 def certificate_files(certs_dir: str | Path, role: str) -> dict[str, Path]:
@@ -43,24 +54,34 @@ class SecurityError(RuntimeError):
     """A participant cannot take part securely; the message names the file or role."""
 
 
-def tls_settings(certs_dir: str | Path, role: str | None, *, listener: bool) -> dict:
-    """Zenoh's ``transport/link/tls`` settings of one participant (mutual TLS).
+def _check_role(mode: str, certs_dir, role: str | None) -> None:
+    if not certs_dir:
+        raise SecurityError(
+            f"bus.security = {mode!r} needs bus.certs_dir (a folder made by 'neuvision certs')"
+        )
+    if role not in PARTICIPANTS:
+        raise SecurityError(
+            f"with bus.security = {mode!r} a participant needs a role, one of {PARTICIPANTS}; "
+            f"got {role!r}"
+        )
+
+
+def tls_settings(
+    certs_dir: str | Path, role: str | None, *, listener: bool, mode: str = "mtls"
+) -> dict:
+    """Zenoh's ``transport/link/tls`` settings of one participant: mutual TLS (``mode``
+    "mtls"), or TLS with the hub's certificate only ("password").
 
     Raises
     ------
     SecurityError
         ``role`` is not a participant, or one of its files is missing.
     """
-    if not certs_dir:
-        raise SecurityError(
-            "bus.security = 'mtls' needs bus.certs_dir (a folder made by 'neuvision certs')"
-        )
-    if role not in PARTICIPANTS:
-        raise SecurityError(
-            f"with bus.security = 'mtls' a participant needs a role, one of {PARTICIPANTS}; "
-            f"got {role!r}"
-        )
+    _check_role(mode, certs_dir, role)
     files = certificate_files(certs_dir, role)
+    mutual = mode == "mtls"
+    if not (mutual or listener):
+        del files["certificate"], files["key"]  # a password, not a key pair, proves the role
     for what, path in files.items():
         if not path.is_file():
             raise SecurityError(
@@ -68,12 +89,39 @@ def tls_settings(certs_dir: str | Path, role: str | None, *, listener: bool) -> 
                 f"'neuvision certs {certs_dir} --roles {role}' and the same CA)"
             )
     side = "listen" if listener else "connect"
-    return {
-        "root_ca_certificate": str(files["ca"]),
-        "enable_mtls": True,
-        f"{side}_certificate": str(files["certificate"]),
-        f"{side}_private_key": str(files["key"]),
-    }
+    settings = {"root_ca_certificate": str(files["ca"]), "enable_mtls": mutual}
+    if "certificate" in files:
+        settings[f"{side}_certificate"] = str(files["certificate"])
+        settings[f"{side}_private_key"] = str(files["key"])
+    return settings
+
+
+def password_settings(certs_dir: str | Path, role: str | None, *, listener: bool) -> dict:
+    """Zenoh's ``transport/auth/usrpwd`` settings: the hub's dictionary of passwords, or a
+    participant's user (its role) and password.
+
+    Raises
+    ------
+    SecurityError
+        ``role`` is not a participant, or its password file is missing or empty.
+    """
+    _check_role("password", certs_dir, role)
+    if listener:
+        path = Path(certs_dir) / PASSWORDS_FILE
+        if not path.is_file():
+            raise SecurityError(
+                f"no passwords file {str(path)!r} for the hub (bus.certs_dir; make it with "
+                f"'neuvision certs {certs_dir} --passwords')"
+            )
+        return {"dictionary_file": str(path)}
+    path = password_file(certs_dir, role)
+    password = path.read_text().strip() if path.is_file() else ""
+    if not password:
+        raise SecurityError(
+            f"no password in {str(path)!r} for the {role} (bus.certs_dir; make it with "
+            f"'neuvision certs {certs_dir} --roles {role} --passwords' where the hub's are made)"
+        )
+    return {"user": role, "password": password}
 
 
 # The nine kinds of message Zenoh's access control tells apart.
@@ -91,9 +139,10 @@ _ALL_MESSAGES = [
 _WATCH = ["declare_subscriber", "declare_liveliness_subscriber", "liveliness_query"]
 
 
-def access_control(keys: Keys) -> dict:
+def access_control(keys: Keys, mode: str = "mtls") -> dict:
     """The access-control policy of the hub's router for one session (Zenoh's
-    ``access_control`` value): default deny; each rule names what a role may send in."""
+    ``access_control`` value): default deny; each rule names what a role may send in. A
+    role is known by its certificate's common name ("mtls") or its user name ("password")."""
     root = keys.root
 
     def serve(role: str) -> list[str]:
@@ -123,7 +172,8 @@ def access_control(keys: Keys) -> dict:
         {"rules": everyone, "subjects": ["observer"]},
         {"rules": everyone + ["control"], "subjects": ["operator"]},
     ]
-    subjects = [{"id": role, "cert_common_names": [role]} for role in PARTICIPANTS if role != "hub"]
+    by = "cert_common_names" if mode == "mtls" else "usernames"
+    subjects = [{"id": role, by: [role]} for role in PARTICIPANTS if role != "hub"]
     return {
         "enabled": True,
         "default_permission": "deny",

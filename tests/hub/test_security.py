@@ -1,7 +1,8 @@
-"""The security profile (``bus.security = "mtls"``): who may connect, and who may put what.
+"""The security profiles (``bus.security = "mtls"`` or ``"password"``): who may connect,
+and who may put what.
 
-Real Zenoh TLS on loopback, certificates made by ``neuvision certs``; the hub's router
-enforces the access-control policy of :mod:`hub.security`.
+Real Zenoh TLS on loopback, certificates and passwords made by ``neuvision certs``; the
+hub's router enforces the access-control policy of :mod:`hub.security`.
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ import pytest
 import zenoh
 
 from hub.bus import BusError, open_session, payload_bytes, zenoh_config
-from hub.certs import make_certificates
+from hub.certs import make_certificates, make_passwords
 from hub.cli import main
 from hub.config import ConfigError, load_config
 from hub.protocol import (
@@ -26,7 +27,7 @@ from hub.protocol import (
     MotorCommand,
     Stimulation,
 )
-from hub.security import PARTICIPANTS, access_control
+from hub.security import PARTICIPANTS, PASSWORDS_FILE, access_control, password_file
 from tests.harness import harness, wait_for
 
 pytest.importorskip("cryptography")
@@ -36,17 +37,34 @@ pytest.importorskip("cryptography")
 def certs(tmp_path_factory) -> Path:
     folder = tmp_path_factory.mktemp("certs")
     make_certificates(folder, list(PARTICIPANTS), hub_hosts=["127.0.0.1"])
+    make_passwords(folder, list(PARTICIPANTS))
     return folder
+
+
+def _secured(bus_overrides, certs, mode: str) -> list[str]:
+    return [o.replace("tcp/", "tls/") for o in bus_overrides if o.startswith("bus.")] + [
+        f'bus.security="{mode}"',
+        f'bus.certs_dir="{certs}"',
+        "bus.connect_timeout_s=2",
+    ]
 
 
 @pytest.fixture
 def mtls(bus_overrides, certs) -> list[str]:
     """The test's isolated bus, over mutual TLS with the experiment's certificates."""
-    return [o.replace("tcp/", "tls/") for o in bus_overrides if o.startswith("bus.")] + [
-        'bus.security="mtls"',
-        f'bus.certs_dir="{certs}"',
-        "bus.connect_timeout_s=2",
-    ]
+    return _secured(bus_overrides, certs, "mtls")
+
+
+@pytest.fixture
+def password(bus_overrides, certs) -> list[str]:
+    """The test's isolated bus, over TLS with a password per participant."""
+    return _secured(bus_overrides, certs, "password")
+
+
+@pytest.fixture(params=["mtls", "password"])
+def secured(request, bus_overrides, certs) -> list[str]:
+    """Either profile: what holds for both."""
+    return _secured(bus_overrides, certs, request.param)
 
 
 # ------------------------------------------------------------------ certificates
@@ -68,6 +86,24 @@ def test_certs_makes_a_ca_and_one_certificate_per_role_named_by_its_role(tmp_pat
     assert (tmp_path / "ca.pem").read_bytes() == ca_before
     observer = x509.load_pem_x509_certificate((tmp_path / "observer.pem").read_bytes())
     assert observer.issuer == hub.issuer
+
+
+def test_certs_passwords_gives_each_role_its_own_secret_and_the_hub_their_dictionary(tmp_path):
+    assert main(["certs", str(tmp_path), "--roles", "hub,body,culture", "--passwords"]) == 0
+    body = password_file(tmp_path, "body").read_text().strip()
+    culture = password_file(tmp_path, "culture").read_text().strip()
+    assert len(body) >= 24 and body != culture
+    assert not password_file(tmp_path, "hub").exists()  # the hub shows its certificate
+    dictionary = (tmp_path / PASSWORDS_FILE).read_text().splitlines()
+    assert dictionary == [f"body:{body}", f"culture:{culture}"]
+    for path in (password_file(tmp_path, "body"), tmp_path / PASSWORDS_FILE):
+        assert path.stat().st_mode & 0o077 == 0  # secrets: owner only
+    # A role added later joins the dictionary; the others keep theirs.
+    assert main(["certs", str(tmp_path), "--roles", "observer", "--passwords"]) == 0
+    observer = password_file(tmp_path, "observer").read_text().strip()
+    assert (tmp_path / PASSWORDS_FILE).read_text().splitlines() == dictionary + [
+        f"observer:{observer}"
+    ]
 
 
 def test_certs_refuses_a_role_that_is_not_a_participant(tmp_path, capsys):
@@ -132,6 +168,45 @@ def test_the_access_policy_lets_each_role_put_only_on_its_own_keys():
 # ------------------------------------------------------------------ on the bus
 
 
+def test_no_valid_password_no_connection(tmp_path, password, certs):
+    cfg = load_config(None, password)
+    hub = open_session(cfg.bus, listener=True)
+    try:
+        # The body's name with another password.
+        wrong = tmp_path / "wrong"
+        wrong.mkdir()
+        (wrong / "ca.pem").write_bytes((certs / "ca.pem").read_bytes())
+        password_file(wrong, "body").write_text("not-the-password\n")
+        other = load_config(None, password + [f'bus.certs_dir="{wrong}"'])
+        with pytest.raises(BusError, match="cannot reach the hub.*refused the body's password"):
+            open_session(other.bus, listener=False, role="body")
+        # TLS, but no password at all.
+        no_password = zenoh_config(cfg.bus, listener=False, role="observer")
+        no_password.insert_json5("transport/auth/usrpwd", "{}")
+        with pytest.raises(zenoh.ZError):
+            zenoh.open(no_password).close()
+        # No password file: the message names it, before any connection.
+        (tmp_path / "ca.pem").write_bytes((certs / "ca.pem").read_bytes())
+        with pytest.raises(BusError, match=r"no password in .*body\.password.* for the body"):
+            zenoh_config(
+                load_config(None, password + [f'bus.certs_dir="{tmp_path}"']).bus,
+                listener=False,
+                role="body",
+            )
+        # The real observer gets in, with the CA and its password: no key pair of its own.
+        only = tmp_path / "observer-only"
+        only.mkdir()
+        for name in ("ca.pem", "observer.password"):
+            (only / name).write_bytes((certs / name).read_bytes())
+        open_session(
+            load_config(None, password + [f'bus.certs_dir="{only}"']).bus,
+            listener=False,
+            role="observer",
+        ).close()
+    finally:
+        hub.close()
+
+
 def test_no_valid_certificate_no_connection(tmp_path, mtls, certs):
     cfg = load_config(None, mtls)
     hub = open_session(cfg.bus, listener=True)
@@ -193,9 +268,9 @@ def _listening_ports(pid: int) -> set[tuple[str, int]]:
 
 
 @pytest.mark.skipif(not Path("/proc/net/tcp").exists(), reason="no /proc/net here")
-def test_with_mtls_a_wrong_role_reaches_no_endpoint_and_observers_only_watch(mtls, tmp_path):
+def test_a_wrong_role_reaches_no_endpoint_and_observers_only_watch(secured, tmp_path):
     out: dict = {}
-    with harness(tmp_path, [], *mtls, "experiment.duration_s=4", "body.params.delay_ms=5") as h:
+    with harness(tmp_path, [], *secured, "experiment.duration_s=4", "body.params.delay_ms=5") as h:
         bus, keys = h.cfg.bus, h.cfg.bus.keys
         port = int(bus.listen[0].rsplit(":", 1)[1])
 
