@@ -24,10 +24,10 @@ import struct
 import threading
 import time
 from collections import Counter
-from dataclasses import dataclass
 
 import numpy as np
 
+from adapters.mea.driver import ClockMap
 from adapters.mea.layout import ElectrodeLayout
 from adapters.mea.safety import BiphasicPulse
 from hub.endpoint import DeviceFault
@@ -69,36 +69,9 @@ def spike_record(name: str, timestamp: int, spike_id: int = 1) -> bytes:
     return SPIKE_RECORD.pack(SPIKE_MAGIC, name.encode("ascii")[:5], timestamp, spike_id)
 
 
-@dataclass
-class ClockMap:
-    """The instrument's clock against ``time.monotonic()``: ``inst_s = a + b · local_s``,
-    fitted to (local, instrument) pairs; the offset and the drift are reported."""
-
-    pairs: list[tuple[float, float]]
-
-    def fit(self) -> tuple[float, float]:
-        local = np.array([p[0] for p in self.pairs])
-        inst = np.array([p[1] for p in self.pairs])
-        if local.size < 2 or np.ptp(local) < 0.5:
-            return float(np.median(inst - local)), 1.0
-        b, a = np.polyfit(local, inst, 1)
-        return float(a), float(b)
-
-    def to_local(self, inst_s: np.ndarray) -> np.ndarray:
-        a, b = self.fit()
-        return (np.asarray(inst_s) - a) / b
-
-    def report(self) -> dict:
-        a, b = self.fit()
-        return {
-            "clock_offset_s": a,
-            "clock_drift_ppm": (b - 1.0) * 1e6,
-            "clock_pairs": len(self.pairs),
-        }
-
-
 class RhxDriver:
-    """An RHS controller through the RHX software's TCP ports (thread-safe).
+    """An RHS controller through the RHX software's TCP ports (thread-safe); a
+    :class:`~adapters.mea.driver.MeaDriver`.
 
     Parameters
     ----------
@@ -109,6 +82,8 @@ class RhxDriver:
     timeout_s : float
         One command's answer.
     """
+
+    stimulates = True
 
     def __init__(
         self,
@@ -245,6 +220,10 @@ class RhxDriver:
                 sock.close()
         if self._reader is not None:
             self._reader.join(timeout=2.0)
+
+    def report(self) -> dict:
+        """Counts and the fitted clock (for ``describe``)."""
+        return {**dict(self.counts), **(self.clock.report() if self.clock.pairs else {})}
 
     # ------------------------------------------------------------ stimulation
 

@@ -1,0 +1,97 @@
+"""What the MEA endpoint needs of an instrument driver, and the clock map drivers share.
+
+:class:`MeaDriver` is the small interface :class:`~adapters.mea.endpoint.MeaEndpoint` calls;
+two drivers implement it: :class:`~adapters.mea.rhx.RhxDriver` (Intan RHX over TCP) and
+:class:`~adapters.mea.lsl.LslDriver` (Lab Streaming Layer). A driver's clock is a
+:class:`ClockMap` of the instrument's time against ``time.monotonic()``.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+
+from adapters.mea.layout import ElectrodeLayout
+from adapters.mea.safety import BiphasicPulse
+from hub.endpoint import DeviceFault
+
+
+@dataclass
+class ClockMap:
+    """The instrument's clock against ``time.monotonic()``: ``inst_s = a + b · local_s``,
+    fitted to (local, instrument) pairs; the offset and the drift are reported."""
+
+    pairs: list[tuple[float, float]]
+
+    def fit(self) -> tuple[float, float]:
+        local = np.array([p[0] for p in self.pairs])
+        inst = np.array([p[1] for p in self.pairs])
+        if local.size < 2 or np.ptp(local) < 0.5:
+            return float(np.median(inst - local)), 1.0
+        b, a = np.polyfit(local, inst, 1)
+        return float(a), float(b)
+
+    def to_local(self, inst_s: np.ndarray) -> np.ndarray:
+        a, b = self.fit()
+        return (np.asarray(inst_s) - a) / b
+
+    def report(self) -> dict:
+        a, b = self.fit()
+        return {
+            "clock_offset_s": a,
+            "clock_drift_ppm": (b - 1.0) * 1e6,
+            "clock_pairs": len(self.pairs),
+        }
+
+
+class MeaDriver(Protocol):
+    """An MEA stimulator/recorder as the endpoint drives it (thread-safe where noted).
+
+    Attributes
+    ----------
+    layout : ElectrodeLayout
+        Channel id on the wire → instrument name and position.
+    counts : Counter
+        The driver's own counts (triggers, pulses, malformed input…), in ``describe``.
+    clock : ClockMap
+        Instrument time against ``time.monotonic()``; pairs added by :meth:`sample_clock`.
+    fault : DeviceFault or None
+        Set (by the driver's reader, or by the endpoint) when the instrument failed.
+    stimulates : bool
+        False for a record-only instrument: the endpoint then refuses every pulse.
+    """
+
+    layout: ElectrodeLayout
+    counts: Counter
+    clock: ClockMap
+    fault: DeviceFault | None
+    stimulates: bool
+
+    def open(self) -> None:
+        """Connect, make nothing deliverable, start reading spikes."""
+
+    def start(self) -> None:
+        """A run begins: the instrument running, the clock mapped afresh."""
+
+    def sample_clock(self) -> None:
+        """Add one (local, instrument) pair to :attr:`clock`."""
+
+    def deliver(self, pulses: list[BiphasicPulse]) -> None:
+        """Fire these (already admitted) pulses together, now."""
+
+    def take_spikes(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Every spike read since the last call: channel (uint32), instrument time (s),
+        local arrival (``time.monotonic()``) (thread-safe)."""
+
+    def stop(self) -> None:
+        """Nothing more delivered."""
+
+    def close(self) -> None:
+        """Stop, and let go of the instrument."""
+
+    def report(self) -> dict:
+        """Counts and the fitted clock (``clock_offset_s``, ``clock_drift_ppm``…) for
+        ``describe``."""
