@@ -40,3 +40,7 @@ TEST_ENDPOINTS = [
 # Endpoint subprocesses import the test fixtures (tests.endpoints) from the repo root.
 ROOT = str(Path(__file__).resolve().parent.parent)
 os.environ["PYTHONPATH"] = os.pathsep.join(p for p in (ROOT, os.environ.get("PYTHONPATH", "")) if p)
+
+# LSL (adapters/mea/lsl.py) finds streams by multicast: every test, and every endpoint a
+# test starts, keeps it on this machine's loopback.
+os.environ["LSLAPICFG"] = str(Path(ROOT) / "adapters" / "mea" / "lsl_loopback.cfg")

@@ -3,7 +3,8 @@
 Each step's :class:`~hub.protocol.Stimulation` is checked pulse by pulse
 (:mod:`adapters.mea.safety`: refused pulses are counted by reason, never clipped), turned
 into charge-balanced biphasic pulses and fired at their onsets through the instrument's
-driver (:mod:`adapters.mea.rhx`). The spikes the instrument reports are placed in run time
+driver (:mod:`adapters.mea.rhx`, :mod:`adapters.mea.lsl`; the interface:
+:class:`~adapters.mea.driver.MeaDriver`). The spikes the instrument reports are placed in run time
 through its clock (offset and drift fitted, in ``describe``'s counters) and answered per
 window **after the window has passed** (``reply_margin_ms`` later, from a thread of the
 endpoint's own): a device cannot know a window's spikes before its end. The hub therefore
@@ -12,10 +13,14 @@ margin and a little (``configs/hybrid_mea.toml``). A spike that reaches the endp
 its window was answered goes into the next batch at its true time (``late_channel``,
 ``late_t_ms``), counted as late data, never dropped.
 
-Parameters (``[culture.params]``): ``driver`` (``"rhx"``), ``host`` (``127.0.0.1``),
-``command_port`` (5000), ``spike_port`` (5002), ``layout_file`` (CSV ``name,x_um,y_um``;
-default the MCS 60-electrode layout on Intan ports A and B), ``reply_margin_ms`` (2),
-``[culture.params.safety]`` (:class:`~adapters.mea.safety.PulseLimits`).
+Parameters (``[culture.params]``): ``driver`` (``"rhx"`` or ``"lsl"``), ``layout_file``
+(CSV ``name,x_um,y_um``; default the MCS 60-electrode layout on Intan ports A and B),
+``reply_margin_ms`` (2), ``[culture.params.safety]``
+(:class:`~adapters.mea.safety.PulseLimits`); for ``rhx``: ``host`` (``127.0.0.1``),
+``command_port`` (5000), ``spike_port`` (5002); for ``lsl`` (:mod:`adapters.mea.lsl`):
+``spike_stream`` (""), ``spike_type`` (``"Spikes"``), ``spike_source_id`` (""),
+``stim_outlet`` ("": record-only, every pulse refused and counted), ``resolve_timeout_s``
+(5), ``stim_wait_s`` (5). A key the driver does not take is named.
 
 Safety does not depend on the hub: stimulation stops (every electrode disabled, run mode
 off) when the run ends, when the hub's liveliness vanishes, when no input comes for the
@@ -25,6 +30,7 @@ input timeout, and when the process ends.
 from __future__ import annotations
 
 import heapq
+import importlib.util
 import logging
 import math
 import threading
@@ -33,6 +39,7 @@ from collections import deque
 
 import numpy as np
 
+from adapters.mea.driver import MeaDriver
 from adapters.mea.layout import ElectrodeLayout
 from adapters.mea.rhx import RhxDriver
 from adapters.mea.safety import PulseLimits, SafetyGate
@@ -46,8 +53,12 @@ LOCKSTEP_REFUSAL = (
     "a culture on an MEA is a real device: it lives in real time and cannot wait for a "
     'lockstep loop; set loop.mode = "realtime"'
 )
-PARAMS = {"driver", "host", "command_port", "spike_port", "layout_file", "reply_margin_ms",
-          "safety"}  # fmt: skip
+PARAMS = {"driver", "layout_file", "reply_margin_ms", "safety"}  # whichever the driver
+DRIVER_PARAMS = {
+    "rhx": {"host", "command_port", "spike_port"},
+    "lsl": {"spike_stream", "spike_type", "spike_source_id", "stim_outlet", "resolve_timeout_s",
+            "stim_wait_s"},
+}  # fmt: skip
 CLOCK_SAMPLE_S = 0.5  # the instrument's clock is sampled this often during a run
 
 
@@ -56,8 +67,9 @@ class MeaEndpoint(Endpoint):
 
     Parameters
     ----------
-    driver : RhxDriver
-        Not yet opened (opened by :meth:`warm_up`).
+    driver : MeaDriver
+        Not yet opened (opened by :meth:`warm_up`): an :class:`~adapters.mea.rhx.RhxDriver`
+        or an :class:`~adapters.mea.lsl.LslDriver`.
     limits : PulseLimits
     id : str
     reply_margin_ms : float
@@ -66,7 +78,7 @@ class MeaEndpoint(Endpoint):
 
     role, kind = "culture", "mea"
 
-    def __init__(self, driver: RhxDriver, limits: PulseLimits, id: str = "0", *,
+    def __init__(self, driver: MeaDriver, limits: PulseLimits, id: str = "0", *,
                  reply_margin_ms: float = 2.0):  # fmt: skip
         super().__init__(id)
         self.driver, self.limits = driver, limits
@@ -92,30 +104,60 @@ class MeaEndpoint(Endpoint):
         if cfg.loop.mode != "realtime":
             raise ConfigError(f"loop.mode: {LOCKSTEP_REFUSAL}")
         params = dict(section.params)
-        unknown = sorted(set(params) - PARAMS)
-        if unknown:
-            raise ConfigError(f"culture.params: unknown key(s) {unknown} for kind mea")
         driver = params.get("driver", "rhx")
-        if driver != "rhx":
+        if driver not in DRIVER_PARAMS:
             raise ConfigError(
-                f"culture.params.driver must be 'rhx', got {driver!r} (the LSL driver is not "
-                "built yet)"
+                f"culture.params.driver must be one of {sorted(DRIVER_PARAMS)}, got {driver!r}"
+            )
+        unknown = sorted(set(params) - PARAMS - DRIVER_PARAMS[driver])
+        if unknown:
+            raise ConfigError(
+                f"culture.params: unknown key(s) {unknown} for kind mea with driver "
+                f"{driver!r} (it takes {sorted(PARAMS | DRIVER_PARAMS[driver])})"
             )
         out = {
             "driver": driver,
-            "host": check_value("culture.params.host", str, params.get("host", "127.0.0.1")),
-            "command_port": check_value("culture.params.command_port", int,
-                                        params.get("command_port", 5000), ge=1, le=65535),
-            "spike_port": check_value("culture.params.spike_port", int,
-                                      params.get("spike_port", 5002), ge=1, le=65535),
             "reply_margin_ms": check_value("culture.params.reply_margin_ms", float,
                                            params.get("reply_margin_ms", 2.0), ge=0),
             "layout_file": params.get("layout_file"),
             "safety": params.get("safety", {}),
         }  # fmt: skip
+        if driver == "rhx":
+            out |= {
+                "host": check_value("culture.params.host", str, params.get("host", "127.0.0.1")),
+                "command_port": check_value("culture.params.command_port", int,
+                                            params.get("command_port", 5000), ge=1, le=65535),
+                "spike_port": check_value("culture.params.spike_port", int,
+                                          params.get("spike_port", 5002), ge=1, le=65535),
+            }  # fmt: skip
+        else:
+            out |= cls._check_lsl(params)
         PulseLimits.from_params(out["safety"])
         if out["layout_file"] is not None:
             ElectrodeLayout.from_file(out["layout_file"])
+        return out
+
+    @staticmethod
+    def _check_lsl(params: dict) -> dict:
+        """The LSL driver's keys (``culture.params.*``), and pylsl installed."""
+        out = {}
+        for name, default in (("spike_stream", ""), ("spike_type", "Spikes"),
+                              ("spike_source_id", ""), ("stim_outlet", "")):  # fmt: skip
+            value = check_value(f"culture.params.{name}", str, params.get(name, default))
+            if "'" in value:
+                raise ConfigError(f"culture.params.{name} may not hold a quote: {value!r}")
+            out[name] = value
+        if not (out["spike_stream"] or out["spike_type"] or out["spike_source_id"]):
+            raise ConfigError(
+                "culture.params.spike_stream: the LSL spike stream needs a name, a type "
+                "(spike_type) or a source id (spike_source_id)"
+            )
+        for name in ("resolve_timeout_s", "stim_wait_s"):
+            out[name] = check_value(f"culture.params.{name}", float, params.get(name, 5.0), gt=0)
+        if importlib.util.find_spec("pylsl") is None:
+            raise ConfigError(
+                "culture.params.driver = 'lsl' needs pylsl: pip install 'neuvision[lsl]'"
+            )
         return out
 
     @classmethod
@@ -126,7 +168,15 @@ class MeaEndpoint(Endpoint):
             if p["layout_file"]
             else ElectrodeLayout.mcs60()
         )
-        driver = RhxDriver(layout, p["host"], p["command_port"], p["spike_port"])
+        if p["driver"] == "lsl":
+            from adapters.mea.lsl import LslDriver  # pylsl: an optional dependency
+
+            driver = LslDriver(
+                layout, p["spike_stream"], p["spike_type"], p["spike_source_id"],
+                p["stim_outlet"], p["resolve_timeout_s"], p["stim_wait_s"],
+            )  # fmt: skip
+        else:
+            driver = RhxDriver(layout, p["host"], p["command_port"], p["spike_port"])
         limits = PulseLimits.from_params(p["safety"])
         return cls(driver, limits, section.id, reply_margin_ms=p["reply_margin_ms"])
 
@@ -159,8 +209,7 @@ class MeaEndpoint(Endpoint):
     def description(self) -> Description:
         desc = super().description()
         desc.counters["device"] = {
-            **dict(self.driver.counts),
-            **(self.driver.clock.report() if self.driver.clock.pairs else {}),
+            **self.driver.report(),
             "pulses_admitted": self.gate.admitted,
             "pulses_refused": dict(self.gate.refused),
             "late_spikes": self.late_spikes,
@@ -194,6 +243,11 @@ class MeaEndpoint(Endpoint):
         now = time.monotonic()
         self._origin = min(self._origin, now - window.t0_s)
         by_onset: dict[float, list] = {}
+        if not self.driver.stimulates and len(stim.channel):  # record-only: none delivered
+            if not self.gate.refused["record_only"]:
+                log.warning("pulse refused (record_only): the instrument has no stimulator")
+            self.gate.refused["record_only"] += len(stim.channel)
+            stim = Stimulation(**window.stamp)
         for c, a, w, o in zip(stim.channel, stim.amplitude_ua, stim.width_ms, stim.onset_ms,
                               strict=True):  # fmt: skip
             pulse = self.gate.admit(int(c), float(a), float(w), window.t0_s + float(o) / 1e3)

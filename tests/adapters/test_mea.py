@@ -161,7 +161,12 @@ def test_too_frequent_pulses_are_refused_per_electrode_and_in_total():
         ('culture.params.safety.mode="voltage"', "safety.mode must be 'current'"),
         ('culture.params.safety.polarity="sideways"', "safety.polarity"),
         ("culture.params.safety.max_amplitude_ua=-1", "max_amplitude_ua"),
-        ('culture.params.driver="lsl"', "the LSL driver is not built yet"),
+        ('culture.params.driver="nidaq"', r"culture.params.driver must be one of \['lsl', 'rhx'\]"),
+        # the RHX keys of hybrid_mea.toml are not the LSL driver's
+        (
+            'culture.params.driver="lsl"',
+            r"unknown key\(s\) \['command_port', 'host', 'spike_port'\]",
+        ),
         ('loop.mode="lockstep"', "loop.mode: a culture on an MEA is a real device"),
     ],
 )
