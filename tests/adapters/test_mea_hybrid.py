@@ -92,3 +92,32 @@ def test_a_20_s_hybrid_run_at_10_ms_has_no_late_step(tmp_path, bus_overrides):
     (run_dir,) = tmp_path.iterdir()
     m = read_run(run_dir).manifest
     assert m["steps"] == 2000 and m["timing"]["late_steps"] == 0, m["timing"]
+
+
+def test_a_short_run_with_both_devices_emulated(tmp_path, bus_overrides):
+    """configs/hybrid_both.toml: the emulated Khepera (a pseudo-terminal) driven by the
+    emulated Intan (its own process), both in real time."""
+    from adapters.khepera.emulator import KheperaEmulator
+    from hub.protocol import SensorReading
+
+    emu, points_at = emulator()
+    try:
+        with KheperaEmulator(baud=9600) as robot:
+            args = [sys.executable, "-m", "hub.cli", "run", "configs/hybrid_both.toml", "--quiet",
+                    "--duration-s", "3.0", "--runs-dir", str(tmp_path)]  # fmt: skip
+            for item in [*bus_overrides, *points_at, f'body.params.port="{robot.path}"']:
+                args += ["--set", item]
+            done = subprocess.run(args, capture_output=True, text=True, timeout=180)
+        assert done.returncode == 0, done.stderr[-2000:]
+    finally:
+        emu.terminate()
+        emu.wait(timeout=10)
+    (run_dir,) = tmp_path.iterdir()
+    rec = read_run(run_dir)
+    assert rec.manifest["outcome"] == "completed" and rec.manifest["steps"] == 60
+    assert len(rec.decoded(SensorReading, "rx")) >= 55
+    batches = rec.decoded(SpikeBatch, "rx")
+    assert len(batches) >= 55 and sum(b.channel.size for b in batches) > 100
+    endpoints = rec.manifest["endpoints"]
+    assert endpoints["culture"]["device"]["pulses_admitted"] > 0
+    assert endpoints["body"]["kind"] == "khepera"
