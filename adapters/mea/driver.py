@@ -39,9 +39,12 @@ class ClockMap:
         return (np.asarray(inst_s) - a) / b
 
     def report(self) -> dict:
+        """``clock_offset_s`` is ``a`` (instrument time at local time 0);
+        ``clock_offset_latest_s`` the offset at the latest pair, drift included."""
         a, b = self.fit()
         return {
             "clock_offset_s": a,
+            "clock_offset_latest_s": a + (b - 1.0) * self.pairs[-1][0],
             "clock_drift_ppm": (b - 1.0) * 1e6,
             "clock_pairs": len(self.pairs),
         }
