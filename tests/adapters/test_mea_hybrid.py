@@ -21,6 +21,8 @@ HYBRID = "configs/hybrid_mea.toml"
 def emulator() -> tuple[subprocess.Popen, list[str]]:
     """``neuvision emulate intan`` on free ports; the overrides that point a run at it."""
     cmd_port, spk_port = free_tcp_port(), free_tcp_port()
+    while spk_port == cmd_port:  # the OS may hand out a just-freed port again
+        spk_port = free_tcp_port()
     proc = subprocess.Popen(
         [sys.executable, "-m", "hub.cli", "emulate", "intan", "--command-port", str(cmd_port),
          "--spike-port", str(spk_port)],
