@@ -27,8 +27,8 @@ class ClockMap:
     pairs: list[tuple[float, float]]
 
     def fit(self) -> tuple[float, float]:
-        local = np.array([p[0] for p in self.pairs])
-        inst = np.array([p[1] for p in self.pairs])
+        pairs = np.array(self.pairs[:], dtype=np.float64).reshape(-1, 2)  # one snapshot:
+        local, inst = pairs[:, 0], pairs[:, 1]  # pairs are added from another thread
         if local.size < 2 or np.ptp(local) < 0.5:
             return float(np.median(inst - local)), 1.0
         b, a = np.polyfit(local, inst, 1)

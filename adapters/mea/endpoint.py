@@ -60,6 +60,9 @@ DRIVER_PARAMS = {
             "stim_wait_s"},
 }  # fmt: skip
 CLOCK_SAMPLE_S = 0.5  # the instrument's clock is sampled this often during a run
+# Two threads, each with a heap of what falls due: one talks to the instrument (pulses, the
+# clock), one answers windows, so that a slow instrument command never delays a reply.
+LANES = {"fire": "device", "clock": "device", "reply": "replies"}
 
 
 class MeaEndpoint(Endpoint):
@@ -92,10 +95,11 @@ class MeaEndpoint(Endpoint):
         self._answered_until_s = -math.inf  # run time up to which windows were answered
         self._carry: list[tuple[np.ndarray, np.ndarray]] = []  # spikes of windows to come
         self._late: list[tuple[np.ndarray, np.ndarray]] = []
-        self._due: list = []  # heap of (local time, seq, kind, payload)
+        # per lane, a heap of (local time, seq, kind, payload)
+        self._due: dict[str, list] = {lane: [] for lane in dict.fromkeys(LANES.values())}
         self._seq = 0
         self._wake = threading.Condition()
-        self._worker: threading.Thread | None = None
+        self._workers: list[threading.Thread] = []
         self._closing = False
 
     @classmethod
@@ -186,8 +190,12 @@ class MeaEndpoint(Endpoint):
         if not self._opened:
             self.driver.open()
             self._opened = True
-            self._worker = threading.Thread(target=self._work, name="mea-replies", daemon=True)
-            self._worker.start()
+            for lane in self._due:
+                worker = threading.Thread(
+                    target=self._work, args=(lane,), name=f"mea-{lane}", daemon=True
+                )
+                worker.start()
+                self._workers.append(worker)
 
     def describe(self) -> Description:
         self.warm_up()
@@ -235,7 +243,8 @@ class MeaEndpoint(Endpoint):
         with self._wake:
             self._origin = math.inf
             self._answered_until_s = -math.inf
-            self._carry, self._late, self._due = [], [], []
+            self._carry, self._late = [], []
+            self._due = {lane: [] for lane in self._due}
             self.gate = SafetyGate(self.limits)
             self._schedule(time.monotonic() + CLOCK_SAMPLE_S, "clock", None)
 
@@ -263,8 +272,9 @@ class MeaEndpoint(Endpoint):
     def make_safe(self) -> None:
         """Nothing more delivered: pending pulses dropped, every electrode disabled."""
         with self._wake:
-            self._due = [d for d in self._due if d[2] != "fire"]
-            heapq.heapify(self._due)
+            device = [d for d in self._due["device"] if d[2] != "fire"]
+            heapq.heapify(device)
+            self._due["device"] = device
         if self._opened:
             try:
                 self.driver.stop()
@@ -273,34 +283,35 @@ class MeaEndpoint(Endpoint):
 
     def end_run(self) -> None:
         with self._wake:
-            self._due = []
+            self._due = {lane: [] for lane in self._due}
         self.make_safe()
 
     def close(self) -> None:
         with self._wake:
             self._closing = True
-            self._wake.notify()
-        if self._worker is not None:
-            self._worker.join(timeout=2.0)
+            self._wake.notify_all()
+        for worker in self._workers:
+            worker.join(timeout=2.0)
         self.driver.close()
 
     # ------------------------------------------------------------ timing
 
     def _schedule(self, at: float, kind: str, payload) -> None:
         self._seq += 1
-        heapq.heappush(self._due, (at, self._seq, kind, payload))
-        self._wake.notify()
+        heapq.heappush(self._due[LANES[kind]], (at, self._seq, kind, payload))
+        self._wake.notify_all()
 
-    def _work(self) -> None:
-        """Fire pulses at their onsets, answer windows once they have passed, sample the clock."""
+    def _work(self, lane: str) -> None:
+        """What falls due in ``lane``: fire pulses at their onsets and sample the clock
+        ("device"), or answer windows once they have passed ("replies")."""
         while True:
             with self._wake:
                 while not self._closing:
-                    now = time.monotonic()
-                    if self._due and self._due[0][0] <= now:
-                        _, _, kind, payload = heapq.heappop(self._due)
+                    now, due = time.monotonic(), self._due[lane]
+                    if due and due[0][0] <= now:
+                        _, _, kind, payload = heapq.heappop(due)
                         break
-                    self._wake.wait(self._due[0][0] - now if self._due else 0.1)
+                    self._wake.wait(due[0][0] - now if due else 0.1)
                 else:
                     return
             try:
