@@ -39,6 +39,13 @@ SPIKE_RECORD = struct.Struct("<I5sIB")  # 14 bytes
 TRIGGER = "F1"  # every pulse fires on this key: the channels enabled are those of the step
 
 
+# A batch of gets is answered by one reply line each. A server that batches small writes
+# (Nagle's algorithm, as a Qt socket does by default) holds each line until the previous
+# one is acknowledged, and Linux delays acknowledgements by up to 40 ms: acknowledging at
+# once after each read keeps a batch's replies coming (Linux only; elsewhere None).
+_QUICKACK = getattr(socket, "TCP_QUICKACK", None)
+
+
 class RhxError(DeviceFault):
     """The instrument answered ``Error …``, did not answer, or a write did not hold."""
 
@@ -128,6 +135,8 @@ class RhxDriver:
                 raise RhxError(f"RHX command port: {exc}") from None
             if not chunk:
                 raise RhxError("RHX closed the command port")
+            if _QUICKACK is not None:  # see _QUICKACK
+                self._cmd.setsockopt(socket.IPPROTO_TCP, _QUICKACK, 1)
             self._reply += chunk
         line, _, self._reply = self._reply.partition(b"\n")
         return line.decode("ascii", "replace").strip()
@@ -143,6 +152,9 @@ class RhxDriver:
         with self._lock:
             self._send(f"get {name}")
             line = self._line()
+        return self._value(name, line)
+
+    def _value(self, name: str, line: str) -> str:
         if line.lower().startswith("error"):
             raise RhxError(f"get {name}: {line}")
         head, _, rest = line.partition(":")
@@ -153,12 +165,23 @@ class RhxDriver:
 
     def set(self, name: str, value) -> None:
         """``set name value``, confirmed by a ``get`` (an ``Error`` or a mismatch raises)."""
-        text = str(value).lower() if isinstance(value, bool) else str(value)
+        self.set_many([(name, value)])
+
+    def set_many(self, items: list[tuple[str, object]]) -> None:
+        """Each ``set name value`` of ``items``, then a ``get`` of each, as one batch of
+        ``;``-separated commands: one round trip however many, every write confirmed."""
+        if not items:
+            return
+        texts = [(name, str(v).lower() if isinstance(v, bool) else str(v)) for name, v in items]
+        commands = [f"set {name} {text}" for name, text in texts]
+        commands += [f"get {name}" for name, _ in texts]
         with self._lock:
-            self._send(f"set {name} {text}")
-        got = self.get(name)
-        if got.lower() != text.lower() and not _same_number(got, text):
-            raise RhxError(f"set {name} {text}: the instrument holds {got!r}")
+            self._send(";".join(commands))
+            lines = [self._line() for _ in texts]
+        for (name, text), line in zip(texts, lines, strict=True):
+            got = self._value(name, line)
+            if got.lower() != text.lower() and not _same_number(got, text):
+                raise RhxError(f"set {name} {text}: the instrument holds {got!r}")
 
     def execute(self, action: str, arg: str = "") -> None:
         """``execute action [arg]``: answered by nothing, or an ``Error`` line (checked by
@@ -231,24 +254,31 @@ class RhxDriver:
         """Fire ``pulses`` together: each electrode's parameters set (when changed) and
         uploaded, exactly those electrodes enabled, then one trigger."""
         wanted = {p.channel: p for p in pulses}
-        for channel, (amp, phase, on) in list(self._stim_state.items()):
+        writes, uploads, state = [], [], dict(self._stim_state)
+        for channel, (amp, phase, on) in self._stim_state.items():
             if on and channel not in wanted:
-                self.set(f"{self.layout.names[channel]}.stimenabled", False)
-                self._stim_state[channel] = (amp, phase, False)
+                writes.append((f"{self.layout.names[channel]}.stimenabled", False))
+                state[channel] = (amp, phase, False)
         for p in pulses:
             name = self.layout.names[p.channel]
             amp, phase, on = self._stim_state.get(p.channel, (None, None, False))
             if (amp, phase) != (p.amplitude_ua, p.phase_us):
                 polarity = "NegativeFirst" if p.negative_first else "PositiveFirst"
-                self.set(f"{name}.polarity", polarity)
+                writes.append((f"{name}.polarity", polarity))
                 for phase_name in ("first", "second"):
-                    self.set(f"{name}.{phase_name}phaseamplitudemicroamps", f"{p.amplitude_ua:g}")
-                    self.set(f"{name}.{phase_name}phasedurationmicroseconds", f"{p.phase_us:g}")
+                    writes.append((f"{name}.{phase_name}phaseamplitudemicroamps",
+                                   f"{p.amplitude_ua:g}"))  # fmt: skip
+                    writes.append((f"{name}.{phase_name}phasedurationmicroseconds",
+                                   f"{p.phase_us:g}"))  # fmt: skip
             if not on:
-                self.set(f"{name}.stimenabled", True)
+                writes.append((f"{name}.stimenabled", True))
             if (amp, phase) != (p.amplitude_ua, p.phase_us) or not on:
-                self.execute("uploadstimparameters", name)
-            self._stim_state[p.channel] = (p.amplitude_ua, p.phase_us, True)
+                uploads.append(name)
+            state[p.channel] = (p.amplitude_ua, p.phase_us, True)
+        self.set_many(writes)  # every parameter confirmed before anything is uploaded
+        self._stim_state = state
+        for name in uploads:
+            self.execute("uploadstimparameters", name)
         self.execute("manualstimtriggerpulse", TRIGGER)
         self.counts["triggers"] += 1
         self.counts["pulses"] += len(pulses)
