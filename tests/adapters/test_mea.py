@@ -81,6 +81,23 @@ def test_every_write_is_confirmed_and_pulse_parameters_read_back(emulator):
         d.close()
 
 
+def test_a_write_the_instrument_did_not_take_stops_the_trigger(emulator, monkeypatch):
+    answer = emulator._command
+
+    def ignoring_polarity(line: str) -> str:  # the instrument drops one write of the batch
+        return "" if line.lower().startswith("set") and "polarity" in line.lower() else answer(line)
+
+    monkeypatch.setattr(emulator, "_command", ignoring_polarity)
+    d = driver_for(emulator)
+    d.open()
+    try:
+        with pytest.raises(RhxError, match="polarity"):
+            d.deliver([BiphasicPulse(5, 40.0, 150.0, True), BiphasicPulse(6, 40.0, 150.0, True)])
+        assert emulator.triggers == [] and emulator.uploaded == {}
+    finally:
+        d.close()
+
+
 def test_spikes_come_by_channel_and_the_clock_offset_is_within_a_sample(emulator):
     d = driver_for(emulator)
     d.open()
