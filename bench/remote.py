@@ -7,6 +7,9 @@
   veth links; needs root), beside the same run on one host (``..._one_host``).
 - ``rt20_late_steps_netem5``: a realtime run at 20 ms with ``tc netem`` 5 ± 2 ms on each
   link; null, with the reason, where this kernel has no netem.
+- ``rt20_late_steps_delay5``: the same run (5 s) with each endpoint reaching the hub through
+  a relay that delays every message 5 ± 2 ms each way (tests/delay_link.py), which needs
+  no netem; ``rt20_late_steps_delay30`` with 30 ms each way (late steps expected).
 - ``mtls_overhead_us``: median round trip hub → body → hub (a motor command out, a reading
   back, through the hub's router) over mutual TLS with the access policy, minus the same
   over plain TCP; ``password_overhead_us`` the same over TLS with a password per role
@@ -40,6 +43,7 @@ from hub.bus import free_tcp_port, open_session  # noqa: E402
 from hub.config import load_config  # noqa: E402
 from hub.launch import start_local_endpoints, stop_local_endpoints  # noqa: E402
 from hub.loop import Hub  # noqa: E402
+from tests.delay_link import delayed_closed_loop  # noqa: E402
 from tests.netns import UNAVAILABLE, closed_loop, hosts, netem_available  # noqa: E402
 
 TRIVIAL = [
@@ -175,6 +179,24 @@ def main() -> None:
             out["rt20_netem5_not_measured"] = netem
         else:  # pragma: no cover - a kernel with sch_netem
             raise SystemExit("netem is available here: measure rt20_late_steps_netem5")
+
+        if not args.only_round_trip:
+            for delay_ms, jitter_ms in ((5.0, 2.0), (30.0, 0.0)):
+                with StealMeter() as steal:
+                    rec, _, _ = delayed_closed_loop(
+                        tmp, f"delay{delay_ms:g}", delay_ms, jitter_ms, "loop.period_ms=20",
+                        "experiment.duration_s=5",
+                    )  # fmt: skip
+                t = rec.manifest["timing"]
+                rtt = t["round_trip_ms"]
+                print(
+                    f"realtime 20 ms, 5 s, each link delayed {delay_ms:g} +- {jitter_ms:g} ms "
+                    f"(relay): {t['late_steps']} late of {t['steps']}; round trip median body "
+                    f"{rtt['body']['median']:.1f} ms, culture {rtt['culture']['median']:.1f} ms "
+                    f"(CPU steal {steal.share:.1%})"
+                )
+                out[f"rt20_late_steps_delay{delay_ms:g}"] = t["late_steps"]
+                out[f"rt20_delay{delay_ms:g}_steal_share"] = round(steal.share, 4)
 
         from hub.certs import make_certificates, make_passwords
 
