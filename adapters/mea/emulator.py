@@ -157,6 +157,10 @@ class IntanEmulator:
                 if not chunk:
                     return
                 buffer += chunk
+                # Replies to what one read brought go out in one write, as the RHX
+                # software's socket (Qt's, which buffers writes until its event loop
+                # runs) sends them.
+                replies = []
                 while b"\n" in buffer or b";" in buffer:
                     cut = min(i for i in (buffer.find(b"\n"), buffer.find(b";")) if i >= 0)
                     line, buffer = (
@@ -175,7 +179,9 @@ class IntanEmulator:
                         self._stop.wait(0.05)
                     reply = self._command(line)
                     if reply:
-                        conn.sendall(reply.encode("ascii") + b"\n")
+                        replies.append(reply.encode("ascii") + b"\n")
+                if replies:
+                    conn.sendall(b"".join(replies))
 
     def _command(self, line: str) -> str:
         self.commands += 1
