@@ -95,6 +95,11 @@ class KheperaEmulator:
         seed: int = 0,
     ):
         self.arena = Arena(load_world(world), seed=seed)
+        # The arena's kernels compile on first use (seconds, without numba's cache): done
+        # here, a robot's first replies would come late and the adapter take it for silent.
+        self.arena.step(0.0, 0.0, 0.01)
+        self.arena.read_ir()
+        self.arena.reset()
         self.byte_s = byte_time_s(baud, stop_bits) if baud else 0.0
         self.faults = Faults()
         self.commands: list[tuple[float, bytes]] = []
