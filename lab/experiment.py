@@ -98,7 +98,7 @@ def run_experiment(
     port = None
     if local and all(cfg.endpoint(r).launch == "local" for r in ("body", "culture")):
         # Everything on this machine: a free loopback port keeps parallel runs apart.
-        scheme = "tls" if cfg.bus.security == "mtls" else "tcp"
+        scheme = "tcp" if cfg.bus.security == "none" else "tls"
         port = free_tcp_port()
         overrides.append(f'bus.listen=["{scheme}/127.0.0.1:{port}"]')
         cfg = load_config(config, overrides)

@@ -7,6 +7,7 @@ hub's router enforces the access-control policy of :mod:`hub.security`.
 
 from __future__ import annotations
 
+import json
 import os
 import queue
 import threading
@@ -360,3 +361,22 @@ def test_a_wrong_role_reaches_no_endpoint_and_observers_only_watch(secured, tmp_
     # The hub heard the operator's status request and never the observer's pause.
     commands = [e.payload["cmd"] for e in h.record.events if e.key == "control"]
     assert commands == ["status"]
+
+
+@pytest.mark.bus
+def test_neuvision_run_on_one_machine_keeps_the_profile_on_a_port_of_its_own(secured, tmp_path):
+    trivial = [
+        'body.kind="tests.endpoints:EchoBody"',
+        'culture.kind="tests.endpoints:EchoCulture"',
+        'coding.scheme="tests.endpoints:code_step_count"',
+        'decoding.scheme="tests.endpoints:decode_step"',
+    ]
+    args = ["run", "--duration-s", "0.5", "--quiet", "--runs-dir", str(tmp_path / "runs")]
+    for item in secured + trivial:
+        args += ["--set", item]
+    assert main(args) == 0
+    (run_dir,) = (tmp_path / "runs").iterdir()
+    manifest = json.loads((run_dir / "manifest.json").read_text())
+    assert manifest["outcome"] == "completed"
+    (listen,) = manifest["config"]["bus"]["listen"]
+    assert listen.startswith("tls/127.0.0.1:")  # the free port it took is a TLS one too
