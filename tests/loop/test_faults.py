@@ -25,6 +25,14 @@ pytestmark = pytest.mark.bus
 FREEZE_S = 2.5  # longer than the 1 s lease: every endpoint's session lapses meanwhile
 
 
+def _resume(pid: int) -> None:
+    """SIGCONT, if the process is still there (it may have ended with its run)."""
+    try:
+        os.kill(pid, signal.SIGCONT)
+    except ProcessLookupError:
+        pass
+
+
 def _started(runs_dir) -> bool:
     runs = [p for p in runs_dir.iterdir() if p.is_dir()]
     if not runs or not (runs[0] / "record.nvrec").exists():
@@ -120,13 +128,13 @@ def test_whatever_happens_the_hub_ends_cleanly_with_a_whole_record_and_the_robot
                     pid = h.pid("body")
                     os.kill(pid, signal.SIGSTOP)
                     frozen.append(pid)
-                    threading.Timer(freeze_s, os.kill, (pid, signal.SIGCONT)).start()
+                    threading.Timer(freeze_s, _resume, (pid,)).start()
 
         try:
             result = h.run(progress=act)
         finally:
             for pid in frozen:
-                os.kill(pid, signal.SIGCONT)
+                _resume(pid)
             for session in stranger:
                 session.close()
     # The hub never crashed: the run completed or ended as a fault it named.
