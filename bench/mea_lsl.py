@@ -37,6 +37,7 @@ from adapters.mea.endpoint import MeaEndpoint  # noqa: E402
 from adapters.mea.layout import ElectrodeLayout  # noqa: E402
 from adapters.mea.lsl import LslDriver  # noqa: E402
 from adapters.mea.safety import PulseLimits  # noqa: E402
+from bench.host import StealMeter  # noqa: E402
 from hub.conformance import FakeHub  # noqa: E402
 from hub.protocol import Stimulation  # noqa: E402
 
@@ -132,7 +133,9 @@ if __name__ == "__main__":
     parser.add_argument("--seconds", type=float, default=20.0)
     parser.add_argument("--rate-hz", type=float, default=1000.0, help="spikes per second, all")
     args = parser.parse_args()
-    out = main(args.seconds, args.rate_hz)
+    with StealMeter() as steal:
+        out = main(args.seconds, args.rate_hz)
+    out["steal_share"] = round(steal.share, 4)  # realtime figures: the host's steal beside them
     for key, value in out.items():
         print(f"{key:32s} {value}")
     print(json.dumps(out))
