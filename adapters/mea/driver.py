@@ -19,6 +19,15 @@ from adapters.mea.safety import BiphasicPulse
 from hub.endpoint import DeviceFault
 
 
+def spike_arrays(spikes: list[tuple], seconds_per_tick: float = 1.0):
+    """``(channel, instrument time, arrival)`` tuples as three arrays: channel, instrument
+    time in seconds (the tuples' time × ``seconds_per_tick``), arrival (``time.monotonic()``)."""
+    if not spikes:
+        return np.zeros(0, np.uint32), np.zeros(0), np.zeros(0)
+    arr = np.array(spikes, dtype=np.float64)
+    return arr[:, 0].astype(np.uint32), arr[:, 1] * seconds_per_tick, arr[:, 2]
+
+
 @dataclass
 class ClockMap:
     """The instrument's clock against ``time.monotonic()``: ``inst_s = a + b · local_s``,

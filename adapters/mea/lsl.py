@@ -41,7 +41,7 @@ from collections import Counter
 import numpy as np
 import pylsl
 
-from adapters.mea.driver import ClockMap
+from adapters.mea.driver import ClockMap, spike_arrays
 from adapters.mea.layout import ElectrodeLayout
 from adapters.mea.safety import BiphasicPulse
 from hub.endpoint import DeviceFault
@@ -286,7 +286,4 @@ class LslDriver:
         """Every spike read since the last call: channel, instrument time (s), arrival."""
         with self._spikes_lock:
             spikes, self._spikes = self._spikes, []
-        if not spikes:
-            return np.zeros(0, np.uint32), np.zeros(0), np.zeros(0)
-        arr = np.array(spikes, dtype=np.float64)
-        return arr[:, 0].astype(np.uint32), arr[:, 1], arr[:, 2]
+        return spike_arrays(spikes)

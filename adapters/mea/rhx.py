@@ -27,7 +27,7 @@ from collections import Counter
 
 import numpy as np
 
-from adapters.mea.driver import ClockMap
+from adapters.mea.driver import ClockMap, spike_arrays
 from adapters.mea.layout import ElectrodeLayout
 from adapters.mea.safety import BiphasicPulse
 from hub.endpoint import DeviceFault
@@ -315,10 +315,7 @@ class RhxDriver:
         """Every spike read since the last call: channel, instrument time (s), arrival."""
         with self._spikes_lock:
             spikes, self._spikes = self._spikes, []
-        if not spikes:
-            return np.zeros(0, np.uint32), np.zeros(0), np.zeros(0)
-        arr = np.array(spikes, dtype=np.float64)
-        return arr[:, 0].astype(np.uint32), arr[:, 1] / self.sample_rate_hz, arr[:, 2]
+        return spike_arrays(spikes, 1.0 / self.sample_rate_hz)
 
 
 def _same_number(a: str, b: str) -> bool:
