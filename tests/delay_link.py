@@ -20,8 +20,8 @@ from pathlib import Path
 from hub.bus import free_tcp_port
 from hub.config import load_config
 from hub.launch import die_with_parent
-from hub.loop import Hub
 from hub.record import read_run
+from tests.netns import run_hub
 
 ROOT = Path(__file__).resolve().parents[1]
 EXPERIMENT = "configs/closed_loop.toml"
@@ -144,12 +144,10 @@ def delayed_closed_loop(tmp_path: Path, name: str, delay_ms: float, jitter_ms: f
             )
         run_dir = tmp_path / name
         run_dir.mkdir()
-        result = Hub(cfg, run_dir=run_dir).run()
+        result = run_hub(cfg, run_dir, procs)
     finally:
-        for p in procs:
-            try:
-                p.wait(timeout=30)
-            except subprocess.TimeoutExpired:
+        for p in procs:  # run_hub reaped them, unless an endpoint failed to start
+            if p.poll() is None:
                 p.kill()
                 p.wait()
         for link in links.values():

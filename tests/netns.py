@@ -116,6 +116,20 @@ ROOT = Path(__file__).resolve().parents[1]
 EXPERIMENT = str(ROOT / "configs" / "closed_loop.toml")
 
 
+def run_hub(cfg, run_dir: Path, procs: list[subprocess.Popen]):
+    """Run the hub of ``cfg`` into ``run_dir``, then wait for its endpoints' processes to
+    end (killed after 30 s); returns the hub's result."""
+    try:
+        return Hub(cfg, run_dir=run_dir).run()
+    finally:
+        for p in procs:
+            try:
+                p.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait()
+
+
 def closed_loop(tmp_path: Path, name: str, places: dict | None, *extra: str):
     """1 s of the paper's closed loop in lockstep, seed 3 (``extra`` overrides after), each
     endpoint on this host (``places`` None) or on its host of ``places``; returns the run's
@@ -153,14 +167,7 @@ def closed_loop(tmp_path: Path, name: str, places: dict | None, *extra: str):
         )
     run_dir = tmp_path / name
     run_dir.mkdir()
-    try:
-        result = Hub(cfg, run_dir=run_dir).run()
-    finally:
-        for p in procs:
-            try:
-                p.wait(timeout=30)
-            except subprocess.TimeoutExpired:
-                p.kill()
+    result = run_hub(cfg, run_dir, procs)
     if result.outcome != "completed":
         raise RuntimeError(f"the closed loop across hosts did not complete: {result.reason}")
     return read_run(run_dir), result
