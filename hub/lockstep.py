@@ -10,8 +10,10 @@ handles the other events, stands in by policy for replies owed longer than
 ``loop.reply_timeout_s``, publishes the status and runs the live analysis when nothing
 else waits.
 
-A mixin of :class:`hub.loop.Hub`: it works on the hub's state, under the rules written
-there.
+The scheduler keeps its own state (the steps done, whether replies are taken directly,
+when the loop last moved, the spikes handed to live analysis) and drives the hub through
+the loop's services (:class:`hub.loop.Hub`: ``send``, ``wait_event``, ``handle``, ``tick``,
+its ``ledger``, ``inputs`` and ``times``).
 """
 
 from __future__ import annotations
@@ -19,121 +21,106 @@ from __future__ import annotations
 import queue
 import time
 from collections.abc import Callable
+from typing import TYPE_CHECKING
 
-from hub.protocol import ROLES, Message
+from hub.protocol import ROLES, Message, SpikeBatch
+
+if TYPE_CHECKING:
+    from hub.loop import Hub
 
 
-class LockstepSteps:
-    """The lockstep steps of :class:`~hub.loop.Hub`."""
+class Lockstep:
+    """Steps a run as fast as its endpoints answer.
 
-    def _steps_lockstep(self) -> None:
-        """As fast as the endpoints go, pipelined: each input of step k+1 leaves as soon as
-        the reply it depends on is in (the motor command when the culture's spikes of step
-        k arrive, the stimulation when the body's sensors of step k arrive), so neither
-        endpoint waits for the other's round trip. Every endpoint still gets exactly the
-        inputs of the Jacobi scheme, so results are those of a strict step-by-step loop.
+    Attributes
+    ----------
+    k, k_done : int
+        The step under way, and the steps whose every reply is in (or stood in for).
+    direct : bool
+        Replies are being taken in the threads they arrive on (:meth:`on_reply`).
+    """
 
-        Replies are taken in the threads they arrive on (:meth:`_on_reply_direct`); this
-        thread handles the other events, stands in by policy for replies that do not come
-        within ``reply_timeout_s``, publishes the status and runs the live analysis."""
-        n = self.cfg.n_steps
-        timeout_s = self.cfg.loop.reply_timeout_s
-        with self.lock:
-            self.expect = {"body": 0, "culture": 0}
+    def __init__(self, hub: Hub):
+        self.hub = hub
+        self.k = 0
+        self.k_done = 0
+        self.direct = False
+        self._failure: BaseException | None = None  # raised in a reply's thread
+        self._last_progress = 0.0  # when the last step completed
+        self._live_in: queue.SimpleQueue = queue.SimpleQueue()  # spikes for live analysis
+
+    def run(self) -> None:
+        """Step to the end of the run (or a stop). Replies are taken in the threads they
+        arrive on; this thread handles the other events, stands in by policy for replies
+        that do not come within ``reply_timeout_s``, publishes the status and runs the
+        live analysis."""
+        hub, ledger = self.hub, self.hub.ledger
+        n = hub.cfg.n_steps
+        timeout_s = hub.cfg.loop.reply_timeout_s
+        with hub.lock:
+            ledger.expect.update(body=0, culture=0)
             self._last_progress = time.monotonic()
-            self._send("body", self.inputs.motor_for(0, None))
-            self._send("culture", self.inputs.stim_for(0, None))
+            hub.send("body", hub.inputs.motor_for(0, None))
+            hub.send("culture", hub.inputs.stim_for(0, None))
             self.direct = True
         try:
             while True:
-                with self.lock:
+                with hub.lock:
                     if self._failure is not None:
                         raise self._failure
-                    if self._stop_reason or self.k_done >= n:
+                    if hub.stop_reason or self.k_done >= n:
                         return
                     now = time.monotonic()
-                    if self.state == "paused" or self.gone:  # gone: waiting for it to rejoin
+                    if hub.state == "paused" or hub.gone:  # gone: waiting for it to rejoin
                         self._last_progress = now
                     elif now - self._last_progress >= timeout_s:
                         self._stand_in(n)
                     until = self._last_progress + timeout_s
                 # Analysis when nothing else waits, breaking off when something comes.
-                idle = self.live is not None and not self._has_event()
-                if idle and self._work_live(pause=self._has_event):
+                idle = hub.live is not None and not hub.has_event()
+                if idle and self.work_live(pause=hub.has_event):
                     continue
-                item = self._wait_event(until)
-                with self.lock:
+                item = hub.wait_event(until)
+                with hub.lock:
                     if item is not None:
-                        self._handle(item)
+                        hub.handle(item)
                     self._advance(n)
-                    self._tick()
+                    hub.tick()
         finally:
-            with self.lock:
+            with hub.lock:
                 self.direct = False
-            if self.live is not None:
-                self._work_live(flush=True)
+            if hub.live is not None:
+                self.work_live(flush=True)
 
-    def _on_reply_direct(self, item: tuple) -> None:
-        """A reply in lockstep, in the thread it came on: take it, send what it allows."""
+    def on_reply(self, item: tuple) -> None:
+        """A reply, in the thread it came on: take it, send what it allows."""
+        hub = self.hub
         t0 = time.perf_counter()
-        with self.lock:
+        with hub.lock:
             if not self.direct:  # the steps ended meanwhile: the loop's thread decides
-                return self.inbox.put(item)
+                return hub.inbox.put(item)
             try:
-                self._handle(item)
-                self._advance(self.cfg.n_steps)
+                hub.handle(item)
+                self._advance(hub.cfg.n_steps)
             except BaseException as exc:  # the loop's thread raises it
                 self.direct, self._failure = False, exc
-                self.inbox.put(("wake",))
-            self.times.direct_busy_s += time.perf_counter() - t0
+                hub.inbox.put(("wake",))
+            hub.times.direct_busy_s += time.perf_counter() - t0
 
-    def _advance(self, n: int) -> None:
-        """Lockstep: send every input whose reply is in (unless paused or stopping), and
-        note the steps completed."""
-        if self.state != "running" or self._stop_reason:
-            return
-        for role in ("culture", "body"):
-            pending, expect = self.pending[role], self.expect
-            while expect[role] in pending:
-                self._pipeline(role, pending.pop(expect[role]), n)
-        done = min(self.expect.values())
-        if done > self.k_done:
-            now = time.monotonic()
-            self.times.step_wall_s[self.k_done : done] = (now - self._last_progress) / (
-                done - self.k_done
-            )
-            self._last_progress = now
-            self.k_done = self.k = done
-            if done >= n:
-                self.inbox.put(("wake",))
-
-    def _stand_in(self, n: int) -> None:
-        """Lockstep: no reply for ``reply_timeout_s``: the policy stands in for each reply
-        owed (an input that waits on another reply is not owed yet)."""
-        owed = [r for r in ROLES if self.last_sent.get(r, -1) >= self.expect[r] < n]
-        for role in owed:
-            self._miss(role, self.expect[role])
-            self._pipeline(role, None, n)
+    def rejoined(self, role: str) -> None:
+        """``role`` is back: the inputs it owes replies to go again; the loop waited."""
+        self.hub.resend_unanswered(role)
         self._last_progress = time.monotonic()
-        self._advance(n)
 
-    def _pipeline(self, role: str, reply: Message | None, n: int) -> None:
-        """Take the reply of ``role`` for its expected step k; send the other side step k+1."""
-        k = self.expect[role]
-        self.expect[role] = k + 1
-        if k + 1 < n and not self._stop_reason:
-            if role == "culture":
-                self._send("body", self.inputs.motor_for(k + 1, reply))
-            else:
-                self._send("culture", self.inputs.stim_for(k + 1, reply))
-        if role == "culture" and reply is not None and self.live is not None:
-            self._live_in.put(reply)
+    def hand_over(self, spikes: SpikeBatch) -> None:
+        """A step's spikes for live analysis, which runs when the loop's thread is idle."""
+        self._live_in.put(spikes)
 
-    def _work_live(self, *, flush: bool = False, pause: Callable[[], bool] | None = None) -> bool:
-        """Lockstep: feed the live burst detector the spikes handed over (``_live_in``) once
-        ONLINE_EVERY_MS of them are in (``flush``: whatever is in, to the end), breaking off
-        when ``pause()`` says so. Records each network burst completed. True if it worked."""
-        live = self.live
+    def work_live(self, *, flush: bool = False, pause: Callable[[], bool] | None = None) -> bool:
+        """Feed the live burst detector the spikes handed over once ONLINE_EVERY_MS of them
+        are in (``flush``: whatever is in, to the end), breaking off when ``pause()`` says
+        so. Records each network burst completed. True if it worked."""
+        hub, live = self.hub, self.hub.live
         while True:
             try:
                 live.add(self._live_in.get_nowait())
@@ -142,9 +129,53 @@ class LockstepSteps:
         if not (flush or live.due):
             return False
         done = live.finish() if flush else live.work(pause=pause)
-        with self.lock:
-            self._record_network_bursts(done)
+        with hub.lock:
+            hub.record_network_bursts(done)
         return True
 
-    def _has_event(self) -> bool:
-        return not self.inbox.empty()
+    def _advance(self, n: int) -> None:
+        """Send every input whose reply is in (unless paused or stopping), and note the
+        steps completed."""
+        hub, ledger = self.hub, self.hub.ledger
+        if hub.state != "running" or hub.stop_reason:
+            return
+        expect = ledger.expect
+        for role in ("culture", "body"):
+            pending = ledger.pending[role]
+            while expect[role] in pending:
+                self._pipeline(role, pending.pop(expect[role]), n)
+        done = min(expect.values())
+        if done > self.k_done:
+            now = time.monotonic()
+            hub.times.step_wall_s[self.k_done : done] = (now - self._last_progress) / (
+                done - self.k_done
+            )
+            self._last_progress = now
+            self.k_done = self.k = done
+            if done >= n:
+                hub.inbox.put(("wake",))
+
+    def _stand_in(self, n: int) -> None:
+        """No reply for ``reply_timeout_s``: the policy stands in for each reply owed (an
+        input that waits on another reply is not owed yet)."""
+        ledger = self.hub.ledger
+        expect = ledger.expect
+        owed = [r for r in ROLES if ledger.last_sent.get(r, -1) >= expect[r] < n]
+        for role in owed:
+            ledger.miss(role, expect[role])
+            self._pipeline(role, None, n)
+        self._last_progress = time.monotonic()
+        self._advance(n)
+
+    def _pipeline(self, role: str, reply: Message | None, n: int) -> None:
+        """Take the reply of ``role`` for its expected step k; send the other side step k+1."""
+        hub, expect = self.hub, self.hub.ledger.expect
+        k = expect[role]
+        expect[role] = k + 1
+        if k + 1 < n and not hub.stop_reason:
+            if role == "culture":
+                hub.send("body", hub.inputs.motor_for(k + 1, reply))
+            else:
+                hub.send("culture", hub.inputs.stim_for(k + 1, reply))
+        if role == "culture" and reply is not None and hub.live is not None:
+            self._live_in.put(reply)

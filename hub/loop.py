@@ -30,7 +30,7 @@ import sys
 import threading
 import time
 import uuid
-from collections import Counter, defaultdict, deque
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -43,9 +43,10 @@ from hub.analysis.bursts import BurstParams
 from hub.analysis.network_bursts import NetworkBurstParams
 from hub.bus import open_session, payload_bytes
 from hub.config import ConfigError, ExperimentConfig
+from hub.ledger import Ledger
 from hub.link import HubLink
 from hub.live import LiveBursts
-from hub.lockstep import LockstepSteps
+from hub.lockstep import Lockstep
 from hub.policy import InputPolicy, SchemeError
 from hub.protocol import (
     ROLES,
@@ -62,7 +63,7 @@ from hub.protocol import (
     RunStart,
     StepWindow,
 )
-from hub.realtime import RealtimeSteps
+from hub.realtime import Realtime
 from hub.record import Recorder, host, utc_now, versions, write_manifest
 from hub.replies import ReplyChecker
 from hub.report import LoopTimes, counts, steps_share
@@ -131,7 +132,7 @@ class RunResult:
         return self.outcome in ("completed", "stopped", "interrupted")
 
 
-class Hub(LockstepSteps, RealtimeSteps):
+class Hub:
     """Runs one experiment: waits for its endpoints, steps the loop, records it.
 
     Parameters
@@ -163,19 +164,12 @@ class Hub(LockstepSteps, RealtimeSteps):
         self.run_id = uuid.uuid4().hex
         self.run_keys = {role: wire.new_key() for role in ROLES}
         self.link: HubLink | None = None  # the hub's declarations, once the session opens
-        self.k_done = 0  # steps whose every reply is in (or stood in for)
         self.period_s = cfg.loop.period_ms / 1e3
         self.checker = ReplyChecker(self.run_id, self.period_s)
         self.state = "waiting"
-        self.k = 0
         self.alive: set[tuple[str, str]] = set()
-        self.late: Counter[str] = Counter()
-        self.missed: dict[str, set[int]] = defaultdict(set)
-        self.dropped: dict[str, Counter[str]] = defaultdict(Counter)
-        # Accepted replies not yet used, by role and step.
-        self.pending: dict[str, dict[int, Message]] = {role: {} for role in ROLES}
-        self.expect = {role: 0 for role in ROLES}  # the step whose reply each role owes
-        self.last_sent: dict[str, int] = {}
+        # What each role owes and what came (the verdicts and their counts).
+        self.ledger = Ledger(on_event=self._record_event)
         self.descriptions: dict[str, Description] = {}
         self.participants: dict[str, dict] = {}  # each endpoint's host, clock offset
         # policy.rejoin_s: role -> (when its liveliness vanished, the step then); and the
@@ -189,9 +183,9 @@ class Hub(LockstepSteps, RealtimeSteps):
         # when each role's input of each step was put, for its reply's round trip
         self._put_at = {role: np.full(cfg.n_steps, np.nan) for role in ROLES}
         self._last_round_trip_ms: dict[str, float] = {}  # the latest, for observers
-        self._stop_reason: str | None = None
+        self.stop_reason: str | None = None  # why the run must end before its last step
         self._pause_started: float | None = None
-        self._paused_s = 0.0
+        self.paused_s = 0.0
         self._next_status = 0.0
         # What live displays get on hub/view (hub/view.py), while anyone subscribes.
         self.view = ObserverView(self.run_id)
@@ -200,26 +194,29 @@ class Hub(LockstepSteps, RealtimeSteps):
         self.times = LoopTimes.for_run(cfg.loop.mode, cfg.loop.period_ms, n)
         self.recorder: Recorder | None = None
         self.live: LiveBursts | None = None
-        # realtime: the step each role's reply is awaited for, and its deadline
-        self.collect_steps: dict[str, int] = {}
-        self.reply_deadlines: dict[str, float] = {}
-        self._final_step = -1  # the step of the body's final stop, once sent
         self.scheduling: Scheduling | None = None  # realtime: what the hub's threads got
         self.placement = Placement()  # the CPUs the hub's threads are kept on (loop.cpus)
-        # Lockstep: replies are taken in the threads they arrive on while ``direct``.
+        # Lockstep: replies are taken in the threads they arrive on (``scheduler.direct``).
         self.lock = threading.Lock()  # held by whatever touches the loop's state then
-        self.direct = False
-        self._failure: BaseException | None = None  # raised in such a thread
-        self._last_progress = 0.0  # when the last step completed
+        self.scheduler = Lockstep(self) if cfg.loop.mode == "lockstep" else Realtime(self)
         # The loop's thread wakes at least every record.flush_s; a longer gap means the
         # hub itself did not run (frozen, starved): (when it ended, how long it was).
         self._last_wake = time.monotonic()
         self._stall: tuple[float, float] = (-math.inf, 0.0)
-        self._live_in: queue.SimpleQueue = queue.SimpleQueue()  # spikes for live analysis
         # The latest network bursts found online, for observers: [start_ms, end_ms, n_channels]
         self._recent_network_bursts: deque = deque(maxlen=RECENT_NETWORK_BURSTS)
 
     # ================================================================ public
+
+    @property
+    def k(self) -> int:
+        """The step under way."""
+        return self.scheduler.k
+
+    @property
+    def k_done(self) -> int:
+        """The steps whose every reply is in (or stood in for)."""
+        return self.scheduler.k_done
 
     def request_stop(self, reason: str = "interrupted") -> None:
         """Stop after the current step (thread- and signal-safe)."""
@@ -263,9 +260,9 @@ class Hub(LockstepSteps, RealtimeSteps):
             self._build_schemes()
             self._record_event("start", mode=cfg.loop.mode, n_steps=cfg.n_steps)
             self._steps()
-            if self._stop_reason:
-                outcome = "interrupted" if self._stop_reason == "interrupted" else "stopped"
-                reason = self._stop_reason
+            if self.stop_reason:
+                outcome = "interrupted" if self.stop_reason == "interrupted" else "stopped"
+                reason = self.stop_reason
         except (HubError, ConfigError, SchemeError) as exc:
             outcome, reason = "fault", str(exc)
             log.error("%s", exc)
@@ -316,7 +313,6 @@ class Hub(LockstepSteps, RealtimeSteps):
 
     def _steps(self) -> None:
         """Run the steps (ARCHITECTURE.md, "The loop") in the configured mode."""
-        self.k_done = 0
         self.state = "running"
         # Everything allocated during set-up is long-lived: keep it out of the cyclic
         # collector, whose full passes would otherwise stall realtime steps.
@@ -327,7 +323,7 @@ class Hub(LockstepSteps, RealtimeSteps):
         sys.setswitchinterval(GIL_SWITCH_S)
         try:
             if self.cfg.loop.mode == "lockstep":
-                self._steps_lockstep()
+                self.scheduler.run()
             else:
                 self.scheduling = raise_threads(self.cfg.loop.realtime_priority)
                 if self.scheduling.policy != "fifo" and self.cfg.loop.realtime_priority:
@@ -336,13 +332,13 @@ class Hub(LockstepSteps, RealtimeSteps):
                     )
                 self._record_event("scheduling", **self.scheduling.to_dict())
                 try:
-                    self._steps_realtime()
+                    self.scheduler.run()
                 finally:
                     restore_threads(self.scheduling)
         finally:
             sys.setswitchinterval(switch_s)
 
-    def _record_network_bursts(self, done: list) -> None:
+    def record_network_bursts(self, done: list) -> None:
         for nb in done:
             self._record_event(
                 "network_burst",
@@ -355,21 +351,16 @@ class Hub(LockstepSteps, RealtimeSteps):
                 [round(nb.start_ms, 3), round(nb.end_ms, 3), len(nb.channels)]
             )
 
-    def _miss(self, role: str, k: int) -> None:
-        """The reply of ``role`` for step ``k`` is missing: the policy stands in for it."""
-        self.missed[role].add(k)
-        self._record_event("missed", role=role, step=k)
-
-    def _next_event(self, until: float) -> bool:
+    def next_event(self, until: float) -> bool:
         """Handle one event, waiting at most until ``until``; False if none came."""
-        item = self._wait_event(until)
+        item = self.wait_event(until)
         if item is None:
-            self._tick()
+            self.tick()
             return False
-        self._handle(item)
+        self.handle(item)
         return True
 
-    def _wait_event(self, until: float) -> tuple | None:
+    def wait_event(self, until: float) -> tuple | None:
         """The next event, waiting at most until ``until``, the next status, or a flush
         of the record is due."""
         now = time.monotonic()
@@ -400,15 +391,18 @@ class Hub(LockstepSteps, RealtimeSteps):
         ended, gap_s = self._stall
         return gap_s if time.monotonic() - ended < 5 * self.cfg.bus.lease_ms / 1e3 else 0.0
 
-    def _drain(self) -> None:
+    def has_event(self) -> bool:
+        return not self.inbox.empty()
+
+    def drain(self) -> None:
         while True:
             try:
                 item = self.inbox.get_nowait()
             except queue.Empty:
                 return
-            self._handle(item)
+            self.handle(item)
 
-    def _tick(self) -> None:
+    def tick(self) -> None:
         if self.gone:
             self._check_rejoin_deadlines()
         now = time.monotonic()
@@ -424,7 +418,7 @@ class Hub(LockstepSteps, RealtimeSteps):
 
     # ================================================================ events
 
-    def _handle(self, item: tuple) -> None:
+    def handle(self, item: tuple) -> None:
         kind = item[0]
         if kind == "rx":
             self._on_reply(*item[1:])
@@ -435,10 +429,10 @@ class Hub(LockstepSteps, RealtimeSteps):
         elif kind == "control":
             self._on_control(item[1])
         elif kind == "status":  # an observer asks for the run's status (read-only)
-            item[1].reply(item[1].key_expr, self._status().encode())
+            item[1].reply(item[1].key_expr, self.status().encode())
             item[1].drop()
         elif kind == "stop":
-            self._stop_reason = self._stop_reason or item[1]
+            self.stop_reason = self.stop_reason or item[1]
         # "wake": nothing to do but look at the state
 
     def _on_refused(self, role: str, raw: bytes, kind: str, detail: str, t_wall_ns: int) -> None:
@@ -465,44 +459,15 @@ class Hub(LockstepSteps, RealtimeSteps):
         try:
             message = self.checker.check(role, raw)
         except ProtocolError as exc:
-            return self._drop(role, exc.kind, str(exc))
-        step, expected = message.step, self.expect[role]
-        if role == "body" and step == self._final_step:  # the answer to the final stop
-            self.pending[role][step] = message
-            return "final"
-        if self.state == "waiting":
-            return self._drop(role, "early", f"reply for step {step} before the run started")
-        if (
-            step == self.collect_steps.get(role)
-            and t_arrival > self.reply_deadlines[role]
-            and step not in self.missed[role]
-        ):
-            self._miss(role, step)  # in after its deadline, however soon the loop looked
-        if expected <= step <= self.last_sent.get(role, -1) and step not in self.missed[role]:
-            if step in self.pending[role]:
-                return self._drop(role, "duplicate", f"second reply for step {step}")
-            self.pending[role][step] = message
-            self._note_round_trip(role, step, t_arrival)
+            return self.ledger.drop(role, exc.kind, str(exc))
+        verdict = self.ledger.judge(role, message, t_arrival, running=self.state != "waiting")
+        if verdict in ("rx", "late"):
+            self._note_round_trip(role, message.step, t_arrival)
             self.view.took(message)
-            return "rx"
-        if step in self.missed[role]:
-            self.late[role] += 1
-            self.missed[role].discard(step)
-            self._record_event("late", role=role, step=step, at_step=expected)
-            self._note_round_trip(role, step, t_arrival)
-            self.view.took(message)
-            return "late"
-        if step <= expected:
-            return self._drop(role, "stale", f"reply for step {step} awaiting step {expected}")
-        return self._drop(role, "future", f"reply for step {step} awaiting step {expected}")
+        return verdict
 
     def _drop(self, role: str, kind: str, detail: str) -> str:
-        """Count (and log once per kind) a dropped message; returns the record verdict."""
-        if not self.dropped[role][kind]:
-            log.warning("dropped a %s message (%s): %s", role, kind, detail)
-            self._record_event("dropped", role=role, kind=kind, detail=detail)
-        self.dropped[role][kind] += 1
-        return "drop"
+        return self.ledger.drop(role, kind, detail)
 
     def _on_liveliness(self, key: str, present: bool) -> None:
         parsed = self.keys.parse_alive(key)
@@ -552,12 +517,15 @@ class Hub(LockstepSteps, RealtimeSteps):
         self.rejoins.append(entry)
         self._record_event("rejoined", **entry)
         log.warning("%s/%s rejoined at step %d after %.2f s", role, i, self.k, gap_s)
-        if self.cfg.loop.mode == "lockstep":
-            for step in sorted(self.unanswered[role]):  # in lockstep up to two are in flight
-                if step >= self.expect[role]:
-                    self.link.send(role, self.unanswered[role][step])
-                    self._put_at[role][step] = time.monotonic()
-        self._last_progress = time.monotonic()
+        self.scheduler.rejoined(role)
+
+    def resend_unanswered(self, role: str) -> None:
+        """Send ``role`` again the inputs it has not answered (in lockstep up to two are in
+        flight), to an endpoint that rejoined."""
+        for step in sorted(self.unanswered[role]):
+            if step >= self.ledger.expect[role]:
+                self.link.send(role, self.unanswered[role][step])
+                self._put_at[role][step] = time.monotonic()
 
     def _check_rejoin_deadlines(self) -> None:
         """An endpoint gone longer than ``policy.rejoin_s`` is dead."""
@@ -585,13 +553,13 @@ class Hub(LockstepSteps, RealtimeSteps):
             ok = self.state == "paused"
             if ok:
                 self._hold(False)
-                self._paused_s += time.monotonic() - self._pause_started
+                self.paused_s += time.monotonic() - self._pause_started
                 self.state = "running"
         elif request.cmd == "stop":
-            self._stop_reason = self._stop_reason or "stopped by control"
+            self.stop_reason = self.stop_reason or "stopped by control"
         elif request.cmd == "config":
             data = self.cfg.to_dict()
-        data = data if data is not None else self._status().to_dict()
+        data = data if data is not None else self.status().to_dict()
         if not ok:
             reason = f"cannot {request.cmd} while {self.state}"
         self._reply(query, ControlReply(ok=ok, state=self.state, reason=reason, data=data))
@@ -627,8 +595,8 @@ class Hub(LockstepSteps, RealtimeSteps):
     def _deliver(self, item: tuple) -> None:
         """An event from the bus: replies taken at once in lockstep steps, the rest queued
         for the loop's thread."""
-        if self.direct and item[0] in ("rx", "refused"):
-            self._on_reply_direct(item)
+        if self.scheduler.direct and item[0] in ("rx", "refused"):
+            self.scheduler.on_reply(item)
         else:
             self.inbox.put(item)
 
@@ -647,8 +615,8 @@ class Hub(LockstepSteps, RealtimeSteps):
                     self.cfg.loop.wait_timeout_s,
                 )  # fmt: skip
                 next_note += 5.0
-            if self._stop_reason:
-                raise HubError(f"stopped while waiting for endpoints ({self._stop_reason})")
+            if self.stop_reason:
+                raise HubError(f"stopped while waiting for endpoints ({self.stop_reason})")
             if time.monotonic() >= deadline:
                 missing = ", ".join(f"{r}/{i}" for r, i in sorted(needed - self.alive))
                 raise HubError(
@@ -656,7 +624,7 @@ class Hub(LockstepSteps, RealtimeSteps):
                     f"within {self.cfg.loop.wait_timeout_s} s (listening on "
                     f"{', '.join(self.cfg.bus.listen)})"
                 )
-            self._next_event(min(deadline, time.monotonic() + 0.1))
+            self.next_event(min(deadline, time.monotonic() + 0.1))
 
     def _describe_all(self, session: zenoh.Session) -> None:
         for role, i in self.ids.items():
@@ -800,15 +768,15 @@ class Hub(LockstepSteps, RealtimeSteps):
 
     # ================================================================ output
 
-    def _send(self, role: str, message: Message, raw: bytes | None = None) -> None:
+    def send(self, role: str, message: Message, raw: bytes | None = None) -> None:
         raw = raw or message.encode()
         self.link.send(role, raw)
-        self.last_sent[role] = message.step
+        self.ledger.sent(role, message.step)
         if 0 <= message.step < self.cfg.n_steps:
             self._put_at[role][message.step] = time.monotonic()
         if self.cfg.policy.rejoin_s > 0:
             unanswered = self.unanswered[role]
-            for step in [k for k in unanswered if k < self.expect[role]]:
+            for step in [k for k in unanswered if k < self.ledger.expect[role]]:
                 del unanswered[step]
             unanswered[message.step] = raw
         self.view.sent(message)
@@ -822,18 +790,18 @@ class Hub(LockstepSteps, RealtimeSteps):
         # in time (it also stops itself: its input timeout, the hub's liveliness).
         if self.link is None or not self.descriptions.get("body"):
             return
-        step = self._final_step = self.last_sent.get("body", -1) + 1
-        self._send("body", MotorCommand.stop(self._window(step)))
+        step = self.ledger.final_step = self.ledger.last_sent.get("body", -1) + 1
+        self.send("body", MotorCommand.stop(self._window(step)))
         if self.state == "waiting":  # the run was never announced: nothing will answer
             return
         t0 = time.monotonic()
         until = t0 + self.cfg.loop.final_stop_wait_s
         try:
-            while step not in self.pending["body"] and time.monotonic() < until:
-                self._next_event(until)
+            while step not in self.ledger.pending["body"] and time.monotonic() < until:
+                self.next_event(until)
         except HubError:  # the body died meanwhile: it stops itself (input timeout, lease)
             pass
-        seen = step in self.pending["body"]
+        seen = step in self.ledger.pending["body"]
         self._record_event(
             "final_stop", step=step, acknowledged=seen, wait_s=round(time.monotonic() - t0, 4)
         )
@@ -851,7 +819,7 @@ class Hub(LockstepSteps, RealtimeSteps):
         if self.recorder:
             self.recorder.event(name, **details)
 
-    def _status(self) -> HubStatus:
+    def status(self) -> HubStatus:
         wall = self.times.wall_s()
         done = self.k_done
         return HubStatus(
@@ -859,9 +827,9 @@ class Hub(LockstepSteps, RealtimeSteps):
             t_s=done * self.cfg.loop.period_ms / 1e3,
             mode=self.cfg.loop.mode,
             state=self.state,
-            late=dict(self.late),
-            missing={r: len(s) for r, s in self.missed.items() if s},
-            dropped={r: sum(c.values()) for r, c in self.dropped.items()},
+            late=dict(self.ledger.late),
+            missing={r: len(s) for r, s in self.ledger.missed.items() if s},
+            dropped={r: sum(c.values()) for r, c in self.ledger.dropped.items()},
             alive=sorted(f"{r}/{i}" for r, i in self.alive),
             wall_s=wall,
             steps_per_s=done / wall if wall > 0 else 0.0,
@@ -888,7 +856,7 @@ class Hub(LockstepSteps, RealtimeSteps):
             self._next_view = math.inf
             return
         if not last and self.state == "running" and self.cfg.loop.mode == "realtime":
-            if self._scheduled(self.k_done, self.period_s) - now < VIEW_GUARD_S:
+            if self.scheduler.start_of(self.k_done) - now < VIEW_GUARD_S:
                 return  # the tick after this step tries again
         self.view.watch(self.link.view_observed())
         self._next_view = now + (1.0 / hz if self.view.observed else 0.25)
@@ -898,10 +866,10 @@ class Hub(LockstepSteps, RealtimeSteps):
 
     def _publish_status(self) -> None:
         if self.link is not None:
-            self.link.publish_status(self._status().encode())
+            self.link.publish_status(self.status().encode())
 
     def _progress(self) -> Progress:
-        s = self._status()
+        s = self.status()
         return Progress(
             s.step, self.cfg.n_steps, s.t_s, s.wall_s, s.steps_per_s, self.times.late_steps, s.state
         )
@@ -914,4 +882,5 @@ class Hub(LockstepSteps, RealtimeSteps):
 
     def counts(self) -> dict:
         """Online bursts, late, missing and dropped messages so far."""
-        return counts(self.live, self.late, self.missed, self.dropped)
+        ledger = self.ledger
+        return counts(self.live, ledger.late, ledger.missed, ledger.dropped)

@@ -7,16 +7,21 @@ the step's deadline passes, and the policy stands in for what is missing. A repl
 comes after its deadline is *late*: counted, and kept in the record as data the loop did
 not use. Live burst analysis runs on a thread of its own in the rest of each step.
 
-A mixin of :class:`hub.loop.Hub`: it works on the hub's state, under the rules written
-there.
+The scheduler keeps its own state (the step under way, the steps done) and drives the hub
+through the loop's services (:class:`hub.loop.Hub`: ``send``, ``next_event``, ``drain``,
+``tick``, its ``ledger``, ``inputs`` and ``times``).
 """
 
 from __future__ import annotations
 
 import time
+from typing import TYPE_CHECKING
 
 from hub.live import BackgroundLiveBursts
 from hub.protocol import ROLES, Message, MotorCommand, Stimulation
+
+if TYPE_CHECKING:
+    from hub.loop import Hub
 
 # A realtime step whose start lags its schedule by more than this share of a
 # period is counted late (its window is visibly shortened).
@@ -25,122 +30,130 @@ LATE_START_SHARE = 0.25
 LIVE_GUARD_SHARE = 0.1
 
 
-class RealtimeSteps:
-    """The realtime steps of :class:`~hub.loop.Hub`."""
+class Realtime:
+    """Steps a run on a wall-clock schedule (``loop.mode = "realtime"``).
 
-    def _steps_realtime(self) -> None:
+    Attributes
+    ----------
+    k, k_done : int
+        The step under way, and the steps over (each reply in, or stood in for).
+    """
+
+    direct = False  # replies go through the loop's thread, judged by their arrival time
+
+    def __init__(self, hub: Hub):
+        self.hub = hub
+        self.k = 0
+        self.k_done = 0
+        self.period_s = hub.cfg.loop.period_ms / 1e3
+
+    def run(self) -> None:
         """Steps on a wall-clock schedule; a reply missing at its deadline is replaced by policy."""
-        live = self.live
-        background = BackgroundLiveBursts(live, self.scheduling) if live is not None else None
+        hub = self.hub
+        live = hub.live
+        background = BackgroundLiveBursts(live, hub.scheduling) if live is not None else None
         try:
             self._steps_on_schedule(background)
         finally:
             if background is not None:
-                self._record_network_bursts(background.close())
+                hub.record_network_bursts(background.close())
+
+    def rejoined(self, role: str) -> None:
+        """An endpoint is back: its next step's input goes on schedule."""
+
+    def start_of(self, k: int) -> float:
+        """When step ``k`` is due to start (monotonic), given the time paused so far."""
+        return self.hub.times.t_start + self.hub.paused_s + k * self.period_s
 
     def _steps_on_schedule(self, background: BackgroundLiveBursts | None) -> None:
-        period_s = self.cfg.loop.period_ms / 1e3
-        n = self.cfg.n_steps
-        guard_s = LIVE_GUARD_SHARE * period_s
+        hub, ledger = self.hub, self.hub.ledger
+        n = hub.cfg.n_steps
+        guard_s = LIVE_GUARD_SHARE * self.period_s
         # Each step's inputs are coded and encoded in the slack of the step before, so
         # that they leave the moment the step starts.
-        inputs = self._encoded(self.inputs.motor_for(0, None), self.inputs.stim_for(0, None))
+        inputs = self._encoded(hub.inputs.motor_for(0, None), hub.inputs.stim_for(0, None))
         # A device culture that answers a window once it has passed: its reply trails by a
         # step; the next step starts on time and its motor command is decoded from the
         # spikes of the step before (docs/contract.md).
-        lag = int(bool(self.descriptions["culture"].answers_after_window))
+        lag = int(bool(hub.descriptions["culture"].answers_after_window))
         for k in range(n):
-            if not self._await_start(k, period_s):
+            if not self._await_start(k):
                 return
             self.k = k
             steps = {"body": k, "culture": k - lag}
-            self.expect = {role: max(step, 0) for role, step in steps.items()}
+            ledger.expect.update({role: max(step, 0) for role, step in steps.items()})
             t0 = time.monotonic()
             for role in ROLES:
-                self._send(role, *inputs[role])
-            late = self._collect(steps, self._deadlines(steps, period_s))
+                hub.send(role, *inputs[role])
+            late = self.collect(steps, self._deadlines(steps))
             if k == 0:  # every thread that carries replies has started by now
-                self.scheduling.include_new_threads()
-            prev = {role: self.pending[role].pop(step, None) for role, step in steps.items()}
-            self.times.step_wall_s[k] = time.monotonic() - t0
+                hub.scheduling.include_new_threads()
+            prev = {role: ledger.pending[role].pop(step, None) for role, step in steps.items()}
+            hub.times.step_wall_s[k] = time.monotonic() - t0
             if k + 1 < n:
                 inputs = self._encoded(
-                    self.inputs.motor_for(k + 1, prev["culture"]),
-                    self.inputs.stim_for(k + 1, prev["body"]),
+                    hub.inputs.motor_for(k + 1, prev["culture"]),
+                    hub.inputs.stim_for(k + 1, prev["body"]),
                 )
-            self.times.late_steps += bool(
-                late or self.times.lateness_s[k] > LATE_START_SHARE * period_s
+            hub.times.late_steps += bool(
+                late or hub.times.lateness_s[k] > LATE_START_SHARE * self.period_s
             )
             self.k_done = k + 1
             if background is not None:
                 if prev["culture"] is not None:
                     # Analysis may use what is left of this step, not the next one's start.
-                    background.add(prev["culture"], self._scheduled(k + 1, period_s) - guard_s)
-                self._record_network_bursts(background.completed())
-            self._tick()
+                    background.add(prev["culture"], self.start_of(k + 1) - guard_s)
+                hub.record_network_bursts(background.completed())
+            hub.tick()
         if lag:  # the last step's culture reply: in the record, and not missing
-            self.expect["culture"] = n - 1
+            ledger.expect["culture"] = n - 1
             steps = {"culture": n - 1}
-            self._collect(steps, self._deadlines(steps, period_s))
-            last = self.pending["culture"].pop(n - 1, None)
+            self.collect(steps, self._deadlines(steps))
+            last = ledger.pending["culture"].pop(n - 1, None)
             if background is not None and last is not None:
                 background.add(last, time.monotonic() + guard_s)
 
-    @staticmethod
-    def _encoded(motor: MotorCommand, stim: Stimulation) -> dict[str, tuple[Message, bytes]]:
-        return {"body": (motor, motor.encode()), "culture": (stim, stim.encode())}
-
-    def _deadlines(self, steps: dict[str, int], period_s: float) -> dict[str, float]:
-        """Each role's reply deadline for the step it owes: ``loop.deadline_ms`` after that
-        step's start; a body always within its own period."""
-        deadline_s = self.cfg.loop.deadline_s
-        return {
-            role: self._scheduled(k, period_s)
-            + (min(deadline_s, period_s) if role == "body" else deadline_s)
-            for role, k in steps.items()
-        }
-
-    def _scheduled(self, k: int, period_s: float) -> float:
-        return self.times.t_start + self._paused_s + k * period_s
-
-    def _await_start(self, k: int, period_s: float) -> bool:
-        """Handle events until step k may start; False if the run must end."""
-        realtime = self.cfg.loop.mode == "realtime"
-        while True:
-            self._drain()
-            if self._stop_reason:
-                return False
-            if self.state == "paused":
-                self._next_event(time.monotonic() + 0.1)
-                continue
-            now = time.monotonic()
-            target = self._scheduled(k, period_s) if realtime else now
-            if now >= target:
-                if realtime:
-                    self.times.lateness_s[k] = now - target
-                return True
-            self._next_event(target)
-
-    def _collect(self, steps: dict[str, int], deadlines: dict[str, float]) -> bool:
+    def collect(self, steps: dict[str, int], deadlines: dict[str, float]) -> bool:
         """Take in events until each role's reply for its step is in or its deadline passes
         (a negative step: nothing owed yet).
 
         Returns True if a reply missed its deadline (the policy stands in for it).
         """
-        owed = {role: k for role, k in steps.items() if k >= 0}
-        self.collect_steps, self.reply_deadlines = owed, deadlines
-        while True:
-            now = time.monotonic()
-            waiting = [
-                r for r, k in owed.items() if k not in self.pending[r] and now < deadlines[r]
-            ]
-            if not waiting:
-                break
-            self._next_event(min(deadlines[r] for r in waiting))
+        hub, ledger = self.hub, self.hub.ledger
+        ledger.await_replies(steps, deadlines)
+        while waiting := ledger.waiting(time.monotonic()):
+            hub.next_event(ledger.next_deadline(waiting))
         # Replies judged by when they arrived, not by when this thread got to them.
-        self._drain()
-        self.collect_steps, self.reply_deadlines = {}, {}
-        for role, k in owed.items():
-            if k not in self.pending[role] and k not in self.missed[role]:
-                self._miss(role, k)
-        return any(k not in self.pending[r] for r, k in owed.items())
+        hub.drain()
+        return ledger.settle()
+
+    @staticmethod
+    def _encoded(motor: MotorCommand, stim: Stimulation) -> dict[str, tuple[Message, bytes]]:
+        return {"body": (motor, motor.encode()), "culture": (stim, stim.encode())}
+
+    def _deadlines(self, steps: dict[str, int]) -> dict[str, float]:
+        """Each role's reply deadline for the step it owes: ``loop.deadline_ms`` after that
+        step's start; a body always within its own period."""
+        deadline_s = self.hub.cfg.loop.deadline_s
+        body_s = min(deadline_s, self.period_s)
+        return {
+            role: self.start_of(k) + (body_s if role == "body" else deadline_s)
+            for role, k in steps.items()
+        }
+
+    def _await_start(self, k: int) -> bool:
+        """Handle events until step k may start; False if the run must end."""
+        hub = self.hub
+        while True:
+            hub.drain()
+            if hub.stop_reason:
+                return False
+            if hub.state == "paused":
+                hub.next_event(time.monotonic() + 0.1)
+                continue
+            now = time.monotonic()
+            target = self.start_of(k)
+            if now >= target:
+                hub.times.lateness_s[k] = now - target
+                return True
+            hub.next_event(target)

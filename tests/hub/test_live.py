@@ -113,9 +113,9 @@ def test_the_hub_reports_live_bursts_in_its_status():
     # The test culture's channels are 0..3.
     renamed = {new: PLANTED[old] for new, old in enumerate(PLANTED)}
     for batch in _batches(renamed, 60):
-        hub._live_in.put(batch)  # as the lockstep hub hands each step's spikes over
-    hub._work_live(flush=True)
-    assert hub._status().extra["network_bursts"] == 1
+        hub.scheduler.hand_over(batch)  # as the lockstep hub hands each step's spikes over
+    hub.scheduler.work_live(flush=True)
+    assert hub.status().extra["network_bursts"] == 1
     assert hub.counts()["single_channel_bursts_online"] == 3
 
 
@@ -145,13 +145,13 @@ def test_a_lockstep_hub_with_analysis_due_still_handles_the_event_that_waits(bus
         hub.state = "running"
         renamed = {new: PLANTED[old] for new, old in enumerate(PLANTED)}
         for batch in _batches(renamed, 60):  # 600 ms of spikes: analysis is due
-            hub._live_in.put(batch)
+            hub.scheduler.hand_over(batch)
         hub.request_stop("test")  # ... and an event waits
-        steps = threading.Thread(target=hub._steps_lockstep, daemon=True)
+        steps = threading.Thread(target=hub.scheduler.run, daemon=True)
         steps.start()
         steps.join(10)
         assert not steps.is_alive(), "the loop never handled the stop"
-        assert hub._stop_reason == "test"
+        assert hub.stop_reason == "test"
         assert hub.live.network_bursts == 1  # analysed in full at the end all the same
     finally:
         session.close()

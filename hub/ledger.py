@@ -1,0 +1,134 @@
+"""What the hub is owed and what it got: each role's replies by step, judged on arrival.
+
+Plain data, no bus and no clock of its own: the loop tells the ledger what it sent
+(:meth:`Ledger.sent`), which step each role owes (``expect``) and, in realtime, by when
+(:meth:`Ledger.await_replies`); each reply that passed :class:`~hub.replies.ReplyChecker`
+is judged with the time it *arrived* (:meth:`Ledger.judge`), so a reply in before its
+deadline is on time however late the loop's thread looked at it, and one in after it is
+late however soon. The verdicts are the record's (``rx``, ``late``, ``final``, ``drop``);
+the counts are the run's (``late``, ``missing``, ``dropped``).
+"""
+
+from __future__ import annotations
+
+import logging
+from collections import Counter, defaultdict
+from collections.abc import Callable
+
+from hub.protocol import ROLES, Message
+
+log = logging.getLogger(__name__)
+
+
+class Ledger:
+    """Each role's replies by step: accepted, missing (stood in for), late, dropped.
+
+    Parameters
+    ----------
+    on_event : callable
+        Called as ``on_event(name, **details)`` for what the record keeps as an event:
+        ``missed``, ``late``, and the first ``dropped`` of each kind and role.
+
+    Attributes
+    ----------
+    expect : dict
+        Role → the step whose reply it owes next.
+    pending : dict
+        Role → {step: reply} accepted and not yet used by the loop.
+    missed : dict
+        Role → steps whose reply missed its deadline (the policy stood in for it).
+    late : Counter
+        Role → replies that came after the policy stood in for them.
+    dropped : dict
+        Role → Counter of dropped messages by kind.
+    final_step : int
+        The step of the body's final stop once sent (its answer is kept apart), else -1.
+    """
+
+    def __init__(self, on_event: Callable[..., None] = lambda name, **details: None):
+        self.on_event = on_event
+        self.expect = dict.fromkeys(ROLES, 0)
+        self.last_sent: dict[str, int] = {}
+        self.pending: dict[str, dict[int, Message]] = {role: {} for role in ROLES}
+        self.missed: dict[str, set[int]] = defaultdict(set)
+        self.late: Counter[str] = Counter()
+        self.dropped: dict[str, Counter[str]] = defaultdict(Counter)
+        self.final_step = -1
+        # realtime: the step each role's reply is awaited for now, and by when (monotonic)
+        self._owed: dict[str, int] = {}
+        self._deadlines: dict[str, float] = {}
+
+    def sent(self, role: str, step: int) -> None:
+        """An input of ``step`` went to ``role``: a reply for it may come."""
+        self.last_sent[role] = step
+
+    def judge(self, role: str, message: Message, t_arrival: float, *, running: bool) -> str:
+        """The verdict on one checked reply that arrived at ``t_arrival`` (monotonic).
+
+        ``rx``: accepted, now in ``pending``; ``late``: in after the policy stood in for it
+        (counted); ``final``: the answer to the final stop; ``drop``: early (``running``
+        False), a duplicate, stale or from the future (counted by kind).
+        """
+        step, expected = message.step, self.expect[role]
+        if role == "body" and step == self.final_step:
+            self.pending[role][step] = message
+            return "final"
+        if not running:
+            return self.drop(role, "early", f"reply for step {step} before the run started")
+        missed = self.missed[role]
+        owed_now = step == self._owed.get(role)
+        if owed_now and t_arrival > self._deadlines[role] and step not in missed:
+            self.miss(role, step)  # in after its deadline, however soon the loop looked
+        if expected <= step <= self.last_sent.get(role, -1) and step not in missed:
+            if step in self.pending[role]:
+                return self.drop(role, "duplicate", f"second reply for step {step}")
+            self.pending[role][step] = message
+            return "rx"
+        if step in missed:
+            self.late[role] += 1
+            missed.discard(step)
+            self.on_event("late", role=role, step=step, at_step=expected)
+            return "late"
+        if step <= expected:
+            return self.drop(role, "stale", f"reply for step {step} awaiting step {expected}")
+        return self.drop(role, "future", f"reply for step {step} awaiting step {expected}")
+
+    def miss(self, role: str, step: int) -> None:
+        """The reply of ``role`` for ``step`` is missing: the policy stands in for it."""
+        self.missed[role].add(step)
+        self.on_event("missed", role=role, step=step)
+
+    def drop(self, role: str, kind: str, detail: str) -> str:
+        """Count (and log once per kind) a dropped message; returns the record's verdict."""
+        if not self.dropped[role][kind]:
+            log.warning("dropped a %s message (%s): %s", role, kind, detail)
+            self.on_event("dropped", role=role, kind=kind, detail=detail)
+        self.dropped[role][kind] += 1
+        return "drop"
+
+    # ------------------------------------------------------------ realtime deadlines
+
+    def await_replies(self, steps: dict[str, int], deadlines: dict[str, float]) -> None:
+        """Each role in ``steps`` owes the reply of that step by its deadline (monotonic);
+        a negative step owes nothing yet."""
+        self._owed = {role: k for role, k in steps.items() if k >= 0}
+        self._deadlines = dict(deadlines)
+
+    def waiting(self, now: float) -> list[str]:
+        """The roles whose reply is not in and whose deadline has not passed at ``now``."""
+        return [
+            r
+            for r, k in self._owed.items()
+            if k not in self.pending[r] and now < self._deadlines[r]
+        ]
+
+    def next_deadline(self, roles: list[str]) -> float:
+        return min(self._deadlines[r] for r in roles)
+
+    def settle(self) -> bool:
+        """The deadlines are over: each reply not in is missing. True if any was missing."""
+        owed, self._owed, self._deadlines = self._owed, {}, {}
+        for role, k in owed.items():
+            if k not in self.pending[role] and k not in self.missed[role]:
+                self.miss(role, k)
+        return any(k not in self.pending[r] for r, k in owed.items())
