@@ -300,10 +300,17 @@ class Inbox:
 
 
 def reply(query, payload: bytes) -> None:
-    """Answer ``query`` with ``payload``, in several framed replies if it is large."""
+    """Answer ``query`` with ``payload``, in several framed replies if it is large, and
+    finish it.
+
+    The query is dropped explicitly: Zenoh sends a query's final answer when the object is
+    freed, and a reference kept elsewhere (a logged exception's traceback reaches the
+    callback's frame) would leave the asker waiting for its whole timeout.
+    """
     key_expr = query.key_expr
     for chunk, attachment in frames(payload, None, secrets.randbits(32)):
         query.reply(key_expr, bytes(chunk), attachment=attachment)
+    query.drop()
 
 
 def get(session, key: str, payload: bytes | None = None, *, timeout_s: float) -> list[bytes]:
