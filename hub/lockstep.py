@@ -55,7 +55,7 @@ class Lockstep:
         that do not come within ``reply_timeout_s``, publishes the status and runs the
         live analysis."""
         hub, ledger = self.hub, self.hub.ledger
-        n = hub.cfg.n_steps
+        n = hub.n_steps
         timeout_s = hub.cfg.loop.reply_timeout_s
         with hub.lock:
             ledger.expect.update(body=0, culture=0)
@@ -101,7 +101,7 @@ class Lockstep:
                 return hub.inbox.put(item)
             try:
                 hub.handle(item)
-                self._advance(hub.cfg.n_steps)
+                self._advance(hub.n_steps)
             except BaseException as exc:  # the loop's thread raises it
                 self.direct, self._failure = False, exc
                 hub.inbox.put(("wake",))

@@ -35,7 +35,6 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import numpy as np
 import zenoh
 
 from hub import wire
@@ -181,7 +180,9 @@ class Hub:
         self.unanswered: dict[str, dict[int, bytes]] = {role: {} for role in ROLES}
         self._start_unix_s: float | None = None  # as announced to the endpoints
         # when each role's input of each step was put, for its reply's round trip
-        self._put_at = {role: np.full(cfg.n_steps, np.nan) for role in ROLES}
+        # (plain lists: a numpy scalar read and NaN test cost microseconds a reply)
+        self.n_steps = cfg.n_steps
+        self._put_at = {role: [math.nan] * self.n_steps for role in ROLES}
         self._last_round_trip_ms: dict[str, float] = {}  # the latest, for observers
         self.stop_reason: str | None = None  # why the run must end before its last step
         self._pause_started: float | None = None
@@ -449,11 +450,12 @@ class Hub:
 
     def _note_round_trip(self, role: str, step: int, t_arrival: float) -> None:
         """The time from the input of ``step`` to ``role`` going out to its reply coming in."""
-        put_at = self._put_at[role]
-        if 0 <= step < put_at.size and not np.isnan(put_at[step]):
-            rtt_s = t_arrival - put_at[step]
-            self.times.round_trip_s[role][step] = rtt_s
-            self._last_round_trip_ms[role] = rtt_s * 1e3
+        if 0 <= step < self.n_steps:
+            put_at = self._put_at[role][step]
+            if put_at == put_at:  # not NaN: the input went out
+                rtt_s = t_arrival - put_at
+                self.times.round_trip_s[role][step] = rtt_s
+                self._last_round_trip_ms[role] = rtt_s * 1e3
 
     def _classify_reply(self, role: str, raw: bytes, t_arrival: float) -> str:
         try:
@@ -772,7 +774,7 @@ class Hub:
         raw = raw or message.encode()
         self.link.send(role, raw)
         self.ledger.sent(role, message.step)
-        if 0 <= message.step < self.cfg.n_steps:
+        if 0 <= message.step < self.n_steps:
             self._put_at[role][message.step] = time.monotonic()
         if self.cfg.policy.rejoin_s > 0:
             unanswered = self.unanswered[role]
