@@ -256,8 +256,15 @@ def serve(
         raise ValueError(f"fps must be > 0, got {fps!r}")
     sock = bind(host, port)
     dashboard = Dashboard(source, state, fps)
+    # No permessage-deflate: a frame is mostly base64 of float32/uint32 arrays, which barely
+    # compresses, and deflating it cost ~1 ms a frame (at 30 frames/s the largest share of
+    # the dashboard's CPU in a lockstep run, by a yappi profile; docs/dashboard.md).
     config = uvicorn.Config(
-        dashboard.app, log_level="warning", lifespan="on", ws_ping_interval=20.0
+        dashboard.app,
+        log_level="warning",
+        lifespan="on",
+        ws_ping_interval=20.0,
+        ws_per_message_deflate=False,
     )
     server = uvicorn.Server(config)
     on_ready(url_of(sock))
