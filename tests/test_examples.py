@@ -38,6 +38,7 @@ def test_a_coding_scheme_written_in_the_script(tmp_path, monkeypatch):
     assert np.all(pulses["amplitude_ua"] <= 100.0)
 
 
+@pytest.mark.slow  # several runs of a script: tens of seconds
 def test_a_parameter_sweep(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     rows = load("parameter_sweep").main(duration_s=1.0, runs_dir=tmp_path)

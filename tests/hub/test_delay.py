@@ -38,11 +38,15 @@ def test_the_link_holds_each_chunk_for_its_delay_and_keeps_order():
 
 
 def test_a_realtime_run_over_5_ms_links_has_no_late_step(tmp_path):
+    # A round trip carries up to 2 x (5 + 2) ms of link and the culture's step besides: a
+    # 30 ms period leaves it room on a loaded 2-core machine (at 20 ms a CI run saw a reply
+    # 21 ms after its step's start, 2 late steps of 250; the benchmark's 20 ms figure is
+    # bench/remote.py's).
     record, result, chunks = delayed_closed_loop(
-        tmp_path, "delay5", 5.0, 2.0, "loop.period_ms=20", "experiment.duration_s=5"
+        tmp_path, "delay5", 5.0, 2.0, "loop.period_ms=30", "experiment.duration_s=6"
     )
-    assert result.outcome == "completed" and result.steps == 250
-    assert all(n > 250 for n in chunks.values())  # every step's messages went through them
+    assert result.outcome == "completed" and result.steps == 200
+    assert all(n > 200 for n in chunks.values())  # every step's messages went through them
     timing = record.manifest["timing"]
     assert timing["late_steps"] == 0, timing
     # The round trips carry both directions' delays: at least 2 x (5 - 2) ms.

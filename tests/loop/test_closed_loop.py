@@ -139,6 +139,7 @@ def test_an_endpoint_that_cannot_start_ends_the_run_at_once_with_its_reason(tmp_
     assert "body.params.nope is not a parameter" in proc.stderr
 
 
+@pytest.mark.slow  # a run, then its analysis and figures
 def test_analyze_writes_metrics_figures_and_a_report_for_a_closed_loop_run(tmp_path, bus_overrides):
     run_dir, _ = _run(tmp_path, "configs/closed_loop.toml", bus_overrides)
     proc = neuvision("analyze", str(run_dir), "--out", str(tmp_path / "an"))

@@ -212,6 +212,7 @@ def test_runs_in_chunks_with_pulses_carried_over_equal_one_run():
 
 
 @needs_nest
+@pytest.mark.slow  # seconds of both simulators
 def test_uncoupled_neurons_fire_as_in_sim_network_for_seconds():
     # the noise stays the culture's over many loads of the generators
     cfg = dataclasses.replace(
