@@ -14,10 +14,12 @@ put a thread wake-up on every step's critical path). Everything that touches the
 state, recording included, holds that lock, so the loop keeps one order of events.
 
 The parts: :class:`Hub` here sets a run up (endpoints, descriptions, the run's
-announcement), handles events and closes up; the two schedulers are
-:mod:`hub.lockstep` and :mod:`hub.realtime`; what crosses the bus goes through
-:mod:`hub.link`; each step's inputs come from :mod:`hub.policy`, each reply is checked by
-:mod:`hub.replies`, and the run's figures are kept by :mod:`hub.report`.
+announcement), handles events and closes up; the two schedulers,
+:class:`~hub.lockstep.Lockstep` and :class:`~hub.realtime.Realtime`, keep the steps' own
+state and call the hub's loop services (``send``, ``wait_event``, ``handle``, ``tick``);
+what crosses the bus goes through :mod:`hub.link`; each step's inputs come from
+:mod:`hub.policy`, each reply is checked by :mod:`hub.replies` and judged by
+:mod:`hub.ledger`, and the run's figures are kept by :mod:`hub.report`.
 """
 
 from __future__ import annotations

@@ -99,7 +99,11 @@ class MeaDriver(Protocol):
         local arrival (``time.monotonic()``) (thread-safe)."""
 
     def stop(self) -> None:
-        """Nothing more delivered."""
+        """Nothing more delivered; the recording goes on (a pause, an input timeout: the
+        run may go on, and its spikes with it)."""
+
+    def finish(self) -> None:
+        """The run is over: nothing more delivered, and the instrument out of its run."""
 
     def close(self) -> None:
         """Stop, and let go of the instrument."""

@@ -270,21 +270,26 @@ class MeaEndpoint(Endpoint):
         return None
 
     def make_safe(self) -> None:
-        """Nothing more delivered: pending pulses dropped, every electrode disabled."""
+        """Nothing more delivered: pending pulses dropped, every electrode disabled. The
+        recording goes on (a pause or an input timeout may be followed by more steps)."""
         with self._wake:
             device = [d for d in self._due["device"] if d[2] != "fire"]
             heapq.heapify(device)
             self._due["device"] = device
-        if self._opened:
-            try:
-                self.driver.stop()
-            except DeviceFault as exc:
-                log.error("could not stop the stimulation: %s", exc)
+        self._to_driver(self.driver.stop)
 
     def end_run(self) -> None:
+        """The run is over: nothing pending, nothing delivered, the instrument out of its run."""
         with self._wake:
             self._due = {lane: [] for lane in self._due}
-        self.make_safe()
+        self._to_driver(self.driver.finish)
+
+    def _to_driver(self, call) -> None:
+        if self._opened:
+            try:
+                call()
+            except DeviceFault as exc:
+                log.error("could not stop the stimulation: %s", exc)
 
     def close(self) -> None:
         with self._wake:

@@ -213,6 +213,10 @@ class LslDriver:
             self._outlet.push_sample([STOP_MARKER])
             self.counts["stops"] += 1
 
+    def finish(self) -> None:
+        """The run is over: a ``stop`` marker (the stream has no run mode to leave)."""
+        self.stop()
+
     def close(self) -> None:
         self._stop.set()
         self.stop()

@@ -224,18 +224,24 @@ class RhxDriver:
         del self.clock.pairs[:-200]
 
     def stop(self) -> None:
-        """Nothing more delivered; run mode off (as far as the instrument answers)."""
+        """Nothing more delivered: every electrode disabled (as far as the instrument
+        answers). Run mode stays on, so the recording goes on: turning it off here stopped
+        the spikes and the clock for the rest of a run after a pause or an input timeout."""
         for channel, (amp, phase, on) in list(self._stim_state.items()):
             if on:
                 self.set(f"{self.layout.names[channel]}.stimenabled", False)
                 self._stim_state[channel] = (amp, phase, False)
+
+    def finish(self) -> None:
+        """The run is over: every electrode disabled, then run mode off."""
+        self.stop()
         self.set("runmode", "stop")
 
     def close(self) -> None:
         self._stop.set()
         try:
             if self._cmd is not None:
-                self.stop()
+                self.finish()
         except DeviceFault as exc:
             log.warning("RHX at close: %s", exc)
         for sock in (self._cmd, self._spk):

@@ -259,3 +259,28 @@ def test_when_the_hub_vanishes_no_trigger_follows(emulators):
         time.sleep(0.3)  # any pending pulse would fire in this time
         assert all(t <= ended for t, _ in emu.triggers[n:]) and len(emu.triggers) == n
         assert emu.values["runmode"] == "stop"
+
+
+def test_a_pause_or_an_input_timeout_stops_stimulation_but_not_the_recording(emulators):
+    """Making the culture safe disables the electrodes; the instrument stays in its run,
+    so the spikes and its clock go on for the steps after a pause. Run mode goes off only
+    when the run ends. (A CI run of configs/hybrid_both.toml had its input timeout fire just
+    after the run began: with run mode turned off then, every later spike came late.)"""
+    emu = emulators()
+    with conformance.served(lambda: endpoint_for(emu)) as hub:
+        assert hub.start(mode="realtime").ok
+        run_t0 = emu._run_t0
+        assert emu.values["runmode"] == "run" and run_t0 is not None
+        assert hub.hold(True).ok  # made safe at once
+        wait_for(lambda: hub.hooks.calls["make_safe"] >= 1, 5.0)
+        time.sleep(0.6)  # past the suite's input timeout too: made safe again
+        assert emu.values["runmode"] == "run" and emu._run_t0 == run_t0
+        assert not any(on for _, _, on in hub.endpoint.driver._stim_state.values())
+        clock_pairs = len(hub.endpoint.driver.clock.pairs)
+        wait_for(lambda: len(hub.endpoint.driver.clock.pairs) > clock_pairs, 5.0)
+        _, drift = hub.endpoint.driver.clock.fit()
+        assert abs(drift - 1.0) < 0.01  # the instrument's clock still runs
+        assert hub.hold(False).ok
+        assert hub.end().ok
+        wait_for(lambda: hub.hooks.calls["end_run"] >= 1, 5.0)
+        assert emu.values["runmode"] == "stop"
