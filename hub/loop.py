@@ -440,7 +440,7 @@ class Hub:
 
     def _on_refused(self, role: str, raw: bytes, kind: str, detail: str, t_wall_ns: int) -> None:
         """A payload on a reply key that did not unseal or reassemble: not the endpoint's."""
-        self._drop(role, kind, detail)
+        self.ledger.drop(role, kind, detail)
         if self.recorder and raw:
             self.recorder.message("drop", self.output_key[role], raw, t_wall_ns)
 
@@ -469,9 +469,6 @@ class Hub:
             self._note_round_trip(role, message.step, t_arrival)
             self.view.took(message)
         return verdict
-
-    def _drop(self, role: str, kind: str, detail: str) -> str:
-        return self.ledger.drop(role, kind, detail)
 
     def _on_liveliness(self, key: str, present: bool) -> None:
         parsed = self.keys.parse_alive(key)
@@ -544,7 +541,7 @@ class Hub:
         try:
             request = ControlRequest.decode(payload_bytes(query))
         except ProtocolError as exc:
-            self._drop("control", exc.kind, str(exc))
+            self.ledger.drop("control", exc.kind, str(exc))
             return self._reply(query, ControlReply(ok=False, state=self.state, reason=str(exc)))
         self._record_event("control", cmd=request.cmd)
         ok, reason, data = True, "", None
@@ -758,7 +755,7 @@ class Hub:
             self.descriptions["body"],
             self.descriptions["culture"],
             self.run_id,
-            on_refused=lambda scheme, why: self._drop(scheme, "limit", why),
+            on_refused=lambda scheme, why: self.ledger.drop(scheme, "limit", why),
         )
         if cfg.online.enabled:
             params = {}
