@@ -99,18 +99,25 @@ PROTOCOLS = (
 HEADLINE = "exc_1"
 
 
-def stimulation_targets(layout, cell_type: int, n_targets: int) -> tuple[int, ...]:
+def stimulation_targets(
+    layout, cell_type: int, n_targets: int, excluded: np.ndarray | None = None
+) -> tuple[int, ...]:
     """Neurons of ``cell_type`` near the culture centre to stimulate together.
 
     One target: the neuron of that type nearest the centre. Four: the 2 x 2 block of grid cells
     nearest the centre whose four neurons are all of that type; when no such block exists (likely
     for the 20 % inhibitory cells), the four neurons of that type nearest the central one.
+    Neurons flagged in ``excluded`` (bool[n]) count as of no type: the protocols pass the
+    culture's chattering-like cells (`Network.chattering_like`), as the paper stimulates
+    regular-spiking excitatory cells.
     """
     if n_targets not in (1, 4):
         raise ValueError(f"n_targets must be 1 or 4, got {n_targets}")
     x = np.asarray(layout.x_um, dtype=np.float64)
     y = np.asarray(layout.y_um, dtype=np.float64)
-    ct = np.asarray(layout.cell_type)
+    ct = np.asarray(layout.cell_type).astype(np.int64)
+    if excluded is not None:
+        ct = np.where(excluded, -1, ct)
     cx, cy = layout.width_um / 2.0, layout.height_um / 2.0
     d = np.hypot(x - cx, y - cy)
     d[ct != cell_type] = np.inf
@@ -137,12 +144,13 @@ def stimulation_targets(layout, cell_type: int, n_targets: int) -> tuple[int, ..
     return tuple(sorted(int(i) for i in best))
 
 
-def protocol_stimulus(layout, protocol: Protocol, t0_ms: float, n_pulses: int):
+def protocol_stimulus(net, protocol: Protocol, t0_ms: float, n_pulses: int):
     """The paper's pulses of one protocol: its targets and their `PeriodicStimulus`.
 
     Parameters
     ----------
-    layout : the culture's layout (`Network.layout`).
+    net : Network
+        The culture: its layout, and its chattering-like cells, which are never targets.
     protocol : Protocol
     t0_ms : float
         Start of the protocol (absolute ms); the first pulse comes ``FIRST_PULSE_AFTER_MS`` later.
@@ -152,7 +160,9 @@ def protocol_stimulus(layout, protocol: Protocol, t0_ms: float, n_pulses: int):
     -------
     (tuple of int, PeriodicStimulus)
     """
-    targets = stimulation_targets(layout, protocol.cell_type, protocol.n_targets)
+    targets = stimulation_targets(
+        net.layout, protocol.cell_type, protocol.n_targets, net.chattering_like
+    )
     stim = PeriodicStimulus(
         targets,
         PULSE_AMPLITUDE_UA,
@@ -189,7 +199,7 @@ def headline_evoked_statistics(
     net = Network(cfg, seed=seed)
     record(net, warmup_s, CHUNK_MS)
     t0 = net.t_ms
-    targets, stim = protocol_stimulus(net.layout, head, t0, n_pulses)
+    targets, stim = protocol_stimulus(net, head, t0, n_pulses)
     seconds = (FIRST_PULSE_AFTER_MS + n_pulses * PULSE_PERIOD_MS) / 1000.0
     sp = record(net, seconds, CHUNK_MS, stim)
     params = AnalysisParams(psth_min_latency_ms=PULSE_WIDTH_MS)  # skip the pulse itself
@@ -373,7 +383,7 @@ def reproduce(
     evoked_cats = {}
     for p in PROTOCOLS:
         net.set_state(warm)
-        targets, stim = protocol_stimulus(layout, p, t0, n_pulses)
+        targets, stim = protocol_stimulus(net, p, t0, n_pulses)
         sp = _simulate(net, protocol_s, clock, f"stimulation {p.name}", stim)
         res = analyze_culture(sp, layout, t0, net.t_ms, stim.onsets_ms(), params)
         cats = [c for c, e in zip(res.cats, res.evoked, strict=True) if e]

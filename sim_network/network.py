@@ -97,9 +97,14 @@ class Network:
         ada = cfg.adaptation
         self._adapt_on = ada.enabled and self._model == MODEL_IDS["izhikevich"]
         inc = np.where(inh, ada.increment_of(True), ada.increment_of(False))
+        # Excitatory cells at the chattering end of the RS -> CH spread (reset c at or above
+        # adaptation.exempt_from_reset_mv): they do not adapt, and the paper's protocols,
+        # which stimulate regular-spiking cells, leave them out (lab/reproduce.py).
+        self.chattering_like = np.zeros(n, dtype=bool)
         if self._adapt_on and ada.exempt_from_reset_mv is not None:
-            # chattering-like excitatory cells (reset c high) do not adapt
-            inc[~inh & (self.params[2] >= kernels.STATE_DTYPE(ada.exempt_from_reset_mv))] = 0.0
+            limit = kernels.STATE_DTYPE(ada.exempt_from_reset_mv)
+            self.chattering_like = ~inh & (self.params[2] >= limit)
+            inc[self.chattering_like] = 0.0
         self._adapt_inc = inc.astype(kernels.STATE_DTYPE)
         decay = math.exp(-self._dt / ada.tau_ms)
         period = kernels.adaptation_period(decay) if self._adapt_on else 1

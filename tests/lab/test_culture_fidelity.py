@@ -6,9 +6,9 @@ time: about 25 s for both cultures on this 2-core machine. Then the default cult
 stimulation protocol per seed (one excitatory neuron, 60 pulses, as ``neuvision reproduce``
 runs it: about 20 s more): its PSTH peak and the regularity of its evoked CATs.
 
-The default culture meets all four spontaneous figures, the MFR spread and the CAT regularity on
-every seed, and the PSTH peak on seeds 2-6. What is missed is listed (``KNOWN_MISSES``,
-``PSTH_MISSES``) and expected to fail (strictly: a miss that starts passing fails the test, so
+The default culture meets all four spontaneous figures, the MFR spread, the PSTH peak and the
+CAT regularity on every seed. What is missed is listed (``KNOWN_MISSES``, ``PSTH_MISSES``) and
+expected to fail (strictly: a miss that starts passing fails the test, so
 that the lists are kept true); the culture before issue 21 (``culture_1024_local.toml``, kept to
 compare against) misses three of the four spontaneous figures.
 """
@@ -40,11 +40,7 @@ KNOWN_MISSES = {
     (LOCAL, "nb_duration_ms"): "network bursts of 57-59 ms: seed 4 at -21 %",
 }
 #: seeds whose PSTH peak after one excitatory neuron misses the paper's 30-100 ms
-PSTH_MISSES = {
-    # the central excitatory neuron of seed 1 is chattering-like (exempt from adaptation): the
-    # 100 µA pulse makes it fire 14 spikes at ~1.4 kHz, which ignites a network burst at once
-    1: "peak 27.5 ms: a chattering-like target fires 14 spikes in the 10 ms pulse",
-}
+PSTH_MISSES: dict[int, str] = {}
 _cache: dict[str, list[dict]] = {}
 _evoked: dict[int, dict] = {}
 
@@ -60,7 +56,8 @@ def _cases():
     for culture in (DEFAULT, LOCAL):
         for key in CHECKED_KEYS:
             miss = KNOWN_MISSES.get((culture, key))
-            marks = [pytest.mark.xfail(strict=True, reason=f"issue 21, not met: {miss}")]
+            why = f"the culture before issue 21, kept to compare: {miss}"
+            marks = [pytest.mark.xfail(strict=True, reason=why)]
             yield pytest.param(culture, key, marks=marks if miss else [], id=f"{culture}-{key}")
 
 

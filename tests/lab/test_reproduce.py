@@ -7,7 +7,7 @@ import pytest
 
 from hub.analysis.paper import PAPER_TARGETS
 from lab.reproduce import PROTOCOLS, QUICK_CAVEAT, reproduce, stimulation_targets
-from sim_network import load_config
+from sim_network import Network, load_config
 from sim_network.layout import build_layout
 
 KEYS = (
@@ -70,6 +70,21 @@ def test_stimulation_targets_are_adjacent_neurons_of_one_type_near_the_centre(ce
     if cell_type == 0:  # excitatory cells are common enough for a 2 x 2 block
         rows, cols = layout.row[list(four)], layout.col[list(four)]
         assert np.ptp(rows) == 1 and np.ptp(cols) == 1
+
+
+def test_the_excitatory_targets_are_regular_spiking_cells_not_chattering_ones():
+    # seed 1's excitatory neuron nearest the centre is chattering-like: a 100 µA pulse made it
+    # fire 14 spikes at ~1.4 kHz; the paper stimulates regular-spiking excitatory cells
+    net = Network(load_config("configs/culture_1024.toml"), seed=1)
+    (nearest,) = stimulation_targets(net.layout, 0, 1)
+    assert net.chattering_like[nearest]
+    (one,) = stimulation_targets(net.layout, 0, 1, net.chattering_like)
+    four = stimulation_targets(net.layout, 0, 4, net.chattering_like)
+    for i in (one, *four):
+        assert net.layout.cell_type[i] == 0 and not net.chattering_like[i]
+    assert (
+        net.chattering_like.sum() > 0 and not net.chattering_like[net.layout.cell_type == 1].any()
+    )
 
 
 @pytest.mark.slow

@@ -250,6 +250,7 @@ def test_chattering_like_cells_are_exempt_from_adaptation():
     exc = net.layout.cell_type == 0
     exempt = exc & (net.params[2] >= ada.exempt_from_reset_mv)
     assert 0.1 < exempt.sum() / exc.sum() < 0.5  # the chattering end of the RS -> CH spread
+    assert (net.chattering_like == exempt).all()
     assert not net._adapt_inc[exempt].any() and not net._adapt_inc[~exc].any()
     assert (net._adapt_inc[exc & ~exempt] == ada.increment_exc_mv_per_ms).all()
     spikes = net.run(1000.0)
