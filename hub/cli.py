@@ -4,7 +4,7 @@ neuvision run CONFIG             hub + every local endpoint, with progress; reco
 neuvision hub CONFIG             the hub alone (endpoints started elsewhere)
 neuvision endpoint ROLE CONFIG   one endpoint (body or culture) of CONFIG
 neuvision record-info RUN_DIR    what a recorded run holds
-neuvision emulate khepera|intan  a Khepera II on a pseudo-terminal, an Intan RHX on TCP
+neuvision emulate khepera|intan  a Khepera II/III on a pseudo-terminal, an Intan RHX on TCP
 neuvision export RUN_DIR --nwb F  a recorded run as an NWB file
 neuvision dashboard [CONFIG]     the live dashboard in a browser (--replay RUN_DIR: a recorded run)
 neuvision ctl CMD [CONFIG]       status, pause, resume or stop a running hub
@@ -174,8 +174,9 @@ def build_parser() -> argparse.ArgumentParser:
         "emulate",
         help="emulate a device on this machine (a Khepera on a pseudo-terminal)",
         description="Emulate a device. khepera: a pseudo-terminal that speaks a Khepera II's "
-        "serial protocol, answered by a simulated robot in a world, in real time; prints the "
-        "device path (give it as body.params.port, or use --link). intan: the Intan RHX "
+        "(with --dialect khepera3, a Khepera III's) serial protocol, answered by a simulated "
+        "robot in a world, in real time; prints the device path (give it as "
+        "body.params.port, or use --link). intan: the Intan RHX "
         "software's TCP command and spike ports on loopback, answered by a simulated culture "
         "seen through its virtual MEA, in real time.",
     )
@@ -186,12 +187,31 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--command-port", type=int, default=5000, help="intan: RHX command port")
     p.add_argument("--spike-port", type=int, default=5002, help="intan: RHX spike port")
     p.add_argument(
-        "--world", help="world file with the robot (default: khepera2 in the paper's arena)"
+        "--world",
+        help="world file with the robot (default: the dialect's robot in the paper's "
+        "arena, configs/worlds/DIALECT.toml)",
+    )
+    p.add_argument(
+        "--dialect",
+        choices=("khepera2", "khepera3"),
+        default="khepera2",
+        help="khepera: the robot's model (default khepera2)",
+    )
+    p.add_argument(
+        "--ir-table",
+        metavar="FILE",
+        help="khepera: the IR response, CSV distance_m,value (required for khepera3, which has "
+        "none published; the adapter's body.params.ir_table_file format)",
     )
     p.add_argument(
         "--baud", type=int, help="take each exchange's byte time at this baud (default: no delay)"
     )
-    p.add_argument("--stop-bits", type=int, choices=(1, 2), default=2, help="for the byte time")
+    p.add_argument(
+        "--stop-bits",
+        type=int,
+        choices=(1, 2),
+        help="for the byte time (default the model's: 2 for khepera2, 1 for khepera3)",
+    )
     p.add_argument("--link", help="also make this symlink to the device (removed at exit)")
     p.add_argument(
         "--garbage-every",
@@ -511,11 +531,8 @@ def cmd_export(args) -> int:
 
 
 def cmd_emulate(args) -> int:
-    from adapters.khepera.emulator import (
-        DEFAULT_EMULATOR_WORLD,
-        KheperaEmulator,
-        run_until_signalled,
-    )
+    from adapters.khepera.calibration import IRCalibration
+    from adapters.khepera.emulator import KheperaEmulator, run_until_signalled
     from adapters.khepera.link import BAUDS
 
     if args.device == "intan":
@@ -537,10 +554,18 @@ def cmd_emulate(args) -> int:
         return EXIT_OK
     if args.baud is not None and args.baud not in BAUDS:
         raise InputError(f"--baud must be one of {BAUDS}, got {args.baud}")
+    if args.dialect == "khepera3" and args.ir_table is None:
+        raise InputError(
+            "--ir-table: a Khepera III has no published IR response; give a table "
+            "(CSV distance_m,value), as its adapter needs one (docs/khepera.md)"
+        )
+    table = IRCalibration.from_file(args.ir_table, "--ir-table").table if args.ir_table else None
     emulator = KheperaEmulator(  # a bad world file: a config error naming the key
-        args.world or DEFAULT_EMULATOR_WORLD,
+        args.world,
+        dialect=args.dialect,
+        ir_table=table,
         baud=args.baud,
-        stop_bits=args.stop_bits,
+        stop_bits=args.stop_bits or (1 if args.dialect == "khepera3" else 2),
         seed=args.seed,
     )
     emulator.faults.garbage_every, emulator.faults.drop_every = args.garbage_every, args.drop_every

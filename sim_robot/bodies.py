@@ -8,6 +8,10 @@ Presets (``PRESETS``):
 * ``khepera2`` — the real robot's disc, wheel base, 8 IR sensors at their positions and
   facings and max wheel speed (``devices.khepera``: 70 mm, 53 mm, 1.016 m/s), range finders
   capped at the IR fade distance (0.12 m) with the Khepera II IR response.
+* ``khepera3`` — the real robot's 9 IR sensors around the body at their positions and
+  facings, its disc, wheel base and regulated top speed (``devices.khepera``: 128 mm, 88.5 mm,
+  0.299 m/s), range finders to the IR's 0.2 m; no IR response model (none is published: a
+  lab's table maps ranges to values, as the emulator does).
 * ``khepera4`` — the real robot's radius, wheel base and 8 IR facings (``devices.khepera``:
   70.4 mm, 105.4 mm, evenly spaced on the rim); max range 0.25 m and max wheel speed 0.81 m/s
   are our assumptions (not in the reference notes).
@@ -189,6 +193,18 @@ def _khepera2() -> Body:
     )
 
 
+def _khepera3() -> Body:
+    return custom_body(
+        khepera.KHEPERA3_SENSOR_FACINGS_DEG,
+        max_range_m=khepera.KHEPERA3_IR_RANGE_M[1],
+        radius_m=khepera.KHEPERA3_RADIUS_M,
+        wheel_base_m=khepera.KHEPERA3_WHEEL_BASE_M,
+        max_wheel_mps=khepera.MODELS["khepera3"].max_wheel_mps,
+        sensor_offsets_m=khepera.KHEPERA3_SENSOR_POSITIONS_M,
+        name="khepera3",
+    )
+
+
 def _khepera4() -> Body:
     return custom_body(
         khepera.KHEPERA4_SENSOR_FACINGS_DEG,
@@ -204,7 +220,12 @@ def _paper7() -> Body:
     return custom_body(np.arange(-90.0, 91.0, 30.0), max_range_m=0.25, name="paper7")
 
 
-PRESETS = {"khepera2": _khepera2, "khepera4": _khepera4, "paper7": _paper7}
+PRESETS = {
+    "khepera2": _khepera2,
+    "khepera3": _khepera3,
+    "khepera4": _khepera4,
+    "paper7": _paper7,
+}
 
 
 def preset(name: str) -> Body:

@@ -39,5 +39,12 @@ def ir_value(range_m: np.ndarray, model: str = "khepera2") -> np.ndarray:
         table = IR_MODELS[model]
     except KeyError:
         raise ValueError(f"ir_model must be one of {sorted(IR_MODELS)}, got {model!r}") from None
+    return table_value(range_m, table)
+
+
+def table_value(range_m: np.ndarray, table: np.ndarray) -> np.ndarray:
+    """Map ranges (m) to IR values through a (distance_m, value) table, nearest first:
+    linear in distance between points, 0 beyond the last (float32, the shape of
+    ``range_m``)."""
     r = np.asarray(range_m, dtype=np.float64)
     return np.interp(r, table[:, 0], table[:, 1], right=0.0).astype(np.float32)

@@ -45,7 +45,7 @@ class IRCalibration:
     @classmethod
     def published(cls) -> IRCalibration:
         """The published Khepera II table (``devices.khepera.KHEPERA2_IR_TABLE``)."""
-        return cls(khepera.KHEPERA2_IR_TABLE[1:])  # from 8 mm: nearer is not resolved
+        return cls(khepera.MODELS["khepera2"].ir_table)
 
     @classmethod
     def from_file(cls, path: str | Path, key: str = "body.params.ir_table_file") -> IRCalibration:

@@ -1,7 +1,8 @@
 """A Khepera driven over its serial link at the link's own pace, on a thread of its own.
 
 Each cycle of :class:`KheperaDriver`'s thread sends the wheel speeds if they changed
-(``D``), reads the proximity sensors (``N``) and the position counters (``H``), and keeps
+(``D``), reads the proximity sensors (``N``) and the position counters (``H``; a Khepera
+III's ``R``), and keeps
 the freshest :class:`Reading`. The loop's steps never wait for the serial line: they set the
 speeds and take the freshest reading, whose age they report.
 
@@ -23,7 +24,7 @@ import numpy as np
 
 from adapters.khepera.calibration import IRCalibration, Odometry
 from adapters.khepera.link import LinkFault, SerialLink
-from adapters.khepera.protocol import N_PROXIMITY, ReplyError
+from adapters.khepera.protocol import COUNTER_COMMANDS, N_PROXIMITY, ReplyError
 
 log = logging.getLogger(__name__)
 
@@ -47,6 +48,11 @@ class WheelUnits:
 
     speed_unit_mps: float
     max_units: int
+
+    @classmethod
+    def of(cls, model) -> WheelUnits:
+        """The units of a :class:`devices.khepera.KheperaModel`."""
+        return cls(model.speed_unit_mps, model.max_speed_units)
 
     @property
     def max_mps(self) -> float:
@@ -131,7 +137,7 @@ class KheperaDriver:
     def reset(self, pose) -> None:
         """Motors stopped, position counters zeroed, odometry from ``pose``."""
         self.stop_motors()
-        self.link.transact("G", 0, 0)
+        self.link.transact(COUNTER_COMMANDS[self.link.dialect][0], 0, 0)
         with self._lock:
             self.odometry.reset(pose, (0, 0))
 
@@ -209,7 +215,7 @@ class KheperaDriver:
                 self._sent = target
         proximity = self.link.transact("N")
         t_read = time.monotonic()
-        counters = self.link.transact("H").fields
+        counters = self.link.transact(COUNTER_COMMANDS[self.link.dialect][1]).fields
         values = np.asarray(proximity.fields[: N_PROXIMITY[self.link.dialect]], dtype=np.float32)
         with self._lock:
             pose = self.odometry.update(counters)

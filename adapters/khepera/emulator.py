@@ -1,13 +1,16 @@
-"""An emulator of a Khepera II on a pseudo-terminal: the real protocol, a simulated robot.
+"""An emulator of a Khepera II or III on a pseudo-terminal: the real protocol, a simulated
+robot.
 
 :class:`KheperaEmulator` opens a pseudo-terminal and answers the Khepera's serial protocol
-on it (``B D E G H N O L``; an unknown command gets ``Command not found``) from a robot
+on it (a Khepera II: ``B D E G H N O L``; a Khepera III: ``B D E I R N O`` with its type
+prefixes and time stamps; an unknown command gets ``Command not found``) from a robot
 driven in real time through a :mod:`sim_robot` world: wheel speeds in the robot's units,
-position counters in encoder pulses, proximity values from the IR response model. Anything
-that opens the device path with pyserial sees a Khepera. It is an **emulator**: the
-ambient light (``O``) is a constant, the IR values carry no noise floor, and the firmware's
-own processing time is not modelled; with ``baud`` set, each exchange takes the time its
-bytes take on a wire at that baud.
+position counters in encoder pulses, proximity values from the IR response model (a Khepera
+III: from a lab's table, as none is published). Anything that opens the device path with
+pyserial sees a Khepera. It is an **emulator**: the ambient light (``O``) and a Khepera III's
+ground sensors are constants, the IR values carry no noise floor, and the firmware's own
+processing time is not modelled; with ``baud`` set, each exchange takes the time its bytes
+take on a wire at that baud.
 
 Faults can be injected for tests (:class:`Faults`): garbage bytes before a reply, a reply
 dropped, a stall. ``neuvision emulate khepera`` runs one from the command line.
@@ -31,18 +34,22 @@ from adapters.khepera.link import byte_time_s
 from adapters.khepera.protocol import UNKNOWN_COMMAND_REPLY, parse_command, reply_line
 from devices import khepera
 from sim_robot import Arena
+from sim_robot.ir import table_value
 from sim_robot.world import load_world
 
 log = logging.getLogger(__name__)
 
-#: the emulated robot's world unless another is given: the paper's arena, a Khepera II in it
-DEFAULT_EMULATOR_WORLD = (
-    Path(__file__).resolve().parents[2] / "configs" / "worlds" / "khepera2.toml"
-)
+#: the emulated robot's world unless another is given: the paper's arena with the robot in it
+DEFAULT_EMULATOR_WORLDS = {
+    dialect: Path(__file__).resolve().parents[2] / "configs" / "worlds" / f"{dialect}.toml"
+    for dialect in khepera.MODELS
+}
 #: what ``B`` answers: the emulator names itself instead of a BIOS version
 VERSION_FIELDS = ("nv-emulator-1", "6")
 #: what ``O`` answers for each sensor (no light model: a dim, uniform room)
 AMBIENT_VALUE = 450
+#: what a Khepera III's two ground sensors read (no floor model: a uniform floor)
+GROUND_VALUE = 600
 #: the physics advances by at most this much per substep (s)
 MAX_SUBSTEP_S = 0.01
 
@@ -64,12 +71,16 @@ class Faults:
 
 
 class KheperaEmulator:
-    """A Khepera II answering on a pseudo-terminal, moving in a simulated world.
+    """A Khepera answering on a pseudo-terminal, moving in a simulated world.
 
     Parameters
     ----------
-    world : str or Path
-        A world file with the robot to emulate (default: a Khepera II in the paper's arena).
+    world : str or Path, optional
+        A world file with the robot to emulate (default: the model's, in the paper's arena).
+    dialect : str
+        The robot's model: ``khepera2`` or ``khepera3``.
+    ir_table : array of (distance_m, value), optional
+        The IR response (required for a Khepera III; a Khepera II's is the world's model).
     baud : int or None
         Emulated line speed: each exchange takes its bytes' time at this baud (None:
         as fast as the pseudo-terminal goes).
@@ -88,13 +99,21 @@ class KheperaEmulator:
 
     def __init__(
         self,
-        world: str | Path = DEFAULT_EMULATOR_WORLD,
+        world: str | Path | None = None,
         *,
+        dialect: str = "khepera2",
+        ir_table=None,
         baud: int | None = None,
         stop_bits: int = 2,
         seed: int = 0,
     ):
-        self.arena = Arena(load_world(world), seed=seed)
+        if dialect not in khepera.MODELS:
+            raise ValueError(f"dialect must be one of {sorted(khepera.MODELS)}, got {dialect!r}")
+        self.model = khepera.MODELS[dialect]
+        if dialect != "khepera2" and ir_table is None:
+            raise ValueError(f"a {self.model.name} has no published IR response: give ir_table")
+        self.ir_table = None if ir_table is None else np.asarray(ir_table, dtype=np.float64)
+        self.arena = Arena(load_world(world or DEFAULT_EMULATOR_WORLDS[dialect]), seed=seed)
         # The arena's kernels compile on first use (seconds, without numba's cache): done
         # here, a robot's first replies would come late and the adapter take it for silent.
         self.arena.step(0.0, 0.0, 0.01)
@@ -110,7 +129,7 @@ class KheperaEmulator:
         self._master, self._slave = os.openpty()
         tty.setraw(self._slave)  # no line discipline: bytes pass as they are
         self.path = os.ttyname(self._slave)
-        self._last_t = time.monotonic()
+        self._last_t = self._started = time.monotonic()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._lock = threading.Lock()
@@ -165,8 +184,12 @@ class KheperaEmulator:
     # ------------------------------------------------------------ the robot
 
     @property
+    def dialect(self) -> str:
+        return self.model.dialect
+
+    @property
     def wheel_mps(self) -> tuple[float, float]:
-        unit = khepera.KHEPERA2_SPEED_UNIT_MPS
+        unit = self.model.speed_unit_mps
         return (self.speed_units[0] * unit, self.speed_units[1] * unit)
 
     def advance(self, now: float | None = None) -> None:
@@ -176,9 +199,7 @@ class KheperaEmulator:
             left = now - self._last_t
             self._last_t = now
             left_mps, right_mps = self.wheel_mps
-            self.counters_pulses += (
-                np.array([left_mps, right_mps]) * left / khepera.KHEPERA2_PULSE_M
-            )
+            self.counters_pulses += np.array([left_mps, right_mps]) * left / self.model.pulse_m
             while left > 1e-9:
                 dt = min(left, MAX_SUBSTEP_S)
                 self.arena.step(left_mps, right_mps, dt)
@@ -223,7 +244,9 @@ class KheperaEmulator:
             pass
 
     def _reply(self, letter: str, args: tuple[int, ...]) -> bytes:
-        limit = khepera.KHEPERA2_MAX_SPEED_UNITS
+        limit = self.model.max_speed_units
+        k3 = self.dialect == "khepera3"
+        set_counters, read_counters = ("I", "R") if k3 else ("G", "H")
         if letter == "B":
             return reply_line("b", *VERSION_FIELDS)
         if letter == "D" and len(args) == 2:
@@ -231,21 +254,41 @@ class KheperaEmulator:
             return reply_line("d")
         if letter == "E":
             return reply_line("e", *self.speed_units)
-        if letter == "G" and len(args) == 2:
+        if letter == set_counters and len(args) == 2:
             self.counters_pulses[:] = args
-            return reply_line("g")
-        if letter == "H":
-            return reply_line("h", *(int(v) for v in np.trunc(self.counters_pulses)))
+            return reply_line(set_counters)
+        if letter == read_counters:
+            return reply_line(read_counters, *(int(v) for v in np.trunc(self.counters_pulses)))
         if letter == "N":
-            values = np.clip(np.rint(self.arena.read_ir()), 0, khepera.IR_MAX_VALUE)
-            return reply_line("n", *(int(v) for v in values))
+            return reply_line("n", *self._proximity())
         if letter == "O":
-            return reply_line("o", *([AMBIENT_VALUE] * self.arena.body.n_sensors))
-        if letter == "L" and len(args) == 2 and args[0] in (0, 1):
+            return reply_line("o", *self._ambient())
+        if letter == "L" and not k3 and len(args) == 2 and args[0] in (0, 1):
             led, action = args
             self.leds[led] = 1 - self.leds[led] if action == 2 else int(action != 0)
             return reply_line("l")
         return UNKNOWN_COMMAND_REPLY
+
+    def _proximity(self) -> list[int]:
+        """``N``'s fields: the ring's values (a Khepera III's then its two ground sensors
+        and a time stamp, ms since the emulator started)."""
+        if self.ir_table is None:
+            values = self.arena.read_ir()
+        else:
+            values = table_value(self.arena.read_sensors(), self.ir_table)
+        fields = [int(v) for v in np.clip(np.rint(values), 0, khepera.IR_MAX_VALUE)]
+        if self.dialect == "khepera3":
+            fields += [GROUND_VALUE, GROUND_VALUE, self._stamp_ms()]
+        return fields
+
+    def _ambient(self) -> list[int]:
+        fields = [AMBIENT_VALUE] * self.arena.body.n_sensors
+        if self.dialect == "khepera3":
+            fields += [AMBIENT_VALUE, AMBIENT_VALUE, self._stamp_ms()]
+        return fields
+
+    def _stamp_ms(self) -> int:
+        return int((time.monotonic() - self._started) * 1e3)
 
 
 def run_until_signalled(emulator: KheperaEmulator, *, link: str | None = None, report_s=5.0):
@@ -268,7 +311,8 @@ def run_until_signalled(emulator: KheperaEmulator, *, link: str | None = None, r
         link_path.symlink_to(emulator.path)
     print(emulator.path, flush=True)
     where = f"{emulator.path}" + (f" (linked as {link_path})" if link_path else "")
-    print(f"neuvision: Khepera II emulator on {where}; Ctrl-C ends it", file=sys.stderr)
+    name = emulator.model.name
+    print(f"neuvision: {name} emulator on {where}; Ctrl-C ends it", file=sys.stderr)
     emulator.start()
     try:
         while not stop.wait(report_s):

@@ -7,11 +7,13 @@ table, the odometry pose, ``t_s`` the run time the reading was taken and ``age_s
 
 Parameters (``[body.params]``; docs in docs/khepera.md):
 
-``port`` (required), ``baud`` (9600, 19200, 38400, 57600, 115200; default 9600), ``stop_bits``
-(1 or 2; default 2), ``timeout_s`` (one reply; default 0.25), ``silent_s`` (no valid reply
-for this long is a fault; default 1.0), ``watchdog_s`` (no motor command for this long stops
-the motors; default 0.5), ``dialect`` (``khepera2`` or ``khepera3``), ``ir_table_file`` (a
-lab's calibration, CSV ``distance_m,value``; default the published table), ``start_pose``
+``port`` (required), ``dialect`` (``khepera2``, the default, or ``khepera3``: the robot's
+model), ``baud`` (9600, 19200, 38400, 57600, 115200; default 9600 for a Khepera II, 115200
+for a Khepera III), ``stop_bits`` (1 or 2; default 2 for a Khepera II, 1 for a Khepera III),
+``timeout_s`` (one reply; default 0.25), ``silent_s`` (no valid reply for this long is a
+fault; default 1.0), ``watchdog_s`` (no motor command for this long stops the motors; default
+0.5), ``ir_table_file`` (a lab's calibration, CSV ``distance_m,value``; default the published
+Khepera II table; required for a Khepera III, which has none published), ``start_pose``
 (``[x_m, y_m, heading_deg]`` odometry starts from; default ``[0, 0, 0]``), ``world`` (a world
 file drawing the lab's arena: used only by the run's summary, for the trajectory figure and
 the arena metrics).
@@ -45,8 +47,8 @@ LOCKSTEP_REFUSAL = (
     'loop; set loop.mode = "realtime"'
 )
 DEFAULTS = {
-    "baud": 9600,
-    "stop_bits": 2,
+    "baud": None,  # the model's (SERIAL_DEFAULTS)
+    "stop_bits": None,
     "timeout_s": 0.25,
     "silent_s": 1.0,
     "watchdog_s": 0.5,
@@ -55,10 +57,12 @@ DEFAULTS = {
     "start_pose": [0.0, 0.0, 0.0],
     "world": None,
 }
+#: each model's serial settings as it leaves the factory: (baud, stop bits)
+SERIAL_DEFAULTS = {"khepera2": (9600, 2), "khepera3": (115200, 1)}
 
 
 class KheperaEndpoint(Endpoint):
-    """A Khepera II on a serial line, served as a body.
+    """A Khepera II or III on a serial line, served as a body.
 
     Parameters
     ----------
@@ -68,13 +72,23 @@ class KheperaEndpoint(Endpoint):
         Which body this is on the bus.
     start_pose : (x_m, y_m, heading_rad)
         Where odometry starts each run.
+    model : devices.khepera.KheperaModel
+        The robot's body, for ``describe`` (default the Khepera II).
     """
 
     role, kind = "body", "khepera"
 
-    def __init__(self, driver: KheperaDriver, id: str = "0", *, start_pose=(0.0, 0.0, 0.0)):
+    def __init__(
+        self,
+        driver: KheperaDriver,
+        id: str = "0",
+        *,
+        start_pose=(0.0, 0.0, 0.0),
+        model: khepera.KheperaModel = khepera.MODELS["khepera2"],
+    ):
         super().__init__(id, input_timeout_s=driver.watchdog_s)
         self.driver = driver
+        self.model = model
         self.start_pose = tuple(float(v) for v in start_pose)
         self._origin_s = math.inf  # run time 0 on time.monotonic()'s clock
         driver.on_fault = self._on_fault
@@ -98,6 +112,11 @@ class KheperaEndpoint(Endpoint):
             raise ConfigError("body.params.port: the serial port of the robot is required")
         out = {**DEFAULTS, **params}
         out["port"] = check_value("body.params.port", str, out["port"])
+        if out["dialect"] not in DIALECTS:
+            raise ConfigError(f"body.params.dialect must be one of {DIALECTS}")
+        baud, stop_bits = SERIAL_DEFAULTS[out["dialect"]]
+        out["baud"] = baud if out["baud"] is None else out["baud"]
+        out["stop_bits"] = stop_bits if out["stop_bits"] is None else out["stop_bits"]
         baud = check_value("body.params.baud", int, out["baud"])
         if baud not in BAUDS:
             raise ConfigError(f"body.params.baud must be one of {BAUDS}, got {baud}")
@@ -105,13 +124,6 @@ class KheperaEndpoint(Endpoint):
             raise ConfigError(f"body.params.stop_bits must be 1 or 2, got {out['stop_bits']!r}")
         for key in ("timeout_s", "silent_s", "watchdog_s"):
             out[key] = check_value(f"body.params.{key}", float, out[key], gt=0)
-        if out["dialect"] not in DIALECTS:
-            raise ConfigError(f"body.params.dialect must be one of {DIALECTS}")
-        if out["dialect"] != "khepera2":
-            raise ConfigError(
-                "body.params.dialect: the khepera3 dialect is spoken by the protocol module "
-                "but its units and sensor placement are not confirmed; only khepera2 runs"
-            )
         pose = out["start_pose"]
         if not (isinstance(pose, list) and len(pose) == 3):
             raise ConfigError("body.params.start_pose must be [x_m, y_m, heading_deg]")
@@ -123,15 +135,22 @@ class KheperaEndpoint(Endpoint):
             raise ConfigError(f"body.params.world: no world file {world!r}")
         if out["ir_table_file"] is not None:
             IRCalibration.from_file(out["ir_table_file"])  # named ConfigError if bad
+        elif khepera.MODELS[out["dialect"]].ir_table is None:
+            raise ConfigError(
+                "body.params.ir_table_file: no IR calibration of a Khepera III is published "
+                "(its sensors differ from a Khepera II's); measure your robot's and give "
+                'the file (docs/khepera.md, "Calibration")'
+            )
         return out
 
     @classmethod
     def from_config(cls, section: EndpointSection, cfg: ExperimentConfig) -> KheperaEndpoint:
         p = cls.check_config(section, cfg)
+        model = khepera.MODELS[p["dialect"]]
         calibration = (
             IRCalibration.from_file(p["ir_table_file"])
             if p["ir_table_file"]
-            else IRCalibration.published()
+            else IRCalibration(model.ir_table)
         )
         port = open_port(
             p["port"], baud=p["baud"], stop_bits=p["stop_bits"], timeout_s=p["timeout_s"]
@@ -141,13 +160,14 @@ class KheperaEndpoint(Endpoint):
         )
         driver = KheperaDriver(
             link,
-            units=KHEPERA2_UNITS,
+            units=WheelUnits.of(model),
             calibration=calibration,
-            odometry=Odometry(khepera.KHEPERA2_PULSE_M, khepera.KHEPERA2_WHEEL_BASE_M),
+            odometry=Odometry(model.pulse_m, model.wheel_base_m),
             watchdog_s=p["watchdog_s"],
         )
         x, y, heading_deg = p["start_pose"]
-        return cls(driver, section.id, start_pose=(x, y, math.radians(heading_deg)))
+        pose = (x, y, math.radians(heading_deg))
+        return cls(driver, section.id, start_pose=pose, model=model)
 
     # ------------------------------------------------------------ the endpoint
 
@@ -165,10 +185,10 @@ class KheperaEndpoint(Endpoint):
             role="body",
             id=self.id,
             kind=self.kind,
-            sensor_angles_rad=np.radians(khepera.KHEPERA2_SENSOR_FACINGS_DEG),
+            sensor_angles_rad=np.radians(self.model.sensor_facings_deg),
             max_range_m=self.driver.calibration.max_range_m,
-            wheel_base_m=khepera.KHEPERA2_WHEEL_BASE_M,
-            radius_m=khepera.KHEPERA2_RADIUS_M,
+            wheel_base_m=self.model.wheel_base_m,
+            radius_m=self.model.radius_m,
             max_wheel_mps=self.driver.units.max_mps,
             realtime_only=True,
             cycle_ms=self.driver.cycle_ms,
@@ -206,7 +226,7 @@ class KheperaEndpoint(Endpoint):
             t_s=t_s,
             ranges_m=reading.ranges_m,
             pose=reading.pose,
-            contact=False,  # a Khepera II has no contact sensor
+            contact=False,  # a Khepera has no contact sensor
             age_s=age_s,
         )
 
@@ -234,6 +254,3 @@ class KheperaEndpoint(Endpoint):
         if self.driver.fault is not None:
             raise self.driver.fault
         return status
-
-
-KHEPERA2_UNITS = WheelUnits(khepera.KHEPERA2_SPEED_UNIT_MPS, khepera.KHEPERA2_MAX_SPEED_UNITS)

@@ -6,9 +6,12 @@ command's letter in lower case, its fields comma-separated, and ends with ``\\r\
 
 Two dialects:
 
-* ``khepera2`` (K-Team Khepera II): plain integers, ``N`` answers 8 proximity values.
-* ``khepera3``: integers carry a type prefix on the way out (``D,l20000,l20000``); ``N``
-  answers 11 IR values (9 around the body, 2 ground) and a timestamp.
+* ``khepera2`` (K-Team Khepera II): plain integers, ``N`` answers 8 proximity values; the
+  position counters are set with ``G`` and read with ``H``.
+* ``khepera3`` (K-Team Khepera III, its user manual v2.2): integers carry a type prefix on
+  the way out (``D,l20000,l20000``); ``N`` answers 11 IR values (9 around the body, 2 on
+  the ground) and a time stamp; the counters are set with ``I`` and read with ``R`` (its
+  ``G`` and ``H`` are the ultrasound and the PID set-up).
 """
 
 from __future__ import annotations
@@ -23,14 +26,16 @@ UNKNOWN_COMMAND_REPLY = b"Command not found\r\n"
 #: fields of each reply after its letter (None: not checked; strings for ``b``)
 REPLY_FIELDS = {
     "khepera2": {"B": 2, "D": 0, "E": 2, "G": 0, "H": 2, "N": 8, "O": 8, "L": 0},
-    "khepera3": {"B": 2, "D": 0, "E": 2, "G": 0, "H": 2, "N": 12, "O": 11, "L": 0},
+    "khepera3": {"B": 2, "D": 0, "E": 2, "I": 0, "R": 2, "N": 12, "O": 12},
 }
 #: proximity sensors around the body, first in ``N``'s reply
 N_PROXIMITY = {"khepera2": 8, "khepera3": 9}
+#: the commands that set and read the wheels' position counters
+COUNTER_COMMANDS = {"khepera2": ("G", "H"), "khepera3": ("I", "R")}
 #: the longest reply line of each command (bytes, with ``\r\n``): for byte-time budgets
 LONGEST_REPLY_BYTES = {
     "khepera2": {"D": 3, "N": 2 + 8 * 5 + 1, "H": 2 + 2 * 12 + 1, "E": 2 + 2 * 5 + 1},
-    "khepera3": {"D": 3, "N": 2 + 12 * 11 + 1, "H": 2 + 2 * 12 + 1, "E": 2 + 2 * 12 + 1},
+    "khepera3": {"D": 3, "N": 2 + 12 * 11 + 1, "R": 2 + 2 * 12 + 1, "E": 2 + 2 * 12 + 1},
 }
 
 

@@ -65,7 +65,8 @@ def test_a_lockstep_run_with_a_khepera_is_refused_before_it_starts():
         ("body.params.start_pose=[0, 0]", "body.params.start_pose"),
         ('body.params.ir_table_file="nowhere.csv"', "body.params.ir_table_file"),
         ("body.params.speed=3", r"unknown key\(s\) \['speed'\]"),
-        ('body.params.dialect="khepera3"', "body.params.dialect"),
+        ('body.params.dialect="khepera4"', "body.params.dialect must be one of"),
+        ('body.params.dialect="khepera3"', "body.params.ir_table_file: no IR calibration"),
     ],
 )
 def test_bad_params_are_named_before_the_port_is_opened(override, named):

@@ -53,7 +53,14 @@ def test_khepera_presets():
     k4 = preset("khepera4")
     assert k4.n_sensors == 8 and k4.wheel_base_m == 0.1054
     np.testing.assert_allclose(np.hypot(*k4.sensor_offsets_m.T), 0.0704)
-    assert set(PRESETS) == {"khepera2", "khepera4", "paper7"}
+    k3 = preset("khepera3")
+    assert k3.n_sensors == 9 and k3.wheel_base_m == 0.0885 and k3.max_range_m == 0.2
+    # back left, left 90, left 45, front left, front right, ..., back: as N reports them
+    facings = np.rad2deg(k3.sensor_angles_rad)
+    np.testing.assert_allclose(facings[[0, 8]], [129.2, 180.0], atol=0.1)
+    np.testing.assert_allclose(facings[:4], -facings[4:8][::-1])  # left-right symmetric
+    assert k3.max_wheel_mps == pytest.approx(43_000 / 144.01 / 1000)
+    assert set(PRESETS) == {"khepera2", "khepera3", "khepera4", "paper7"}
 
 
 def test_custom_robot_with_user_sensors(base_world):
