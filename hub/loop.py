@@ -256,11 +256,11 @@ class Hub:
             raise
         outcome, reason = "completed", ""
         try:
-            self._declare(session)
+            self.attach(session)
             self._wait_for_endpoints()
             self._describe_all(session)
             self._announce_run(session)
-            self._build_schemes()
+            self.prepare(self.descriptions)
             self._record_event("start", mode=cfg.loop.mode, n_steps=cfg.n_steps)
             self._steps()
             if self.stop_reason:
@@ -590,7 +590,10 @@ class Hub:
 
     # ================================================================ set-up
 
-    def _declare(self, session: zenoh.Session) -> None:
+    def attach(self, session: zenoh.Session) -> None:
+        """Declare the run on ``session``: the inputs' publishers, the replies' subscription,
+        liveliness, control and status (:class:`~hub.link.HubLink`). :meth:`run` does this
+        first; a tool or test that drives a scheduler without endpoints does it itself."""
         self.link = HubLink(session, self.keys, self.ids, self.run_keys, self._deliver)
 
     def _deliver(self, item: tuple) -> None:
@@ -747,6 +750,19 @@ class Hub:
                 except ProtocolError:
                     pass
         return out
+
+    def prepare(self, descriptions: dict[str, Description]) -> None:
+        """Take the endpoints' descriptions and build what the loop needs of them: the input
+        policy (coding, decoding, limits) and the live burst detector. :meth:`run` does this
+        once every endpoint has described itself.
+
+        Raises
+        ------
+        SchemeError, ConfigError
+            A scheme does not fit the endpoints, or the online analysis's settings are bad.
+        """
+        self.descriptions = dict(descriptions)
+        self._build_schemes()
 
     def _build_schemes(self) -> None:
         cfg = self.cfg

@@ -103,8 +103,7 @@ def test_a_hub_that_has_no_time_for_live_analysis_drops_old_spikes_and_says_so(m
 
 def _hub(*overrides):
     hub = Hub(load_config(None, list(overrides)))
-    hub.descriptions = {"body": EchoBody().describe(), "culture": EchoCulture().describe()}
-    hub._build_schemes()
+    hub.prepare({"body": EchoBody().describe(), "culture": EchoCulture().describe()})
     return hub
 
 
@@ -136,13 +135,10 @@ def test_on_a_thread_of_its_own_work_left_past_its_time_is_done_at_close():
 
 
 def test_a_lockstep_hub_with_analysis_due_still_handles_the_event_that_waits(bus_overrides):
-    hub = Hub(load_config(None, bus_overrides))
-    hub.descriptions = {"body": EchoBody().describe(), "culture": EchoCulture().describe()}
-    hub._build_schemes()
+    hub = _hub(*bus_overrides)
     session = open_session(hub.cfg.bus, listener=True)
     try:
-        hub._declare(session)
-        hub.state = "running"
+        hub.attach(session)
         renamed = {new: PLANTED[old] for new, old in enumerate(PLANTED)}
         for batch in _batches(renamed, 60):  # 600 ms of spikes: analysis is due
             hub.scheduler.hand_over(batch)
