@@ -113,11 +113,14 @@ KHEPERA4_SENSOR_FACINGS_DEG = np.arange(8) * 45.0
 
 @dataclass(frozen=True)
 class KheperaModel:
-    """What an adapter needs to know of one Khepera model: its serial dialect's units and
-    its body. ``ir_table`` is None where no calibration is published (a lab measures one)."""
+    """What an adapter needs to know of one Khepera model: its serial line as it leaves the
+    factory, its dialect's units and its body. ``ir_table`` is None where no calibration is
+    published (a lab measures one)."""
 
     dialect: str
     name: str
+    baud: int
+    stop_bits: int
     radius_m: float
     wheel_base_m: float
     speed_unit_mps: float
@@ -137,6 +140,8 @@ MODELS = {
     "khepera2": KheperaModel(
         "khepera2",
         "Khepera II",
+        9600,
+        2,
         KHEPERA2_RADIUS_M,
         KHEPERA2_WHEEL_BASE_M,
         KHEPERA2_SPEED_UNIT_MPS,
@@ -149,6 +154,8 @@ MODELS = {
     "khepera3": KheperaModel(
         "khepera3",
         "Khepera III",
+        115200,
+        1,  # 8N1
         KHEPERA3_RADIUS_M,
         KHEPERA3_WHEEL_BASE_M,
         KHEPERA3_SPEED_UNIT_MPS,

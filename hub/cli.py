@@ -565,7 +565,7 @@ def cmd_emulate(args) -> int:
         dialect=args.dialect,
         ir_table=table,
         baud=args.baud,
-        stop_bits=args.stop_bits or (1 if args.dialect == "khepera3" else 2),
+        stop_bits=args.stop_bits,
         seed=args.seed,
     )
     emulator.faults.garbage_every, emulator.faults.drop_every = args.garbage_every, args.drop_every

@@ -84,8 +84,8 @@ class KheperaEmulator:
     baud : int or None
         Emulated line speed: each exchange takes its bytes' time at this baud (None:
         as fast as the pseudo-terminal goes).
-    stop_bits : int
-        For the byte time (a start bit, 8 data bits and these).
+    stop_bits : int, optional
+        For the byte time (a start bit, 8 data bits and these; default the model's).
     seed : int
         Range-finder noise of the world, if it has any.
 
@@ -104,7 +104,7 @@ class KheperaEmulator:
         dialect: str = "khepera2",
         ir_table=None,
         baud: int | None = None,
-        stop_bits: int = 2,
+        stop_bits: int | None = None,
         seed: int = 0,
     ):
         if dialect not in khepera.MODELS:
@@ -119,6 +119,7 @@ class KheperaEmulator:
         self.arena.step(0.0, 0.0, 0.01)
         self.arena.read_ir()
         self.arena.reset()
+        stop_bits = self.model.stop_bits if stop_bits is None else stop_bits
         self.byte_s = byte_time_s(baud, stop_bits) if baud else 0.0
         self.faults = Faults()
         self.commands: list[tuple[float, bytes]] = []

@@ -47,7 +47,7 @@ LOCKSTEP_REFUSAL = (
     'loop; set loop.mode = "realtime"'
 )
 DEFAULTS = {
-    "baud": None,  # the model's (SERIAL_DEFAULTS)
+    "baud": None,  # the model's (devices.khepera.MODELS)
     "stop_bits": None,
     "timeout_s": 0.25,
     "silent_s": 1.0,
@@ -57,8 +57,6 @@ DEFAULTS = {
     "start_pose": [0.0, 0.0, 0.0],
     "world": None,
 }
-#: each model's serial settings as it leaves the factory: (baud, stop bits)
-SERIAL_DEFAULTS = {"khepera2": (9600, 2), "khepera3": (115200, 1)}
 
 
 class KheperaEndpoint(Endpoint):
@@ -72,23 +70,16 @@ class KheperaEndpoint(Endpoint):
         Which body this is on the bus.
     start_pose : (x_m, y_m, heading_rad)
         Where odometry starts each run.
-    model : devices.khepera.KheperaModel
-        The robot's body, for ``describe`` (default the Khepera II).
+
+    The robot's model (its body, for ``describe``) is that of the link's dialect.
     """
 
     role, kind = "body", "khepera"
 
-    def __init__(
-        self,
-        driver: KheperaDriver,
-        id: str = "0",
-        *,
-        start_pose=(0.0, 0.0, 0.0),
-        model: khepera.KheperaModel = khepera.MODELS["khepera2"],
-    ):
+    def __init__(self, driver: KheperaDriver, id: str = "0", *, start_pose=(0.0, 0.0, 0.0)):
         super().__init__(id, input_timeout_s=driver.watchdog_s)
         self.driver = driver
-        self.model = model
+        self.model = khepera.MODELS[driver.link.dialect]
         self.start_pose = tuple(float(v) for v in start_pose)
         self._origin_s = math.inf  # run time 0 on time.monotonic()'s clock
         driver.on_fault = self._on_fault
@@ -114,9 +105,9 @@ class KheperaEndpoint(Endpoint):
         out["port"] = check_value("body.params.port", str, out["port"])
         if out["dialect"] not in DIALECTS:
             raise ConfigError(f"body.params.dialect must be one of {DIALECTS}")
-        baud, stop_bits = SERIAL_DEFAULTS[out["dialect"]]
-        out["baud"] = baud if out["baud"] is None else out["baud"]
-        out["stop_bits"] = stop_bits if out["stop_bits"] is None else out["stop_bits"]
+        model = khepera.MODELS[out["dialect"]]
+        out["baud"] = model.baud if out["baud"] is None else out["baud"]
+        out["stop_bits"] = model.stop_bits if out["stop_bits"] is None else out["stop_bits"]
         baud = check_value("body.params.baud", int, out["baud"])
         if baud not in BAUDS:
             raise ConfigError(f"body.params.baud must be one of {BAUDS}, got {baud}")
@@ -135,7 +126,7 @@ class KheperaEndpoint(Endpoint):
             raise ConfigError(f"body.params.world: no world file {world!r}")
         if out["ir_table_file"] is not None:
             IRCalibration.from_file(out["ir_table_file"])  # named ConfigError if bad
-        elif khepera.MODELS[out["dialect"]].ir_table is None:
+        elif model.ir_table is None:
             raise ConfigError(
                 "body.params.ir_table_file: no IR calibration of a Khepera III is published "
                 "(its sensors differ from a Khepera II's); measure your robot's and give "
@@ -166,8 +157,7 @@ class KheperaEndpoint(Endpoint):
             watchdog_s=p["watchdog_s"],
         )
         x, y, heading_deg = p["start_pose"]
-        pose = (x, y, math.radians(heading_deg))
-        return cls(driver, section.id, start_pose=pose, model=model)
+        return cls(driver, section.id, start_pose=(x, y, math.radians(heading_deg)))
 
     # ------------------------------------------------------------ the endpoint
 

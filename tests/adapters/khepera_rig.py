@@ -29,9 +29,7 @@ def make_driver(emulator: KheperaEmulator, *, watchdog_s=0.5, **link) -> Khepera
 
 
 def make_endpoint(emulator: KheperaEmulator, **driver) -> KheperaEndpoint:
-    return KheperaEndpoint(
-        make_driver(emulator, **driver), start_pose=emulator.arena.pose, model=emulator.model
-    )
+    return KheperaEndpoint(make_driver(emulator, **driver), start_pose=emulator.arena.pose)
 
 
 def motor_commands(emulator: KheperaEmulator) -> list[tuple[float, bytes]]:
