@@ -176,6 +176,7 @@ def test_the_emulator_of_a_khepera3_needs_an_ir_table():
 
 
 @pytest.mark.bus
+@pytest.mark.slow  # the dialect is checked above; this adds a whole run (the default run's margin)
 def test_a_short_hybrid_run_with_a_khepera3(tmp_path, bus_overrides, table_file):
     with KheperaEmulator(dialect="khepera3", ir_table=TABLE, baud=115200, stop_bits=1) as emu:
         sets = [*bus_overrides, f'body.params.port="{emu.path}"', 'body.params.dialect="khepera3"',
