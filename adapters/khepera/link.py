@@ -69,6 +69,7 @@ class SerialLink:
         self.counts: Counter[str] = Counter()  # replies, and faults by kind
         self._lock = threading.Lock()
         self._last_valid = time.monotonic()
+        self._rx = b""  # bytes read past the last line taken
 
     @property
     def name(self) -> str:
@@ -107,14 +108,14 @@ class SerialLink:
     def _exchange(self, letter: str, raw: bytes) -> Reply:
         try:
             stale = self.port.in_waiting
-            if stale:
-                junk = self.port.read(stale)
+            junk, self._rx = self._rx + (self.port.read(stale) if stale else b""), b""
+            if junk:
                 self.counts["stale_bytes"] += len(junk)
                 log.debug("drained %d stale bytes %r before %r", len(junk), junk, raw)
             self.port.write(raw)
             deadline = time.monotonic() + self.timeout_s
             while True:
-                line = self.port.readline()
+                line = self._readline()
                 try:
                     return parse_reply(letter, line, dialect=self.dialect)
                 except ReplyError as exc:
@@ -124,6 +125,18 @@ class SerialLink:
                     self._note(exc)
         except (serial.SerialException, OSError) as exc:
             raise LinkFault(f"serial link {self.name} failed: {exc}") from None
+
+    def _readline(self) -> bytes:
+        """The next line (through ``\n``), or what came before the port's timeout. Reads
+        what is waiting at once (pyserial's ``readline`` makes a system call per byte)."""
+        while b"\n" not in self._rx:
+            chunk = self.port.read(self.port.in_waiting or 1)  # waits up to the timeout
+            if not chunk:
+                line, self._rx = self._rx, b""
+                return line
+            self._rx += chunk
+        line, _, self._rx = self._rx.partition(b"\n")
+        return line + b"\n"
 
     def _note(self, exc: ReplyError) -> None:
         if exc.kind == "truncated" and not exc.line:
