@@ -2,11 +2,17 @@
 
 from __future__ import annotations
 
+import math
+import time
+
+import numpy as np
+
 from adapters.khepera.calibration import IRCalibration, Odometry
 from adapters.khepera.driver import KheperaDriver, WheelUnits
 from adapters.khepera.emulator import KheperaEmulator
 from adapters.khepera.endpoint import KheperaEndpoint
 from adapters.khepera.link import SerialLink, open_port
+from tests.harness import wait_for
 
 
 def open_link(emulator: KheperaEmulator, *, baud=9600, timeout_s=0.25, silent_s=1.0):
@@ -35,3 +41,26 @@ def make_endpoint(emulator: KheperaEmulator, **driver) -> KheperaEndpoint:
 def motor_commands(emulator: KheperaEmulator) -> list[tuple[float, bytes]]:
     """The ``D`` commands the emulator received, with their times."""
     return [(t, line) for t, line in list(emulator.commands) if line.startswith(b"D")]
+
+
+def check_odometry_follows_an_arc(emulator: KheperaEmulator, **link) -> None:
+    """Drive the emulated robot along an arc through the adapter's driver; its odometry
+    ends within 5 % of the distance travelled from the true pose, and 0.05 rad of heading."""
+    driver = make_driver(emulator, watchdog_s=5.0, **link)
+    driver.connect()
+    driver.reset(emulator.arena.pose)
+    try:
+        start = np.array(emulator.arena.pose)
+        driver.command(0.06, 0.1)
+        time.sleep(1.5)  # let it drive; what is compared is where it went
+        driver.command(0.0, 0.0)
+        wait_for(lambda: emulator.speed_units == (0, 0), 2.0)
+        first = driver.latest().t_mono_s
+        wait_for(lambda: driver.latest().t_mono_s > first + 0.05, 2.0)
+        true, odo = np.array(emulator.arena.pose), driver.latest().pose
+        travelled_m = np.hypot(*(true[:2] - start[:2]))
+        assert travelled_m > 0.08
+        assert np.hypot(*(odo[:2] - true[:2])) < 0.05 * travelled_m
+        assert abs(math.remainder(odo[2] - true[2], 2 * math.pi)) < 0.05
+    finally:
+        driver.close()

@@ -25,7 +25,12 @@ from hub import conformance
 from hub.config import load_config
 from hub.protocol import SensorReading
 from hub.record import read_run
-from tests.adapters.khepera_rig import make_driver, make_endpoint, open_link
+from tests.adapters.khepera_rig import (
+    check_odometry_follows_an_arc,
+    make_driver,
+    make_endpoint,
+    open_link,
+)
 
 #: (distance_m, value): an IR response for these tests only, over the sensors' 0.02-0.2 m
 TABLE = np.array(
@@ -104,27 +109,7 @@ def test_ir_values_become_the_true_distance_through_the_labs_table(emulator):
 
 
 def test_odometry_follows_the_emulated_khepera3(emulator):
-    driver = make_driver(emulator, baud=115200, watchdog_s=5.0)
-    driver.connect()
-    driver.reset(emulator.arena.pose)
-    try:
-        start = np.array(emulator.arena.pose)
-        driver.command(0.06, 0.1)  # an arc
-        time.sleep(1.2)
-        driver.command(0.0, 0.0)
-        deadline = time.monotonic() + 2.0
-        while emulator.speed_units != (0, 0) and time.monotonic() < deadline:
-            time.sleep(0.01)
-        first = driver.latest().t_mono_s
-        while driver.latest().t_mono_s < first + 0.02 and time.monotonic() < deadline:
-            time.sleep(0.01)
-        true, odo = np.array(emulator.arena.pose), driver.latest().pose
-        travelled_m = np.hypot(*(true[:2] - start[:2]))
-        assert travelled_m > 0.06
-        assert np.hypot(*(odo[:2] - true[:2])) < 0.05 * travelled_m
-        assert abs(math.remainder(odo[2] - true[2], 2 * math.pi)) < 0.05
-    finally:
-        driver.close()
+    check_odometry_follows_an_arc(emulator, baud=115200)
 
 
 def test_the_khepera3_endpoint_describes_its_body(emulator):

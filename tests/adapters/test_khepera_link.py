@@ -12,7 +12,12 @@ from adapters.khepera.emulator import KheperaEmulator
 from adapters.khepera.link import LinkFault
 from adapters.khepera.protocol import ReplyError
 from devices import khepera
-from tests.adapters.khepera_rig import make_driver, motor_commands, open_link
+from tests.adapters.khepera_rig import (
+    check_odometry_follows_an_arc,
+    make_driver,
+    motor_commands,
+    open_link,
+)
 from tests.harness import wait_for
 
 
@@ -55,25 +60,7 @@ def test_a_straight_run_of_known_speed_and_time_covers_the_expected_distance(emu
 
 
 def test_odometry_of_the_driver_follows_the_emulated_robot(emulator):
-    driver = make_driver(emulator, watchdog_s=5.0)
-    driver.connect()
-    driver.reset(emulator.arena.pose)
-    try:
-        start = np.array(emulator.arena.pose)
-        driver.command(0.06, 0.1)  # an arc
-        time.sleep(1.5)  # let it drive; what is compared is where it went
-        driver.command(0.0, 0.0)
-        wait_for(lambda: emulator.speed_units == (0, 0), 2.0)
-        first = driver.latest().t_mono_s
-        wait_for(lambda: driver.latest().t_mono_s > first + 0.05, 2.0)
-        true = np.array(emulator.arena.pose)
-        odo = driver.latest().pose
-        travelled_m = np.hypot(*(true[:2] - start[:2]))
-        assert travelled_m > 0.08
-        assert np.hypot(*(odo[:2] - true[:2])) < 0.05 * travelled_m
-        assert abs(math.remainder(odo[2] - true[2], 2 * math.pi)) < 0.05
-    finally:
-        driver.close()
+    check_odometry_follows_an_arc(emulator)
 
 
 def test_ir_values_become_the_true_distance_through_the_calibration(emulator):
