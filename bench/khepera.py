@@ -55,10 +55,13 @@ def emulator(baud: int, dialect: str = "khepera2", ir_table: str | None = None):
 def serial_cycle(baud: int, cycles: int, dialect: str = "khepera2") -> dict:
     """Median time of one D + N exchange, and its byte-time bound."""
     stop_bits = MODELS[dialect].stop_bits
-    with tempfile.NamedTemporaryFile("w", suffix=".csv") as table:
-        table.write(K3_TABLE)
-        table.flush()
-        proc, path = emulator(baud, dialect, table.name if dialect == "khepera3" else None)
+    if MODELS[dialect].ir_table is not None:
+        proc, path = emulator(baud, dialect)
+    else:  # the emulator reads the table before it prints its path
+        with tempfile.NamedTemporaryFile("w", suffix=".csv") as table:
+            table.write(K3_TABLE)
+            table.flush()
+            proc, path = emulator(baud, dialect, table.name)
     try:
         port = open_port(path, baud=baud, stop_bits=stop_bits)
         link = SerialLink(port, timeout_s=0.5, dialect=dialect)

@@ -534,6 +534,7 @@ def cmd_emulate(args) -> int:
     from adapters.khepera.calibration import IRCalibration
     from adapters.khepera.emulator import KheperaEmulator, run_until_signalled
     from adapters.khepera.link import BAUDS
+    from devices.khepera import MODELS
 
     if args.device == "intan":
         from adapters.mea.emulator import DEFAULT_CULTURE, IntanEmulator, run_until_signalled
@@ -554,10 +555,11 @@ def cmd_emulate(args) -> int:
         return EXIT_OK
     if args.baud is not None and args.baud not in BAUDS:
         raise InputError(f"--baud must be one of {BAUDS}, got {args.baud}")
-    if args.dialect == "khepera3" and args.ir_table is None:
+    model = MODELS[args.dialect]
+    if model.ir_table is None and args.ir_table is None:
         raise InputError(
-            "--ir-table: a Khepera III has no published IR response; give a table "
-            "(CSV distance_m,value), as its adapter needs one (docs/khepera.md)"
+            f"--ir-table: a {model.name} has no published IR response; give a table (CSV "
+            "distance_m,value), as its adapter needs one (docs/khepera.md)"
         )
     table = IRCalibration.from_file(args.ir_table, "--ir-table").table if args.ir_table else None
     emulator = KheperaEmulator(  # a bad world file: a config error naming the key

@@ -31,7 +31,12 @@ from pathlib import Path
 import numpy as np
 
 from adapters.khepera.link import byte_time_s
-from adapters.khepera.protocol import UNKNOWN_COMMAND_REPLY, parse_command, reply_line
+from adapters.khepera.protocol import (
+    COUNTER_COMMANDS,
+    UNKNOWN_COMMAND_REPLY,
+    parse_command,
+    reply_line,
+)
 from devices import khepera
 from sim_robot import Arena
 from sim_robot.ir import table_value
@@ -110,7 +115,7 @@ class KheperaEmulator:
         if dialect not in khepera.MODELS:
             raise ValueError(f"dialect must be one of {sorted(khepera.MODELS)}, got {dialect!r}")
         self.model = khepera.MODELS[dialect]
-        if dialect != "khepera2" and ir_table is None:
+        if self.model.ir_table is None and ir_table is None:
             raise ValueError(f"a {self.model.name} has no published IR response: give ir_table")
         self.ir_table = None if ir_table is None else np.asarray(ir_table, dtype=np.float64)
         self.arena = Arena(load_world(world or DEFAULT_EMULATOR_WORLDS[dialect]), seed=seed)
@@ -247,7 +252,7 @@ class KheperaEmulator:
     def _reply(self, letter: str, args: tuple[int, ...]) -> bytes:
         limit = self.model.max_speed_units
         k3 = self.dialect == "khepera3"
-        set_counters, read_counters = ("I", "R") if k3 else ("G", "H")
+        set_counters, read_counters = COUNTER_COMMANDS[self.dialect]
         if letter == "B":
             return reply_line("b", *VERSION_FIELDS)
         if letter == "D" and len(args) == 2:

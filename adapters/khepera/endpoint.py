@@ -128,9 +128,8 @@ class KheperaEndpoint(Endpoint):
             IRCalibration.from_file(out["ir_table_file"])  # named ConfigError if bad
         elif model.ir_table is None:
             raise ConfigError(
-                "body.params.ir_table_file: no IR calibration of a Khepera III is published "
-                "(its sensors differ from a Khepera II's); measure your robot's and give "
-                'the file (docs/khepera.md, "Calibration")'
+                f"body.params.ir_table_file: no IR calibration of a {model.name} is published; "
+                'measure your robot\'s and give the file (docs/khepera.md, "Calibration")'
             )
         return out
 
