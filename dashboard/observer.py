@@ -14,6 +14,9 @@ oldest) and taken out by :meth:`BusObserver.tick`, a frame at a time:
 - ``hub/status``: the hub's state, counters and recent network bursts;
 - liveliness ``alive/**``: whether the hub is there.
 
+It subscribes to ``hub/view`` once it has tried to read the run's scene: a hub that waits for
+its dashboard (``neuvision run --dashboard``) starts its steps then.
+
 Each message is checked against the contract; a bad one is counted and left out.
 
 A thread of its own asks the hub for the run's config (``hub/control`` ``config``: the world,
@@ -115,8 +118,8 @@ class BusObserver:
         if not subs:
             return
         for name in ("status", "view"):
-            sub = subs[name]
-            while (sample := sub.try_recv()) is not None:
+            sub = subs.get(name)
+            while sub is not None and (sample := sub.try_recv()) is not None:
                 self._take(name, sample)
         self.state.observer = {
             "connected": True,
@@ -193,6 +196,7 @@ class BusObserver:
                 self._need_scene.clear()
                 if not self._fetch_scene():
                     self._need_scene.set()
+                self._watch_views()
             now = time.monotonic()
             if now >= next_counters and self.ids:
                 next_counters = now + ENDPOINTS_EVERY_S
@@ -206,10 +210,7 @@ class BusObserver:
             log.debug("no hub yet: %s", exc)
             return False
         ring = zenoh.handlers.RingChannel
-        subs = {
-            "view": session.declare_subscriber(self.keys.hub_view, ring(RINGS["view"])),
-            "status": session.declare_subscriber(self.keys.hub_status, ring(RINGS["status"])),
-        }
+        subs = {"status": session.declare_subscriber(self.keys.hub_status, ring(RINGS["status"]))}
         self._declared = [
             session.liveliness().declare_subscriber(
                 self.keys.alive_all, self._on_alive, history=True
@@ -219,6 +220,18 @@ class BusObserver:
             self.session, self._subs = session, subs
         log.info("observing session %r at %s", self.bus.session, self.where)
         return True
+
+    def _watch_views(self) -> None:
+        """Subscribe to ``hub/view`` (once), after the first try at the scene: a hub that
+        waits for its dashboard (``neuvision run --dashboard``) starts its steps when it
+        sees this subscriber, and by then the world is read (a first read compiles or loads
+        the geometry kernels: seconds of CPU on a slow machine, better spent before the
+        steps than during them)."""
+        if "view" not in self._subs:
+            ring = zenoh.handlers.RingChannel(RINGS["view"])
+            sub = self.session.declare_subscriber(self.keys.hub_view, ring)
+            with self.state.lock:
+                self._subs = {**self._subs, "view": sub}
 
     def _on_alive(self, sample) -> None:
         if self.keys.parse_alive(str(sample.key_expr)) == ("hub", "0"):

@@ -4,8 +4,9 @@ geometry, the culture's channel layout, the loop's period — as one JSON-ready 
 Built from the endpoints' :class:`~hub.protocol.Description` (what they say they are) and
 the run's config (the hub's ``config`` control reply live, the manifest's ``config`` in a
 replay). The world, when the config names one, is read by the lab layer
-(:func:`lab.behaviour.world_of`, imported with this module: reading a world costs a few
-tenths of a second of CPU, better spent before a run's steps than during them); a body in a
+(:func:`lab.behaviour.world_of`, imported with this module; a first read also loads the
+geometry kernels, seconds of CPU on a slow machine: the observer reads it before it
+subscribes to the hub's views, which a hub told to wait for its dashboard waits for); a body in a
 world not known here (a real robot without ``body.params.world``) is drawn in an arena
 fitted to its trail.
 """

@@ -239,6 +239,9 @@ class DashboardSection:
     # Frames sent to the page per second (each frame carries the newest state; a page that
     # cannot keep up gets fewer, never older ones).
     fps: float = field(default=30.0, metadata=bounds(ge=1, le=120))
+    # `neuvision run --dashboard` holds the run's first step until the dashboard watches
+    # (it has read the run's world and subscribed), at most this long; 0: start at once.
+    wait_s: float = field(default=20.0, metadata=bounds(ge=0, le=600))
 
 
 @dataclass(frozen=True)

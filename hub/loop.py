@@ -144,6 +144,9 @@ class Hub:
         Where to write the record and manifest (None: record nothing).
     progress : callable or None
         Called with a :class:`Progress` a few times a second.
+    wait_for_view_s : float
+        Hold the first step until a live display watches ``hub/view``, at most this long
+        (``neuvision run --dashboard``); 0: start at once.
     """
 
     def __init__(
@@ -151,8 +154,10 @@ class Hub:
         cfg: ExperimentConfig,
         run_dir: Path | None = None,
         progress: Callable[[Progress], None] | None = None,
+        wait_for_view_s: float = 0.0,
     ):
         self.cfg = cfg
+        self.wait_for_view_s = wait_for_view_s
         self.keys = cfg.bus.keys
         self.run_dir = Path(run_dir) if run_dir else None
         self.progress = progress
@@ -259,6 +264,7 @@ class Hub:
             self.attach(session)
             self._wait_for_endpoints()
             self._describe_all(session)
+            self._wait_for_view()
             self._announce_run(session)
             self.prepare(self.descriptions)
             self._record_event("start", mode=cfg.loop.mode, n_steps=cfg.n_steps)
@@ -629,6 +635,30 @@ class Hub:
                     f"{', '.join(self.cfg.bus.listen)})"
                 )
             self.next_event(min(deadline, time.monotonic() + 0.1))
+
+    def _wait_for_view(self) -> None:
+        """Hold the first step until a live display subscribes to ``hub/view``, at most
+        ``wait_for_view_s``: the page then shows the run from its first step, and the
+        display's start-up (its imports, reading the world it draws) is not paid during the
+        steps. Before the run is announced, so that no endpoint's clock has started."""
+        if self.wait_for_view_s <= 0 or not self.cfg.loop.view_hz:
+            return
+        start = time.monotonic()
+        deadline = start + self.wait_for_view_s
+        log.info("waiting for the dashboard to watch (at most %g s)", self.wait_for_view_s)
+        while not self.link.view_observed():
+            if self.stop_reason:
+                raise HubError(f"stopped while waiting for the dashboard ({self.stop_reason})")
+            if time.monotonic() >= deadline:
+                log.warning(
+                    "the dashboard did not watch within %g s: the run starts without it",
+                    self.wait_for_view_s,
+                )
+                self._record_event("view_wait", watched=False, waited_s=self.wait_for_view_s)
+                return
+            self.next_event(min(deadline, time.monotonic() + 0.05))
+        self._record_event("view_wait", watched=True, waited_s=time.monotonic() - start)
+        self.view.watch(True)  # gather from the first step
 
     def _describe_all(self, session: zenoh.Session) -> None:
         for role, i in self.ids.items():

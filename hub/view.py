@@ -83,17 +83,13 @@ class ObserverView:
             fields["from_s"] = min(b.t0_s for b in spikes)
             fields["to_s"] = max(b.t1_s for b in spikes)
             fields["spike_channel"] = np.concatenate([b.channel for b in spikes])
-            fields["spike_t_ms"] = np.concatenate(
-                [b.t0_s * 1e3 + b.t_ms.astype(np.float64) for b in spikes]
-            )
+            fields["spike_t_ms"] = _run_ms([b.t0_s for b in spikes], [b.t_ms for b in spikes])
         else:
             t = self._sensors.t_s if self._sensors is not None else 0.0
             fields["from_s"] = fields["to_s"] = t
         if stims:
             fields["pulse_channel"] = np.concatenate([s.channel for s in stims])
-            fields["pulse_t_ms"] = np.concatenate(
-                [s.t0_s * 1e3 + s.onset_ms.astype(np.float64) for s in stims]
-            )
+            fields["pulse_t_ms"] = _run_ms([s.t0_s for s in stims], [s.onset_ms for s in stims])
         if self._trail:
             fields["trail_m"] = np.array(self._trail, dtype=np.float64).reshape(-1)
             self._trail.clear()
@@ -104,6 +100,14 @@ class ObserverView:
             fields.update(left_mps=self._motor.left_mps, right_mps=self._motor.right_mps)
         self._fresh = False
         return HubView(**fields)
+
+
+def _run_ms(t0_s: list[float], t_ms: list[np.ndarray]) -> np.ndarray:
+    """Times within each message's window (ms after its ``t0_s``) as run times in ms, all
+    messages' in one array: a handful of numpy calls a view, not two per message."""
+    sizes = [t.size for t in t_ms]
+    offsets_ms = np.repeat(np.asarray(t0_s, np.float64) * 1e3, sizes)
+    return offsets_ms + np.concatenate(t_ms).astype(np.float64)
 
 
 def _newest(batches) -> list[SpikeBatch]:

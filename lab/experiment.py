@@ -125,7 +125,8 @@ def run_experiment(
         dash = start_local_dashboard(config, overrides, dash_port, run_dir)
         shown = "127.0.0.1" if dash_host in ("0.0.0.0", "::") else dash_host
         announce(f"dashboard at http://{shown}:{dash_port}/ for the run's length")
-    hub = Hub(cfg, run_dir=run_dir, progress=progress)
+    wait_s = cfg.dashboard.wait_s if dash is not None else 0.0
+    hub = Hub(cfg, run_dir=run_dir, progress=progress, wait_for_view_s=wait_s)
     signals = install_signals and threading.current_thread() is threading.main_thread()
     if signals:
         previous = {

@@ -23,8 +23,8 @@ class Harness:
         self.procs = start_local_endpoints(None, self.overrides, self.cfg, tmp_path)
         self.hub = None
 
-    def run(self, progress=None):
-        self.hub = Hub(self.cfg, run_dir=self.run_dir, progress=progress)
+    def run(self, progress=None, **hub_options):
+        self.hub = Hub(self.cfg, run_dir=self.run_dir, progress=progress, **hub_options)
         self.result = self.hub.run()
         self.record = read_run(self.run_dir)
         return self.result

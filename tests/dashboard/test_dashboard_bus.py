@@ -5,12 +5,14 @@ from __future__ import annotations
 
 import json
 import threading
+import time
 
 import pytest
 
 from dashboard.observer import BusObserver
 from dashboard.state import FrameState, Reader
 from hub.cli import main
+from hub.protocol import SpikeBatch
 from tests.harness import harness, wait_for
 
 pytestmark = pytest.mark.bus
@@ -98,6 +100,54 @@ def test_the_observer_shows_the_run_and_pauses_resumes_and_stops_it(
     commands = [e.payload["cmd"] for e in h.record.events if e.key == "control"]
     assert commands == ["config", "pause", "status", "resume", "stop"]
     assert result.counts["dropped"] == {}
+
+
+def test_a_hub_that_waits_for_its_dashboard_steps_once_the_dashboard_has_the_scene(
+    tmp_path, bus_overrides
+):
+    """``neuvision run --dashboard``: the first step waits until the dashboard watches, which
+    it does once it has read the run's scene; the page then has the run from its start."""
+    with harness(tmp_path, bus_overrides, "loop.mode=realtime", "experiment.duration_s=1") as h:
+        state = FrameState()
+        observer = BusObserver(h.cfg.bus, state)
+        scene_at_first_view: list = []
+        done = threading.Event()
+
+        def page():
+            time.sleep(1.0)  # the dashboard comes a second after the hub
+            observer.start()
+            while not done.is_set():
+                with state.lock:
+                    observer.tick()
+                    if state.step >= 0 and not scene_at_first_view:
+                        scene_at_first_view.append(state.scene)
+                time.sleep(0.005)
+
+        thread = threading.Thread(target=page)
+        thread.start()
+        try:
+            result = h.run(wait_for_view_s=30)
+        finally:
+            done.set()
+            thread.join(timeout=10)
+            observer.close()
+    (wait,) = [e.payload for e in h.record.events if e.key == "view_wait"]
+    assert wait["watched"] and wait["waited_s"] > 0.25  # it did wait
+    assert result.outcome == "completed" and scene_at_first_view[0]["culture"] is not None
+    # the page has the run from its start: its first spike is the run's first
+    shown_ms = min(float(t.min()) for t, _ in state.tapes["spikes"].since(0))
+    batches = [b for _, b in sorted(h.received(SpikeBatch).items()) if b.channel.size]
+    assert shown_ms == batches[0].t0_s * 1e3 + float(batches[0].t_ms[0])
+
+
+def test_a_hub_that_waits_for_a_dashboard_that_never_comes_starts_after_its_wait(
+    tmp_path, bus_overrides
+):
+    with harness(tmp_path, bus_overrides, "experiment.duration_s=0.1") as h:
+        result = h.run(wait_for_view_s=0.5)
+    (wait,) = [e.payload for e in h.record.events if e.key == "view_wait"]
+    assert not wait["watched"] and wait["waited_s"] == 0.5
+    assert result.outcome == "completed" and result.steps == 10
 
 
 def test_neuvision_ctl_says_when_no_hub_answers(capsys):
