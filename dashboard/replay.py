@@ -24,6 +24,8 @@ from hub.record import DATA_DIRECTIONS, read_run
 from .scene import build_scene, world_for
 from .state import BURSTS_KEPT_S, RASTER_S, RATE_HISTORY_S, FrameState
 
+# A network burst's core, noted since 2026-11-26; an older record's extent stands for it.
+CORE_KEYS = (("core_start_ms", "start_ms"), ("core_end_ms", "end_ms"))
 SPEEDS = (0.1, 0.25, 0.5, 1.0, 2.0, 5.0, 10.0, 20.0, 50.0)
 
 
@@ -75,6 +77,7 @@ class ReplaySource:
         events = rec.events
         bursts = sorted(
             [e.payload["start_ms"], e.payload["end_ms"], e.payload["n_channels"]]
+            + [e.payload.get(k, e.payload[e_k]) for k, e_k in CORE_KEYS]
             for e in events
             if e.key == "network_burst"
         )

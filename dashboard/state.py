@@ -216,14 +216,19 @@ class FrameState:
             self.tapes["pulses"].add(float(t_ms[known].max()) / 1e3, (t_ms[known], idx[known]))
 
     def add_bursts(self, bursts) -> None:
-        """Network bursts ``[start_ms, end_ms, n_channels]`` (each once, however often given)."""
-        for start_ms, end_ms, n in bursts:
-            if start_ms in self._burst_starts:
+        """Network bursts ``[start_ms, end_ms, n_channels, core_start_ms, core_end_ms]``: the
+        extent and the core (docs/analysis.md; a record from before the core was noted gives
+        only the extent, which then stands for it), each once however often given."""
+        for start_ms, end_ms, n, *core in bursts:
+            core_start_ms, core_end_ms = core or (start_ms, end_ms)
+            if core_start_ms in self._burst_starts:  # cores, unlike extents, never overlap
                 continue
-            self._burst_starts.add(start_ms)
-            self.tapes["bursts"].add(end_ms / 1e3, [start_ms, end_ms, n])
+            self._burst_starts.add(core_start_ms)
+            self.tapes["bursts"].add(
+                end_ms / 1e3, [start_ms, end_ms, n, core_start_ms, core_end_ms]
+            )
         if len(self._burst_starts) > BURSTS_SEEN_MAX:  # forget those no longer kept
-            self._burst_starts = {b[0] for b in self.tapes["bursts"].since(0)}
+            self._burst_starts = {b[3] for b in self.tapes["bursts"].since(0)}
 
     def set_status(self, status: dict) -> None:
         self.status = status

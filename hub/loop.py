@@ -211,7 +211,8 @@ class Hub:
         # hub itself did not run (frozen, starved): (when it ended, how long it was).
         self._last_wake = time.monotonic()
         self._stall: tuple[float, float] = (-math.inf, 0.0)
-        # The latest network bursts found online, for observers: [start_ms, end_ms, n_channels]
+        # The latest network bursts found online, for observers:
+        # [start_ms, end_ms, n_channels, core_start_ms, core_end_ms]
         self._recent_network_bursts: deque = deque(maxlen=RECENT_NETWORK_BURSTS)
 
     # ================================================================ public
@@ -354,10 +355,14 @@ class Hub:
                 start_ms=nb.start_ms,
                 end_ms=nb.end_ms,
                 n_channels=len(nb.channels),
+                core_start_ms=nb.core_start_ms,
+                core_end_ms=nb.core_end_ms,
                 at_step=self.k,
             )
             self._recent_network_bursts.append(
-                [round(nb.start_ms, 3), round(nb.end_ms, 3), len(nb.channels)]
+                [round(v, 3) for v in (nb.start_ms, nb.end_ms)]
+                + [len(nb.channels)]
+                + [round(v, 3) for v in (nb.core_start_ms, nb.core_end_ms)]
             )
 
     def next_event(self, until: float) -> bool:

@@ -370,15 +370,10 @@ function drawRaster() {
   if (!cul) return;
   const n = cul.channel.length, rowH = (bottom - top) / n;
   const y = (i) => top + i * rowH;
-  ctx.fillStyle = "rgba(224, 168, 0, 0.18)";
-  for (const b of nv.bursts) {
-    const a = x(b[0] / 1000), e = x(b[1] / 1000);
-    if (e < 0 || a > w) continue;
-    ctx.fillRect(a, top, Math.max(e - a, ratio), bottom - top);
-  }
+  shadeBursts(ctx, x, top, bottom, w, ratio);
   ctx.fillStyle = "#e0a800"; ctx.font = `${11 * ratio}px system-ui, sans-serif`;
   for (const b of nv.bursts) {
-    const m = x((b[0] + b[1]) / 2000);
+    const m = x((b[3] + b[4]) / 2000);
     if (m >= 0 && m <= w) ctx.fillText("▼", m - 4 * ratio, top - 1 * ratio);
   }
   const dotH = Math.max(rowH, ratio), dotW = Math.max(1.2 * ratio, 1);
@@ -399,6 +394,20 @@ function drawRaster() {
   }
 }
 
+// Network bursts [start_ms, end_ms, n, core_start_ms, core_end_ms]: the extent (first to last
+// participating spike) pale, the core (the threshold held) strong. In a closed loop a
+// stimulated channel bursts for seconds and the extent with it (docs/analysis.md).
+function shadeBursts(ctx, x, top, bottom, w, ratio) {
+  for (const [from, to, colour] of [[0, 1, "rgba(224, 168, 0, 0.10)"], [3, 4, "rgba(224, 168, 0, 0.35)"]]) {
+    ctx.fillStyle = colour;
+    for (const b of nv.bursts) {
+      const a = x(b[from] / 1000), e = x(b[to] / 1000);
+      if (e < 0 || a > w) continue;
+      ctx.fillRect(a, top, Math.max(e - a, ratio), bottom - top);
+    }
+  }
+}
+
 function drawRates() {
   const [ctx, w, h, ratio] = canvas2d("rates");
   const t1 = Math.max(nv.t_s, RATES_S), t0 = t1 - RATES_S;
@@ -408,8 +417,7 @@ function drawRates() {
   let peak = 5;
   for (const r of nv.rates) for (let k = 1; k < 4; k++) if (r[k] !== null && r[k] > peak) peak = r[k];
   const y = (v) => bottom - (v / peak) * (bottom - top);
-  ctx.fillStyle = "rgba(224, 168, 0, 0.18)";
-  for (const b of nv.bursts) ctx.fillRect(x(b[0] / 1000), top, Math.max(x(b[1] / 1000) - x(b[0] / 1000), ratio), bottom - top);
+  shadeBursts(ctx, x, top, bottom, w, ratio);
   ctx.fillStyle = "#6b7380"; ctx.font = `${11 * ratio}px system-ui, sans-serif`;
   ctx.fillText(`${peak.toFixed(0)} Hz`, 2 * ratio, top + 10 * ratio);
   ctx.fillText("0", 2 * ratio, bottom);

@@ -67,7 +67,15 @@ def write_run(run_dir, *, steps: int = N_STEPS) -> None:
         if k != 70:
             spikes = SpikeBatch(**window.stamp, channel=[k % 4], t_ms=[5.0])
             rec.message("rx", "nv/s/culture/0/spikes", spikes.encode())
-    rec.event("network_burst", start_ms=500.0, end_ms=560.0, n_channels=3, at_step=60)
+    rec.event(
+        "network_burst",
+        start_ms=500.0,
+        end_ms=560.0,
+        n_channels=3,
+        core_start_ms=520.0,
+        core_end_ms=530.0,
+        at_step=60,
+    )
     rec.event("late", role="body", step=50, at_step=52)
     rec.event("missed", role="culture", step=70)
     rec.close()

@@ -68,7 +68,7 @@ def test_a_jump_gives_the_state_the_history_a_page_shows_then(run_dir):
     assert frame["trail"][0] == [0.0, 0.0] and frame["trail"][-1] == pytest.approx([0.098, 0.0])
     t = np.frombuffer(base64.b64decode(frame["spikes"]["t"]), "<f4") + frame["spikes"]["t0"]
     assert t.size == 99 and t.max() == pytest.approx(995.0)  # step 70's is missing
-    assert frame["bursts"] == [[500.0, 560.0, 3]]
+    assert frame["bursts"] == [[500.0, 560.0, 3, 520.0, 530.0]]
     # what the hub noted up to 1 s: the late body reply of step 50, the missing one of 70
     assert frame["status"]["late"] == {"body": 1} and frame["status"]["missing"] == {"culture": 1}
     assert frame["status"]["dropped"] == {"body": 2}  # the run's, from the manifest

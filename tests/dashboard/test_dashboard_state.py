@@ -162,13 +162,27 @@ def test_a_channels_activity_fades_with_time():
 
 def test_network_bursts_are_kept_once_however_often_the_hub_repeats_them():
     state = _state()
-    state.add_bursts([[100.0, 180.0, 3], [400.0, 450.0, 4]])
-    state.add_bursts([[400.0, 450.0, 4], [900.0, 990.0, 2]])
+    state.add_bursts([[100.0, 180.0, 3, 120.0, 130.0], [400.0, 450.0, 4, 410.0, 420.0]])
+    state.add_bursts([[400.0, 450.0, 4, 410.0, 420.0], [900.0, 990.0, 2, 930.0, 935.0]])
     assert state.frame(Reader())["bursts"] == [
-        [100.0, 180.0, 3],
-        [400.0, 450.0, 4],
-        [900.0, 990.0, 2],
+        [100.0, 180.0, 3, 120.0, 130.0],
+        [400.0, 450.0, 4, 410.0, 420.0],
+        [900.0, 990.0, 2, 930.0, 935.0],
     ]
+
+
+def test_network_bursts_whose_extents_share_a_long_burst_are_each_kept():
+    """In a closed loop a stimulated channel bursts for seconds: two network bursts it takes
+    part in have the same extent, and are told apart by their cores."""
+    state = _state()
+    state.add_bursts([[10.0, 9000.0, 5, 100.0, 110.0], [10.0, 9000.0, 6, 3000.0, 3008.0]])
+    assert [b[3] for b in state.frame(Reader())["bursts"]] == [100.0, 3000.0]
+
+
+def test_a_network_burst_without_a_core_is_shown_by_its_extent():
+    state = _state()
+    state.add_bursts([[500.0, 560.0, 3]])
+    assert state.frame(Reader())["bursts"] == [[500.0, 560.0, 3, 500.0, 560.0]]
 
 
 def test_a_frame_is_plain_json():
