@@ -397,13 +397,15 @@ function drawRaster() {
 // Network bursts [start_ms, end_ms, n, core_start_ms, core_end_ms]: the extent (first to last
 // participating spike) pale, the core (the threshold held) strong. In a closed loop a
 // stimulated channel bursts for seconds and the extent with it (docs/analysis.md).
+// A core is often a few ms: at least 3 px wide, so that it shows at any zoom.
 function shadeBursts(ctx, x, top, bottom, w, ratio) {
-  for (const [from, to, colour] of [[0, 1, "rgba(224, 168, 0, 0.10)"], [3, 4, "rgba(224, 168, 0, 0.35)"]]) {
+  const shades = [[0, 1, "rgba(224, 168, 0, 0.10)", ratio], [3, 4, "rgba(224, 168, 0, 0.45)", 3 * ratio]];
+  for (const [from, to, colour, least] of shades) {
     ctx.fillStyle = colour;
     for (const b of nv.bursts) {
       const a = x(b[from] / 1000), e = x(b[to] / 1000);
       if (e < 0 || a > w) continue;
-      ctx.fillRect(a, top, Math.max(e - a, ratio), bottom - top);
+      ctx.fillRect(a, top, Math.max(e - a, least), bottom - top);
     }
   }
 }
