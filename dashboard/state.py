@@ -119,6 +119,7 @@ class FrameState:
             self._table = np.zeros(1, np.int64) - 1
             self._exc = self._inh = np.zeros(0, bool)
             self._xy = np.zeros((0, 2))
+            self._n_all, self._n_exc, self._n_inh = 1, 0, 0
             return
         ids = np.asarray(culture["channel"], np.int64)
         self.n_channels = ids.size
@@ -128,6 +129,8 @@ class FrameState:
         self._exc = np.asarray(cell) == 0 if cell is not None else np.zeros(0, bool)
         self._inh = np.asarray(cell) == 1 if cell is not None else np.zeros(0, bool)
         self._xy = np.stack([np.asarray(culture["x_um"]), np.asarray(culture["y_um"])], axis=1)
+        # the rates' denominators: every channel, the excitatory ones, the inhibitory ones
+        self._n_all, self._n_exc, self._n_inh = ids.size, int(self._exc.sum()), int(self._inh.sum())
 
     def reset(self) -> None:
         """Empty every history (a new run, a jump in a replay); the scene stays."""
@@ -287,21 +290,19 @@ class FrameState:
         a point of the rates and one of the Center of Activity's path."""
         last = int(math.floor(until_ms / BIN_MS + 1e-9))  # bins before this one are whole
         self._closed = max(self._closed, last)
-        n_all = max(self.n_channels, 1)
-        n_exc = int(self._exc.sum()) if self._exc.size else 0
-        n_inh = int(self._inh.sum()) if self._inh.size else 0
+        n_all, n_exc, n_inh = self._n_all, self._n_exc, self._n_inh
         for b in sorted(b for b in self._bins if b < last):
-            covered, n, exc, inh, sx, sy = self._bins.pop(b)
+            covered, n, exc, inh, sx, sy = self._bins.pop(b).tolist()  # floats: no numpy scalars
             if covered < BIN_MS / 2:
                 continue
             t_s = round((b + 1) * BIN_MS / 1e3, 4)
             to_hz = 1e3 / covered
-            rates = [t_s, round(float(n) / n_all * to_hz, 3)]
-            rates.append(round(float(exc) / n_exc * to_hz, 3) if n_exc else None)
-            rates.append(round(float(inh) / n_inh * to_hz, 3) if n_inh else None)
+            rates = [t_s, round(n / n_all * to_hz, 3)]
+            rates.append(round(exc / n_exc * to_hz, 3) if n_exc else None)
+            rates.append(round(inh / n_inh * to_hz, 3) if n_inh else None)
             self.tapes["rates"].add(t_s, rates)
             if n > 0:
-                self.tapes["ca"].add(t_s, [t_s, round(float(sx / n), 2), round(float(sy / n), 2)])
+                self.tapes["ca"].add(t_s, [t_s, round(sx / n, 2), round(sy / n, 2)])
 
     # ------------------------------------------------------------------ frames
 
