@@ -99,7 +99,7 @@ class Dashboard:
     async def lifespan(self, app):
         await asyncio.to_thread(self.source.start)
         pump = asyncio.create_task(self.pump())
-        wall0, cpu0 = time.monotonic(), time.process_time()
+        started = (time.monotonic(), time.process_time())
         try:
             yield
         finally:
@@ -107,20 +107,17 @@ class Dashboard:
             with contextlib.suppress(asyncio.CancelledError):
                 await pump
             await asyncio.to_thread(self.source.close)
-            wall, cpu = time.monotonic() - wall0, time.process_time() - cpu0
+            wall, cpu, share = _used_since(started)
             log.info(
                 "served %d ticks in %.1f s; the dashboard's process used %.2f s of CPU (%.1f %% "
-                "of a core)", self.ticks, wall, cpu, 100 * cpu / max(wall, 1e-9),
+                "of a core)", self.ticks, wall, cpu, share,
             )  # fmt: skip
             if self.stepping_since is not None:
-                wall1, cpu1 = self.stepping_since
-                wall, cpu = time.monotonic() - wall1, time.process_time() - cpu1
+                wall, cpu, share = _used_since(self.stepping_since)
                 log.info(
                     "from the first step shown: %.2f s of CPU in %.1f s (%.1f %% of a core)",
-                    cpu,
-                    wall,
-                    100 * cpu / max(wall, 1e-9),
-                )
+                    cpu, wall, share,
+                )  # fmt: skip
 
     # ------------------------------------------------------------------ http
 
@@ -210,6 +207,13 @@ class Dashboard:
             self.pages.discard(page)
         finally:
             page.busy = False
+
+
+def _used_since(since: tuple[float, float]) -> tuple[float, float, float]:
+    """Wall seconds, CPU seconds of this process, and its share of a core (%) since
+    ``since`` = ``(time.monotonic(), time.process_time())``."""
+    wall, cpu = time.monotonic() - since[0], time.process_time() - since[1]
+    return wall, cpu, 100 * cpu / max(wall, 1e-9)
 
 
 def _json_default(obj):

@@ -359,10 +359,9 @@ class Hub:
                 core_end_ms=nb.core_end_ms,
                 at_step=self.k,
             )
+            extent, core = (nb.start_ms, nb.end_ms), (nb.core_start_ms, nb.core_end_ms)
             self._recent_network_bursts.append(
-                [round(v, 3) for v in (nb.start_ms, nb.end_ms)]
-                + [len(nb.channels)]
-                + [round(v, 3) for v in (nb.core_start_ms, nb.core_end_ms)]
+                [*(round(v, 3) for v in extent), len(nb.channels), *(round(v, 3) for v in core)]
             )
 
     def next_event(self, until: float) -> bool:
