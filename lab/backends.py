@@ -7,7 +7,8 @@ Builds the culture file's network on sim_network (``Network``) and on NEST
 spontaneous activity from each (after the same warm-up) and prints the paper's figures of
 both, computed by ``hub.analysis`` as ``lab.calibrate`` computes them, with their relative
 difference against `TOLERANCE`. ``--evoked`` adds the paper's one-neuron protocol on NEST
-(10 ms, 100 µA every 5 s into the excitatory neuron nearest the centre) and its PSTH peak.
+(10 ms, 100 µA every 5 s into the regular-spiking excitatory neuron nearest the centre, as
+``lab.reproduce`` chooses it) and its PSTH peak.
 The two integrators differ (docs/nest.md), so the comparison is statistical, not spike for
 spike. The last line printed is one JSON object.
 """
@@ -23,12 +24,14 @@ from pathlib import Path
 from hub.analysis.metrics import AnalysisParams
 from hub.analysis.paper import PSTH_PEAK_RANGE_MS
 from lab.activity import analyze_culture
-from lab.calibrate import central_excitatory_neuron, record
+from lab.calibrate import record
+from lab.reproduce import stimulation_targets
 from settings import ConfigError
 from sim_network import Network, NetworkConfig, PeriodicStimulus, load_config
+from sim_network.layout import EXCITATORY
 
-#: the culture before issue 21: the default culture's adaptation and slow current are not in NEST
-LOCAL_CULTURE = Path(__file__).resolve().parent.parent / "configs" / "culture_1024_local.toml"
+#: the default culture (its adaptation and slow current by NeuVision's NEST module on NEST)
+DEFAULT_CULTURE = Path(__file__).resolve().parent.parent / "configs" / "culture_1024.toml"
 
 #: The figures compared, and how far NEST's may lie from sim_network's (issue 22).
 COMPARED_KEYS = ("mfr_hz", "mbr_per_min", "mnbr_per_min", "nb_duration_ms")
@@ -111,7 +114,7 @@ def evoked(net, seconds: float, warmup_s: float = 5.0) -> dict:
     """
     record(net, warmup_s)
     t0 = net.t_ms
-    target = central_excitatory_neuron(net)
+    (target,) = stimulation_targets(net.layout, EXCITATORY, 1, net.chattering_like)
     count = int(seconds // (PULSE_PERIOD_MS / 1e3))
     stim = PeriodicStimulus(
         (target,),
@@ -182,8 +185,8 @@ def main(argv: list[str] | None = None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
     ap.add_argument(
         "--config",
-        default=str(LOCAL_CULTURE),
-        help="culture file (default: configs/culture_1024_local.toml, which NEST expresses)",
+        default=str(DEFAULT_CULTURE),
+        help="culture file (default: configs/culture_1024.toml, the default culture)",
     )
     ap.add_argument("--seconds", type=float, default=300.0)
     ap.add_argument("--warmup", type=float, default=5.0, help="seconds discarded first")

@@ -21,7 +21,7 @@ import settings
 from hub.config import ConfigError, EndpointSection, ExperimentConfig, check_value
 from hub.endpoint import Endpoint, RunRefused
 from hub.protocol import Description, Potentials, RunStart, SpikeBatch, StepWindow, Stimulation
-from sim_network import Network, PulseError, Pulses, nest_backend
+from sim_network import Network, PulseError, Pulses, nest_backend, nest_module
 from sim_network.config import config_from_dict, config_to_dict, read_config_data
 
 # What the simulated culture takes (contract v2 limits; a real rig's are far lower): the
@@ -182,7 +182,8 @@ class NestEndpoint(NetworkEndpoint):
     @classmethod
     def check_config(cls, section: EndpointSection, cfg: ExperimentConfig) -> dict:
         """The simulated culture's parameters checked (`NetworkEndpoint.check_config`),
-        ``threads``, the features NEST cannot express, and NEST present.
+        ``threads``, the features NEST cannot express, NEST present, and NeuVision's NEST
+        module built where the culture needs it (`sim_network.nest_module`).
 
         Returns
         -------
@@ -192,7 +193,8 @@ class NestEndpoint(NetworkEndpoint):
         Raises
         ------
         ConfigError
-            Naming ``culture.params.<key>``, or saying how to install NEST.
+            Naming ``culture.params.<key>``, or saying how to install NEST or what the
+            module's build needs.
         """
         params = dict(section.params)
         threads = check_value("culture.params.threads", int, params.pop("threads", 1), ge=1)
@@ -203,12 +205,21 @@ class NestEndpoint(NetworkEndpoint):
                 f"got {noise_source!r}"
             )
         resolved = super().check_config(dataclasses.replace(section, params=params), cfg)
-        nest_backend.check_expressible(config_from_dict(resolved["config"]), "culture.params.")
+        culture = config_from_dict(resolved["config"])
+        nest_backend.check_expressible(culture, "culture.params.")
         if not nest_backend.nest_available():
             raise ConfigError(
                 f"culture.kind = 'nest' needs NEST, which is not installed here: "
                 f"{nest_backend.INSTALL_HINT}"
             )
+        if nest_backend.needs_module(culture):
+            try:  # built here, once, before anything starts (cached after)
+                nest_module.module_path()
+            except nest_module.NestModuleError as exc:
+                raise ConfigError(
+                    "culture.kind = 'nest': this culture's adaptation or slow current needs "
+                    f"NeuVision's NEST module: {exc}"
+                ) from None
         return {**resolved, "threads": threads, "noise_source": noise_source}
 
     @classmethod

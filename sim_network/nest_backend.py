@@ -15,6 +15,10 @@ culture file        NEST
 ``neurons``         ``izhikevich`` with ``consistent_integration`` (forward Euler at dt,
                     spike inputs added to V_m as jumps in mV), each neuron's a, b, c, d;
                     V_th 30 mV, V_min −100 mV (sim_network's peak and floor)
+``adaptation``,     ``izhikevich_neuvision`` instead (`sim_network.nest_module`, built on
+``slow_current``    first use): ``izhikevich`` with the adaptation current (each neuron's
+                    increment, ``tau_adapt``) and the slow current (``slow_share``,
+                    ``tau_slow``)
 ``connectivity``    ``nest.Connect`` of the sampler's arrays (pre, post, weight in mV,
                     delay in whole steps as sim_network rounds it, less one:
                     `nest_delay_steps`)
@@ -54,6 +58,7 @@ import numpy as np
 from numba import njit
 
 from settings import ConfigError
+from sim_network import nest_module
 from sim_network.config import NetworkConfig
 from sim_network.connectivity import delay_steps
 from sim_network.kernels import IZH_V_PEAK_MV, STATE_DTYPE, V_FLOOR_MV, fill_noise
@@ -191,19 +196,6 @@ def refusals(cfg: NetworkConfig) -> list[str]:
             "neurons.model = 'hh': NEST's Hodgkin-Huxley neurons take synaptic input as "
             "alpha-shaped currents, not as the voltage jumps of this culture's synapses"
         )
-    ada = cfg.adaptation
-    if ada.enabled:
-        out.append(
-            f"adaptation.increment_exc_mv_per_ms = {ada.increment_exc_mv_per_ms}, "
-            f"adaptation.increment_inh_mv_per_ms = {ada.increment_inh_mv_per_ms}: NEST's "
-            "izhikevich has no spike-frequency adaptation current (run an adapting culture "
-            "on sim_network, or configs/culture_1024_local.toml on NEST)"
-        )
-    if cfg.slow_current.share > 0:
-        out.append(
-            f"slow_current.share = {cfg.slow_current.share}: NEST's izhikevich takes a spike "
-            "only as a voltage jump, with no slow current beside it"
-        )
     st = cfg.stdp
     if st.enabled and cfg.depression.u > 0:
         out.append(
@@ -217,6 +209,12 @@ def refusals(cfg: NetworkConfig) -> list[str]:
             "depression by its potentiation step (alpha * lambda), so it cannot depress alone"
         )
     return out
+
+
+def needs_module(cfg: NetworkConfig) -> bool:
+    """Whether the culture needs ``izhikevich_neuvision`` (its adaptation or slow current)
+    rather than NEST's own ``izhikevich``."""
+    return cfg.adaptation.enabled or cfg.slow_current.share > 0
 
 
 def check_expressible(cfg: NetworkConfig, prefix: str = "") -> None:
@@ -505,7 +503,6 @@ class NestNetwork:
         self.mea = sampler.mea
         self._channels: Channels = sampler.channels
         self._noise_state0 = sampler.noise_state.copy()  # its noise generators, as seeded
-        del sampler
         inhibitory = self.layout.cell_type != EXCITATORY
         self._noise_mean = np.empty(self.layout.n, dtype=STATE_DTYPE)
         self._noise_sd = np.empty(self.layout.n, dtype=STATE_DTYPE)
@@ -514,6 +511,10 @@ class NestNetwork:
                 cfg.noise.of_population(flag)
             )
         self._dt = float(cfg.dt_ms)
+        self.chattering_like = sampler.chattering_like  # as Network: cells that do not adapt
+        self._adapt_increment = sampler.adaptation_increment.astype(np.float64)
+        del sampler
+        self._module = nest_module.module_path() if needs_module(cfg) else None
         self._rebuilding: Future | None = None
         self._neuron_spikes = Spikes.concat([])
         worker.call(self._build)  # every rank builds its share (none is following yet)
@@ -571,13 +572,22 @@ class NestNetwork:
         nest.set(min_delay=(d_min + 0.5) * dt, max_delay=(d_max + 0.5) * dt)
         device_delay = d_min * dt
         v0, aux0 = initial_state(cfg, self.params)
-        nodes = nest.Create(
-            "izhikevich",
-            n,
-            params={"consistent_integration": True, "V_th": IZH_V_PEAK_MV, "V_min": V_FLOOR_MV},
-        )
+        if self._module is None:
+            model, common = "izhikevich", {"consistent_integration": True}
+        else:
+            nest_module.install(nest, self._module)  # again after every ResetKernel
+            model = nest_module.MODEL
+            common = {
+                "tau_adapt": cfg.adaptation.tau_ms,
+                "slow_share": cfg.slow_current.share,
+                "tau_slow": cfg.slow_current.tau_ms,
+            }
+        common.update(V_th=IZH_V_PEAK_MV, V_min=V_FLOOR_MV)
+        nodes = nest.Create(model, n, params=common)
         per_neuron = {"a": self.params[0], "b": self.params[1], "c": self.params[2]}
         per_neuron.update(d=self.params[3], V_m=v0, U_m=aux0[0])
+        if self._module is not None and cfg.adaptation.enabled:
+            per_neuron["adapt_increment"] = self._adapt_increment
         if cfg.stdp.enabled:
             per_neuron["tau_minus"] = np.full(n, cfg.stdp.tau_minus_ms)
         keys = list(per_neuron)

@@ -179,6 +179,15 @@ class Network:
         """Neuron-level spikes of the most recent `run()` (`channel` holds the neuron index)."""
         return self._neuron_spikes
 
+    @property
+    def adaptation_increment(self) -> np.ndarray:
+        """Each neuron's rise of its adaptation current per spike (float32[n], model current
+        units, a copy): its population's increment, 0 for chattering-like cells, all 0 when
+        the adaptation is off."""
+        if not self._adapt_on:
+            return np.zeros(self.layout.n, dtype=np.float32)
+        return self._adapt_inc.copy()
+
     def adaptation_current(self) -> np.ndarray:
         """Each neuron's spike-frequency adaptation current, as the next step will use it.
 

@@ -29,6 +29,21 @@ def bus_overrides() -> list[str]:
     ]
 
 
+@pytest.fixture(scope="session")
+def module_built() -> Path:
+    """NeuVision's NEST module (sim_network/nest_module.py), built once per source version,
+    or the test skipped saying why: NEST missing, or no C++ compiler or boost and libltdl
+    headers to build it (CI installs them)."""
+    from sim_network import nest_backend, nest_module
+
+    if not nest_backend.nest_available():
+        pytest.skip(f"NEST is not installed: {nest_backend.INSTALL_HINT}")
+    try:
+        return nest_module.module_path()
+    except nest_module.NestModuleError as exc:
+        pytest.skip(str(exc))
+
+
 TEST_ENDPOINTS = [
     'body.kind="tests.endpoints:EchoBody"',
     'culture.kind="tests.endpoints:EchoCulture"',

@@ -20,15 +20,12 @@ import pytest
 
 from lab import backends
 from sim_network import load_config
-from sim_network import nest_backend as nb
 
-#: The culture compared: main's default culture (repoint it when the default changes).
-CULTURE = "configs/culture_1024_local.toml"
+#: The culture compared: main's default culture (repoint it when the default changes); on
+#: NEST it takes NeuVision's NEST module (its adaptation and slow current).
+CULTURE = "configs/culture_1024.toml"
 
-pytestmark = [
-    pytest.mark.slow,
-    pytest.mark.skipif(not nb.nest_available(), reason=f"NEST is not installed: {nb.INSTALL_HINT}"),
-]
+pytestmark = [pytest.mark.slow, pytest.mark.usefixtures("module_built")]
 long_check = pytest.mark.skipif(
     os.environ.get("NEUVISION_LONG") != "1",
     reason="long (minutes on 2 cores): NEUVISION_LONG=1 runs it (figures in docs/nest.md)",
@@ -69,7 +66,6 @@ def test_the_closed_loop_on_nest_avoids_obstacles_better_than_blind(tmp_path):
         sys.executable, "-m", "hub.cli", "compare", "configs/closed_loop.toml",
         "configs/closed_loop_blind.toml", "--seeds", "4", "--jobs", "1", "--out", str(out),
         "--set", 'culture.kind="nest"',
-        "--set", 'culture.params.config="configs/culture_1024_local.toml"',
     ]  # fmt: skip
     done = subprocess.run(cmd, capture_output=True, text=True, timeout=3000)
     assert done.returncode == 0, done.stderr[-3000:]
