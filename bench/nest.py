@@ -38,8 +38,8 @@ sys.path.insert(0, str(ROOT))
 
 from bench.host import StealMeter, child_run, end_children_on_signal  # noqa: E402
 
-#: The culture measured at 1024 neurons (repoint it when the default culture changes).
-CULTURE = ROOT / "configs" / "culture_1024_local.toml"
+#: The culture measured at 1024 neurons: the default (repoint it when the default changes).
+CULTURE = ROOT / "configs" / "culture_1024.toml"
 
 
 def _config(name: str):
