@@ -182,8 +182,10 @@ class NestEndpoint(NetworkEndpoint):
     @classmethod
     def check_config(cls, section: EndpointSection, cfg: ExperimentConfig) -> dict:
         """The simulated culture's parameters checked (`NetworkEndpoint.check_config`),
-        ``threads``, the features NEST cannot express, NEST present, and NeuVision's NEST
-        module built where the culture needs it (`sim_network.nest_module`).
+        ``threads``, the features NEST cannot express, and, for a culture launched here, NEST
+        present and NeuVision's NEST module built where the culture needs it
+        (`sim_network.nest_module`; an external culture is checked by `from_config` on the
+        machine that runs it).
 
         Returns
         -------
@@ -207,27 +209,37 @@ class NestEndpoint(NetworkEndpoint):
         resolved = super().check_config(dataclasses.replace(section, params=params), cfg)
         culture = config_from_dict(resolved["config"])
         nest_backend.check_expressible(culture, "culture.params.")
+        if section.launch == "local":  # an external culture is checked where it runs
+            cls._check_installed(culture)
+        return {**resolved, "threads": threads, "noise_source": noise_source}
+
+    @staticmethod
+    def _check_installed(culture) -> None:
+        """NEST present and, where the culture needs it, NeuVision's NEST module built
+        (once, cached after), or a `ConfigError` saying what to install."""
         if not nest_backend.nest_available():
             raise ConfigError(
                 f"culture.kind = 'nest' needs NEST, which is not installed here: "
                 f"{nest_backend.INSTALL_HINT}"
             )
         if nest_backend.needs_module(culture):
-            try:  # built here, once, before anything starts (cached after)
+            try:
                 nest_module.module_path()
             except nest_module.NestModuleError as exc:
                 raise ConfigError(
                     "culture.kind = 'nest': this culture's adaptation or slow current needs "
                     f"NeuVision's NEST module: {exc}"
                 ) from None
-        return {**resolved, "threads": threads, "noise_source": noise_source}
 
     @classmethod
     def from_config(cls, section: EndpointSection, cfg: ExperimentConfig) -> NestEndpoint:
         params = cls.check_config(section, cfg)
+        culture = config_from_dict(params["config"])
+        if section.launch != "local":  # checked by check_config where launched here
+            cls._check_installed(culture)
         try:
             network = nest_backend.NestNetwork(
-                config_from_dict(params["config"]),
+                culture,
                 seed=params["seed"],
                 threads=params["threads"],
                 noise_source=params["noise_source"],

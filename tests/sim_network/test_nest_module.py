@@ -9,6 +9,7 @@ import pytest
 from hub.config import ConfigError, load_config
 from sim_network import nest_backend as nb
 from sim_network import nest_module
+from sim_network.endpoint import NestEndpoint
 
 needs_nest = pytest.mark.skipif(
     not nb.nest_available(), reason=f"NEST is not installed: {nb.INSTALL_HINT}"
@@ -52,6 +53,18 @@ def test_the_nest_culture_that_needs_the_module_is_a_config_error_before_anythin
         cfg.resolved()
     local = 'culture.params.config="configs/culture_1024_local.toml"'  # NEST's own izhikevich
     load_config("configs/closed_loop.toml", ['culture.kind="nest"', local]).resolved()
+
+
+@needs_nest
+def test_an_external_nest_culture_is_checked_where_it_runs_not_by_the_hub(tmp_path, monkeypatch):
+    # the hub's machine need not build the module of a culture that runs elsewhere; the
+    # machine that runs it refuses, before building anything, if it cannot build it
+    monkeypatch.setenv("NEUVISION_CACHE_DIR", str(tmp_path / "cache"))
+    monkeypatch.setenv("CXX", str(fake_compiler(tmp_path, "fatal error: ltdl.h: No such file")))
+    overrides = ['culture.kind="nest"', 'culture.launch="external"']
+    cfg = load_config("configs/closed_loop.toml", overrides).resolved()  # the hub's check
+    with pytest.raises(ConfigError, match=r"NeuVision's NEST module.*ltdl.h"):
+        NestEndpoint.from_config(cfg.culture, cfg)  # the culture's own machine
 
 
 @needs_nest
