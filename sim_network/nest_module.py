@@ -127,7 +127,7 @@ def module_path(pkg: Path | None = None) -> Path:
     Returns
     -------
     Path
-        The shared library (``nest.Install`` takes it without its ``.so``).
+        The shared library (`install` loads it into NEST).
 
     Raises
     ------
