@@ -28,8 +28,10 @@ culture file        NEST
 ``stdp``            ``stdp_synapse`` (additive: mu 0, lambda a+/w_max, alpha a−/a+) on the
                     excitatory synapses, ``tau_minus`` on the neurons
 ``noise``           the culture's own noise (sim_network's per-neuron generators,
-                    the same currents in the same windows) through one
-                    ``step_current_generator`` per neuron (`_NoiseReplay`); or, with
+                    the same currents in the same windows): drawn by each
+                    ``izhikevich_neuvision`` neuron itself, or replayed to ``izhikevich``
+                    through one ``step_current_generator`` per neuron (`_NoiseReplay`); or,
+                    with
                     ``noise_source = "nest"``, NEST's ``noise_generator`` per population
                     (Gaussian, same mean and s.d.)
 pulses              each neuron's ``I_e``, set between ``nest.Run`` calls cut at the pulses'
@@ -572,6 +574,8 @@ class NestNetwork:
         nest.set(min_delay=(d_min + 0.5) * dt, max_delay=(d_max + 0.5) * dt)
         device_delay = d_min * dt
         v0, aux0 = initial_state(cfg, self.params)
+        noisy = bool(self._noise_mean.any() or self._noise_sd.any())
+        drawn_by_neurons = noisy and self._module is not None and self.noise_source == "culture"
         if self._module is None:
             model, common = "izhikevich", {"consistent_integration": True}
         else:
@@ -582,18 +586,22 @@ class NestNetwork:
                 "slow_share": cfg.slow_current.share,
                 "tau_slow": cfg.slow_current.tau_ms,
             }
+            if drawn_by_neurons:  # izhikevich_neuvision draws the culture's noise itself
+                common["noise_interval"] = round(cfg.noise.interval_ms / dt)
         common.update(V_th=IZH_V_PEAK_MV, V_min=V_FLOOR_MV)
         nodes = nest.Create(model, n, params=common)
         per_neuron = {"a": self.params[0], "b": self.params[1], "c": self.params[2]}
         per_neuron.update(d=self.params[3], V_m=v0, U_m=aux0[0])
         if self._module is not None and cfg.adaptation.enabled:
             per_neuron["adapt_increment"] = self._adapt_increment
+        if drawn_by_neurons:  # each neuron's generator as seeded, its population's mean, s.d.
+            per_neuron.update(noise_mean=self._noise_mean, noise_sd=self._noise_sd)
+            for j in range(4):
+                per_neuron[f"noise_s{j}"] = self._noise_state0[j]
         if cfg.stdp.enabled:
             per_neuron["tau_minus"] = np.full(n, cfg.stdp.tau_minus_ms)
         keys = list(per_neuron)
-        rows = zip(
-            *(np.asarray(per_neuron[k], dtype=np.float64).tolist() for k in keys), strict=True
-        )
+        rows = zip(*(np.asarray(per_neuron[k]).tolist() for k in keys), strict=True)  # ints stay
         set_each(nodes, [dict(zip(keys, row, strict=True)) for row in rows])
         first = int(nodes[0].global_id)
         pre = syn.pre().astype(np.int64)
@@ -608,7 +616,7 @@ class NestNetwork:
             )
         self._noise = None
         n_device = 0
-        if self._noise_mean.any() or self._noise_sd.any():
+        if noisy and not drawn_by_neurons:
             if self.noise_source == "culture":
                 self._noise = _NoiseReplay(
                     nest,

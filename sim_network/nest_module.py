@@ -3,7 +3,9 @@
 NEST's ``izhikevich`` has no spike-frequency adaptation current and no slow synaptic
 current, and the default culture has both. The module (C++ in ``sim_network/nest_cpp/``)
 adds one neuron model, ``izhikevich_neuvision``: ``izhikevich`` with the two currents, and
-NEST's ``izhikevich`` exactly when both are off (tested).
+NEST's ``izhikevich`` exactly when both are off (tested). Its neurons can also draw the
+culture's noise themselves, the very values sim_network draws, with no current generator
+per neuron (7x faster than replaying it).
 
 It is built against the NEST that Python imports: the ``nest-simulator`` wheel ships NEST's
 headers and exports its kernel from ``nest/nestkernel_api.so``, so a C++ compiler and the

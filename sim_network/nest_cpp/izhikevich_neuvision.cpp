@@ -9,6 +9,7 @@
 
 #include <cmath>
 #include <limits>
+#include <string>
 
 #include "dict_util.h"
 #include "event_delivery_manager_impl.h"
@@ -18,6 +19,44 @@
 #include "universal_data_logger_impl.h"
 
 nest::RecordablesMap< neuvision::izhikevich_neuvision > neuvision::izhikevich_neuvision::recordablesMap_;
+
+namespace
+{
+// sim_network/kernels.py's noise: xoshiro128++ (Blackman & Vigna 2018) and an Irwin-Hall(4)
+// variate from the four bytes of one draw, scaled to mean 0 and s.d. 1 in single precision.
+// The multiply-adds are fused, as numba (fastmath "contract") compiles them.
+const float IH_SCALE = static_cast< float >( std::sqrt( 3.0 ) / 256.0 / std::sqrt( 1.0 - std::pow( 2.0, -16 ) ) );
+const float IH_SHIFT =
+  static_cast< float >( ( 2.0 / 256.0 - 2.0 ) * std::sqrt( 3.0 ) / std::sqrt( 1.0 - std::pow( 2.0, -16 ) ) );
+
+inline uint32_t
+rotl( uint32_t x, int k )
+{
+  return ( x << k ) | ( x >> ( 32 - k ) );
+}
+
+inline uint32_t
+xoshiro128pp( uint32_t* s )
+{
+  const uint32_t result = rotl( s[ 0 ] + s[ 3 ], 7 ) + s[ 0 ];
+  const uint32_t t = s[ 1 ] << 9;
+  s[ 2 ] ^= s[ 0 ];
+  s[ 3 ] ^= s[ 1 ];
+  s[ 1 ] ^= s[ 2 ];
+  s[ 0 ] ^= s[ 3 ];
+  s[ 2 ] ^= t;
+  s[ 3 ] = rotl( s[ 3 ], 11 );
+  return result;
+}
+
+inline float
+irwin_hall4( uint32_t r )
+{
+  const uint32_t pairs = ( r & 0x00FF00FFu ) + ( ( r >> 8 ) & 0x00FF00FFu );
+  const uint32_t total = ( pairs + ( pairs >> 16 ) ) & 0x3FFu;
+  return std::fmaf( static_cast< float >( static_cast< int32_t >( total ) ), IH_SCALE, IH_SHIFT );
+}
+}  // namespace
 
 namespace nest
 {
@@ -53,6 +92,9 @@ izhikevich_neuvision::Parameters_::Parameters_()
   , tau_adapt_( 25.0 )
   , slow_share_( 0.0 )
   , tau_slow_( 40.0 )
+  , noise_mean_( 0.0 )
+  , noise_sd_( 0.0 )
+  , noise_interval_( 0 )
 {
 }
 
@@ -62,6 +104,8 @@ izhikevich_neuvision::State_::State_()
   , w_( 0.0 )
   , s_( 0.0 )
   , I_( 0.0 )
+  , rng_ { 1, 0, 0, 0 }
+  , noise_( 0.0f )
 {
 }
 
@@ -79,6 +123,9 @@ izhikevich_neuvision::Parameters_::get( Dictionary& d ) const
   d[ "tau_adapt" ] = tau_adapt_;
   d[ "slow_share" ] = slow_share_;
   d[ "tau_slow" ] = tau_slow_;
+  d[ "noise_mean" ] = noise_mean_;
+  d[ "noise_sd" ] = noise_sd_;
+  d[ "noise_interval" ] = noise_interval_;
 }
 
 void
@@ -95,6 +142,13 @@ izhikevich_neuvision::Parameters_::set( const Dictionary& d, nest::Node* node )
   nest::update_value_param( d, "tau_adapt", tau_adapt_, node );
   nest::update_value_param( d, "slow_share", slow_share_, node );
   nest::update_value_param( d, "tau_slow", tau_slow_, node );
+  nest::update_value_param( d, "noise_mean", noise_mean_, node );
+  nest::update_value_param( d, "noise_sd", noise_sd_, node );
+  d.update_integer_value( "noise_interval", noise_interval_ );
+  if ( noise_interval_ < 0 )
+  {
+    throw nest::BadProperty( "noise_interval must be >= 0 steps." );
+  }
   if ( not( tau_adapt_ > 0.0 ) or not( tau_slow_ > 0.0 ) )
   {
     throw nest::BadProperty( "tau_adapt and tau_slow must be > 0 ms." );
@@ -112,6 +166,11 @@ izhikevich_neuvision::State_::get( Dictionary& d ) const
   d[ nest::names::U_m ] = u_;
   d[ "I_adapt" ] = w_;
   d[ "I_slow" ] = s_;
+  d[ "I_noise" ] = static_cast< double >( noise_ );
+  for ( int j = 0; j < 4; ++j )
+  {
+    d[ "noise_s" + std::to_string( j ) ] = static_cast< long >( rng_[ j ] );
+  }
 }
 
 void
@@ -121,6 +180,16 @@ izhikevich_neuvision::State_::set( const Dictionary& d, nest::Node* node )
   nest::update_value_param( d, nest::names::U_m, u_, node );
   nest::update_value_param( d, "I_adapt", w_, node );
   nest::update_value_param( d, "I_slow", s_, node );
+  for ( int j = 0; j < 4; ++j )
+  {
+    long word = rng_[ j ];
+    d.update_integer_value( "noise_s" + std::to_string( j ), word );
+    if ( word < 0 or word > 0xFFFFFFFFL )
+    {
+      throw nest::BadProperty( "noise_s0 .. noise_s3 must be 32-bit words (0 .. 2^32 - 1)." );
+    }
+    rng_[ j ] = static_cast< uint32_t >( word );
+  }
 }
 
 void
@@ -201,10 +270,15 @@ izhikevich_neuvision::update( nest::Time const& origin, const long from, const l
   const double h = nest::Time::get_resolution().get_ms();
   for ( long lag = from; lag < to; ++lag )
   {
+    if ( P_.noise_interval_ > 0 and ( origin.get_steps() + lag ) % P_.noise_interval_ == 0 )
+    {
+      const float z = irwin_hall4( xoshiro128pp( S_.rng_ ) );
+      S_.noise_ = std::fmaf( static_cast< float >( P_.noise_sd_ ), z, static_cast< float >( P_.noise_mean_ ) );
+    }
     const double v_old = S_.v_;
     const double u_old = S_.u_;
     const double jump = B_.spikes_.get_value( lag );
-    const double input = S_.I_ + P_.I_e_ - S_.w_ + S_.s_;
+    const double input = S_.I_ + P_.I_e_ - S_.w_ + S_.s_ + S_.noise_;
     S_.v_ += h * ( 0.04 * v_old * v_old + 5.0 * v_old + 140.0 - u_old + input ) + jump;
     S_.u_ += h * P_.a_ * ( P_.b_ * v_old - u_old );
     S_.v_ = ( S_.v_ < P_.V_min_ ? P_.V_min_ : S_.v_ );

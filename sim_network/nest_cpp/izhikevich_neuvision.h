@@ -10,7 +10,12 @@
  *    current (slow_share * J / tau_slow) * exp(-t / tau_slow), which brings in
  *    slow_share * J mV more over tau_slow.
  *
- *  With adapt_increment = 0 and slow_share = 0 it is NEST's izhikevich with
+ *  It can also draw the culture's background noise itself (noise_interval > 0): each neuron
+ *  its own xoshiro128++ generator (state noise_s0..noise_s3), redrawn every noise_interval
+ *  steps as an Irwin-Hall(4) current noise_mean + noise_sd * z in single precision, the very
+ *  values sim_network draws (sim_network/kernels.py) -- no current generator per neuron.
+ *
+ *  With adapt_increment = 0, slow_share = 0 and no noise it is NEST's izhikevich with
  *  consistent_integration. sim_network/kernels.py is the reference for both currents;
  *  docs/nest.md says how the step orders match.
  *
@@ -27,6 +32,8 @@
 #include "recordables_map.h"
 #include "ring_buffer.h"
 #include "universal_data_logger.h"
+
+#include <cstdint>
 
 namespace neuvision
 {
@@ -75,6 +82,9 @@ private:
     double tau_adapt_;        //!< decay time of the adaptation current (ms)
     double slow_share_;       //!< mV brought in by the slow current per mV of jump
     double tau_slow_;         //!< decay time of the slow current (ms)
+    double noise_mean_;       //!< mean of the noise current (mV/ms)
+    double noise_sd_;         //!< its standard deviation (mV/ms)
+    long noise_interval_;     //!< steps between draws; 0: no noise drawn here
 
     Parameters_();
     void get( Dictionary& ) const;
@@ -88,6 +98,8 @@ private:
     double w_;  //!< adaptation current (mV/ms)
     double s_;  //!< slow synaptic current (mV/ms)
     double I_;  //!< current from current generators, read at the end of a step
+    uint32_t rng_[ 4 ];  //!< the noise generator's xoshiro128++ state
+    float noise_;        //!< the noise current of the window (single precision, as drawn)
 
     State_();
     void get( Dictionary& ) const;

@@ -1,8 +1,8 @@
 """The culture on NEST against the culture on sim_network (issue 22's checks).
 
-Two tiers, both of the default culture (on NEST through NeuVision's NEST module, at about
-half real time). Slow (CI): half a minute of spontaneous activity of both backends. Long
-(``NEUVISION_LONG=1``, ~35 min on a 2-core machine; the figures they give are in
+Two tiers, both of the default culture (on NEST through NeuVision's NEST module). Slow
+(CI): half a minute of spontaneous activity of both backends. Long (``NEUVISION_LONG=1``,
+~10 min on a 2-core machine; the figures they give are in
 docs/nest.md): the paper's one-neuron protocol on NEST; 300 s of spontaneous activity of
 both, MFR, MBR, MNBR and network-burst duration within 15 %; and the closed loop with the
 NEST culture through ``neuvision compare``, feedback against blind over 4 seeds. All skip,

@@ -20,7 +20,7 @@ needs_nest = pytest.mark.skipif(
 )
 #: The closed loop's culture on NEST in the tests on the bus: the culture before issue 21,
 #: which NEST's own izhikevich expresses (the default culture takes NeuVision's NEST module,
-#: tested in tests/sim_network/test_nest_backend.py, and runs at half real time).
+#: tested in tests/sim_network/test_nest_backend.py).
 NEST_CULTURE = ['culture.kind="nest"', 'culture.params.config="configs/culture_1024_local.toml"']
 NEST = [*NEST_CULTURE, "culture.params.seed=3"]
 

@@ -430,3 +430,22 @@ def test_the_default_culture_builds_in_nest_with_each_neuron_s_increment(module_
     assert set(got["tau_adapt"]) == {25.0} and set(got["tau_slow"]) == {40.0}
     assert set(got["slow_share"]) == {0.8}
     assert len(net.run(200.0)) > 0
+
+
+def test_the_module_s_neurons_draw_the_culture_s_noise_value_for_value(module_built):
+    # no current generator per neuron: each neuron's own generator, seeded and drawn as
+    # sim_network seeds and draws it, window after window
+    cfg = dataclasses.replace(load_config("configs/culture_1024.toml"), layout=LayoutConfig(8, 8))
+    ref, net = Network(cfg, seed=3), nb.NestNetwork(cfg, seed=3)
+    for _ in range(5):
+        ref.run(cfg.noise.interval_ms)
+        net.run(cfg.noise.interval_ms)
+        drawn = nb.nest_thread().call(lambda: net._nodes.get("I_noise"))
+        assert np.array_equal(np.asarray(drawn, dtype=np.float32), ref.noise_cur)
+
+
+def test_the_module_s_noise_changes_nothing_with_nest_s_threads(module_built):
+    cfg = dataclasses.replace(load_config("configs/culture_1024.toml"), layout=LayoutConfig(8, 8))
+    one = nb.NestNetwork(cfg, seed=2, threads=1).run(500.0)
+    two = nb.NestNetwork(cfg, seed=2, threads=2).run(500.0)
+    assert len(one) > 50 and same(one, two)
