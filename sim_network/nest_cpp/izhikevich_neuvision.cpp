@@ -263,7 +263,8 @@ izhikevich_neuvision::pre_run_hook()
  * added after it, so that they start the next step, as sim_network adds a jump at the start
  * of the step it is due in), with the two currents kept so that step k reads what
  * sim_network's step k reads: w decays after a spike has raised it, and s decays and takes
- * the jump that starts the next step. */
+ * the jump that starts the next step. The noise is redrawn at the start of each window
+ * (k mod noise_interval = 0), as sim_network redraws it. */
 void
 izhikevich_neuvision::update( nest::Time const& origin, const long from, const long to )
 {
