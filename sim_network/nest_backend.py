@@ -30,10 +30,9 @@ culture file        NEST
 ``noise``           the culture's own noise (sim_network's per-neuron generators,
                     the same currents in the same windows): drawn by each
                     ``izhikevich_neuvision`` neuron itself, or replayed to ``izhikevich``
-                    through one ``step_current_generator`` per neuron (`_NoiseReplay`); or,
-                    with
-                    ``noise_source = "nest"``, NEST's ``noise_generator`` per population
-                    (Gaussian, same mean and s.d.)
+                    through one ``step_current_generator`` per neuron (`_NoiseReplay`);
+                    or, with ``noise_source = "nest"``, NEST's ``noise_generator`` per
+                    population (Gaussian, same mean and s.d.)
 pulses              each neuron's ``I_e``, set between ``nest.Run`` calls cut at the pulses'
                     edges: a pulse acts on exactly the steps it acts on in sim_network
 ==================  ========================================================================

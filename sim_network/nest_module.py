@@ -17,6 +17,7 @@ libltdl-dev``); a NEST built from source is found through its ``nest-config``. O
 from __future__ import annotations
 
 import fcntl
+import functools
 import hashlib
 import importlib.util
 import os
@@ -63,7 +64,14 @@ def _compiler() -> str:
 
 def _uses_cxx11_abi(library: Path) -> bool:
     """Whether NEST's kernel was built with libstdc++'s C++11 ABI: the mangled name of one
-    of its functions that takes a std::string says (the wheel's is the old ABI)."""
+    of its functions that takes a std::string says (the wheel's is the old ABI). Read once
+    per library version in a process (it is ~25 MB; a run checks the module twice)."""
+    stat = library.stat()
+    return _abi_of(str(library), stat.st_size, stat.st_mtime_ns)
+
+
+@functools.lru_cache(maxsize=4)
+def _abi_of(library: str, size: int, mtime_ns: int) -> bool:
     with open(library, "rb") as fh:
         return b"StructuralPlasticityNode21get_synaptic_elementsENSt7__cxx11" in fh.read()
 
