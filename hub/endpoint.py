@@ -61,6 +61,7 @@ from hub.scheduling import (
     restore_placement,
     restore_threads,
 )
+from hub.stopping import StopFlag
 
 log = logging.getLogger(__name__)
 
@@ -138,7 +139,7 @@ class Endpoint(abc.ABC):
         self._limits: StimulationLimits | None = None
         self._described: Description | None = None
         self._lock = threading.RLock()  # one of input, reply, run change, timeout at a time
-        self._stop = threading.Event()
+        self._stop = StopFlag()  # set by signal handlers too
         self._session = None
         self._telemetry: dict = {}
         self._once = False  # serve(once=True): stop when the first run ends

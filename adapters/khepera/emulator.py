@@ -38,6 +38,7 @@ from adapters.khepera.protocol import (
     reply_line,
 )
 from devices import khepera
+from hub.stopping import StopFlag
 from sim_robot import Arena
 from sim_robot.ir import table_value
 from sim_robot.world import load_world
@@ -136,7 +137,7 @@ class KheperaEmulator:
         tty.setraw(self._slave)  # no line discipline: bytes pass as they are
         self.path = os.ttyname(self._slave)
         self._last_t = self._started = time.monotonic()
-        self._stop = threading.Event()
+        self._stop = StopFlag()
         self._thread: threading.Thread | None = None
         self._lock = threading.Lock()
 
@@ -307,7 +308,7 @@ def run_until_signalled(emulator: KheperaEmulator, *, link: str | None = None, r
     import signal
     import sys
 
-    stop = threading.Event()
+    stop = StopFlag()  # set by signal handlers
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
     link_path = Path(link) if link else None

@@ -27,6 +27,7 @@ import numpy as np
 
 from adapters.mea.layout import ElectrodeLayout
 from adapters.mea.rhx import spike_record
+from hub.stopping import StopFlag
 from sim_network import Network
 from sim_network.config import load_config
 from sim_network.records import Pulses
@@ -89,7 +90,7 @@ class IntanEmulator:
         self._run_t0: float | None = None
         self._pending: list[Pulses] = []
         self._lock = threading.Lock()
-        self._stop = threading.Event()
+        self._stop = StopFlag()
         self._spike_clients: list[socket.socket] = []
         self._cmd_server = self._listen(command_port)
         self._spk_server = self._listen(spike_port)
@@ -324,7 +325,7 @@ def run_until_signalled(emulator: IntanEmulator, report_s: float = 5.0) -> None:
     import signal
     import sys
 
-    stop = threading.Event()
+    stop = StopFlag()  # set by signal handlers
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
     emulator.start()
