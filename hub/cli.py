@@ -137,6 +137,24 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--session", help="bus.session")
     p.add_argument("--once", action="store_true", help="exit when the first run ends")
     p = sub.add_parser(
+        "observe",
+        help="serve live burst detection for a hub (the burst observer)",
+        description="Serve the burst observer on the bus until stopped (SIGINT/SIGTERM): it "
+        "reads the culture's spikes of each run, detects bursts and network bursts as they "
+        "complete and reports them to the hub, which records them. 'neuvision run' starts one "
+        'itself (online.launch = "local"); this is for a hub whose observer runs elsewhere '
+        '(online.launch = "external").',
+    )
+    p.add_argument("what", choices=("bursts",), help="what to observe")
+    _add_config_args(p, shortcuts=False)
+    p.add_argument(
+        "--connect",
+        metavar="HOST[:PORT]",
+        help="where the hub listens (bus.connect; the port defaults to bus.listen's)",
+    )
+    p.add_argument("--session", help="bus.session")
+    p.add_argument("--once", action="store_true", help="exit when the first run ends")
+    p = sub.add_parser(
         "record-info",
         help="summarise a recorded run",
         description="What a run folder's record holds: messages by kind and verdict, events, "
@@ -354,6 +372,13 @@ def cmd_endpoint(args) -> int:
     except DeviceFault as exc:
         print(f"neuvision: {args.role} device fault: {_one_line(exc)}", file=sys.stderr)
         return EXIT_FAULT
+
+
+def cmd_observe(args) -> int:
+    from hub.burst_observer import main as observe_bursts
+
+    cfg = load_config(args.config, _overrides(args))
+    return observe_bursts(cfg.bus, once=args.once)
 
 
 def cmd_hub(args, local: bool = False) -> int:
@@ -646,6 +671,7 @@ COMMANDS = {
     "run": cmd_run,
     "hub": cmd_hub,
     "endpoint": cmd_endpoint,
+    "observe": cmd_observe,
     "record-info": cmd_record_info,
     "compare": cmd_compare,
     "analyze": cmd_analyze,

@@ -217,9 +217,13 @@ class RecordSection:
 
 @dataclass(frozen=True)
 class OnlineSection:
-    """Burst and network-burst detection on the live spike stream (paper: "on the fly")."""
+    """Burst and network-burst detection on the live spike stream (paper: "on the fly"),
+    by the burst observer: a process beside the loop (hub/burst_observer.py)."""
 
     enabled: bool = True
+    # "local": `neuvision run` starts the observer with the endpoints; "external": it is
+    # started elsewhere (`neuvision observe bursts CONFIG --connect HOST`).
+    launch: str = field(default="local", metadata=bounds(choices=("local", "external")))
     # Keyword arguments of hub.analysis BurstParams and NetworkBurstParams (their
     # defaults are the paper's: >= 3 spikes in 20 ms; >= 30 % of channels).
     burst: dict = field(default_factory=dict)

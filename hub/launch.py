@@ -19,7 +19,9 @@ from __future__ import annotations
 import ctypes
 import dataclasses
 import importlib
+import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -28,7 +30,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from hub.config import ConfigError, EndpointSection, ExperimentConfig
+from hub.config import BusSection, ConfigError, EndpointSection, ExperimentConfig
 from hub.endpoint import Endpoint
 
 _PR_SET_PDEATHSIG = 1
@@ -140,27 +142,45 @@ def start_local_endpoints(
         if cfg.endpoint(role).launch != "local":
             continue
         endpoint_class(role, cfg.endpoint(role).kind)  # fail here, not in the child
-        cmd = [sys.executable, "-m", "hub.cli", "endpoint", role]
-        if config_path:
-            cmd.append(str(config_path))
-        for item in overrides:
-            cmd += ["--set", item]
-        log_path = log_dir / f"{role}.log" if log_dir else None
-        out = open(log_path, "wb") if log_path else subprocess.DEVNULL
-        popen = subprocess.Popen(
-            cmd,
-            stdin=subprocess.DEVNULL,
-            stdout=out,
-            stderr=subprocess.STDOUT,
-            start_new_session=True,  # Ctrl-C goes to the runner, which stops us in order
-            # A runner killed outright: its endpoints end too (a body stops its motors).
-            preexec_fn=die_with_parent,
-            env={**os.environ, "PYTHONUNBUFFERED": "1"},
-        )
-        if log_path:
-            out.close()
-        procs.append(LocalProcess(role, popen, log_path))
+        cmd = ["endpoint", role]
+        procs.append(_start_local(role, cmd, config_path, overrides, log_dir))
     return procs
+
+
+def start_burst_observer(bus: BusSection, log_dir: Path | None) -> LocalProcess:
+    """Start ``neuvision observe bursts --once`` on the hub's bus. The hub starts it for a
+    run with ``online.launch = "local"``."""
+    overrides = [f"bus.{k}={json.dumps(v)}" for k, v in dataclasses.asdict(bus).items()]
+    # It reaches the hub where the hub listens (a wildcard address: on this machine).
+    connect = [re.sub(r"/(0\.0\.0\.0|\[::\]):", "/127.0.0.1:", a) for a in bus.listen]
+    overrides.append(f"bus.connect={json.dumps(bus.connect or connect)}")
+    return _start_local("observer", ["observe", "bursts", "--once"], None, overrides, log_dir)
+
+
+def _start_local(
+    role: str, command: list[str], config_path: str | None, overrides: list[str], log_dir
+) -> LocalProcess:
+    """``neuvision COMMAND [CONFIG] --set ...`` as a child that ends with its runner."""
+    cmd = [sys.executable, "-m", "hub.cli", *command]
+    if config_path:
+        cmd.append(str(config_path))
+    for item in overrides:
+        cmd += ["--set", item]
+    log_path = log_dir / f"{role}.log" if log_dir else None
+    out = open(log_path, "wb") if log_path else subprocess.DEVNULL
+    popen = subprocess.Popen(
+        cmd,
+        stdin=subprocess.DEVNULL,
+        stdout=out,
+        stderr=subprocess.STDOUT,
+        start_new_session=True,  # Ctrl-C goes to the runner, which stops us in order
+        # A runner killed outright: its endpoints end too (a body stops its motors).
+        preexec_fn=die_with_parent,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"},
+    )
+    if log_path:
+        out.close()
+    return LocalProcess(role, popen, log_path)
 
 
 def dashboard_address(cfg: ExperimentConfig) -> tuple[str, int]:
@@ -193,26 +213,8 @@ def start_local_dashboard(
 ) -> LocalProcess:
     """Start ``neuvision dashboard`` on the run's bus, serving on ``port``; it ends with its
     runner (like the endpoints, started before the hub opens its session)."""
-    cmd = [sys.executable, "-m", "hub.cli", "dashboard"]
-    if config_path:
-        cmd.append(str(config_path))
-    for item in overrides:
-        cmd += ["--set", item]
-    cmd += ["--port", str(port)]
-    log_path = log_dir / "dashboard.log" if log_dir else None
-    out = open(log_path, "wb") if log_path else subprocess.DEVNULL
-    popen = subprocess.Popen(
-        cmd,
-        stdin=subprocess.DEVNULL,
-        stdout=out,
-        stderr=subprocess.STDOUT,
-        start_new_session=True,
-        preexec_fn=die_with_parent,
-        env={**os.environ, "PYTHONUNBUFFERED": "1"},
-    )
-    if log_path:
-        out.close()
-    return LocalProcess("dashboard", popen, log_path)
+    command = ["dashboard", "--port", str(port)]
+    return _start_local("dashboard", command, config_path, overrides, log_dir)
 
 
 def stop_local_endpoints(procs: list[LocalProcess], timeout_s: float = 10.0) -> dict[str, int]:

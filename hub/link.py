@@ -53,6 +53,7 @@ class HubLink:
         deliver: Callable[[tuple], None],
     ):
         self.session = session
+        self._deliver = deliver
         # One subscription for both replies: Zenoh gives each subscription its own Python
         # thread, and two would hand the interpreter and the loop's lock back and forth
         # every step. Keys are told apart here; the hub's own publications are not
@@ -103,6 +104,23 @@ class HubLink:
             session.declare_queryable(keys.hub_status, lambda q: deliver(("status", q))),
             session.liveliness().declare_token(keys.alive("hub", "0")),
         ]
+
+    def watch_reports(self, key: str, report_key: bytes) -> None:
+        """Subscribe to the burst observer's reports, sealed with ``report_key``: each one
+        whole is delivered as ``("report", raw)``; one that does not unseal as
+        ``("report_refused", kind, detail)``."""
+        inbox = wire.Inbox(report_key)
+
+        def on_report(sample):
+            try:
+                raw = inbox.feed(sample.payload, sample.attachment)
+            except wire.WireError as exc:
+                self._deliver(("report_refused", exc.kind, str(exc)))
+                return
+            if raw is not None:
+                self._deliver(("report", raw))
+
+        self._declared.append(self.session.declare_subscriber(key, on_report))
 
     def send(self, role: str, raw: bytes) -> None:
         """Put an input to ``role``, sealed with its run key (framed if large)."""

@@ -7,23 +7,21 @@ exactly the inputs of the step-by-step scheme. Replies are taken, and the inputs
 depend on them sent, in the Zenoh thread they arrive on, under the loop's lock (a hand-over
 to the loop's thread would put a wake-up on every step's critical path); the loop's thread
 handles the other events, stands in by policy for replies owed longer than
-``loop.reply_timeout_s``, publishes the status and runs the live analysis when nothing
-else waits.
+``loop.reply_timeout_s`` and publishes the status. Live burst detection is not the
+loop's work: the burst observer does it, in a process of its own (hub/burst_observer.py).
 
 The scheduler keeps its own state (the steps done, whether replies are taken directly,
-when the loop last moved, the spikes handed to live analysis) and drives the hub through
+when the loop last moved) and drives the hub through
 the loop's services (:class:`hub.loop.Hub`: ``send``, ``wait_event``, ``handle``, ``tick``,
 its ``ledger``, ``inputs`` and ``times``).
 """
 
 from __future__ import annotations
 
-import queue
 import time
-from collections.abc import Callable
 from typing import TYPE_CHECKING
 
-from hub.protocol import ROLES, Message, SpikeBatch
+from hub.protocol import ROLES, Message
 
 if TYPE_CHECKING:
     from hub.loop import Hub
@@ -47,13 +45,11 @@ class Lockstep:
         self.direct = False
         self._failure: BaseException | None = None  # raised in a reply's thread
         self._last_progress = 0.0  # when the last step completed
-        self._live_in: queue.SimpleQueue = queue.SimpleQueue()  # spikes for live analysis
 
     def run(self) -> None:
         """Step to the end of the run (or a stop). Replies are taken in the threads they
         arrive on; this thread handles the other events, stands in by policy for replies
-        that do not come within ``reply_timeout_s``, publishes the status and runs the
-        live analysis."""
+        that do not come within ``reply_timeout_s`` and publishes the status."""
         hub, ledger = self.hub, self.hub.ledger
         n = hub.n_steps
         timeout_s = hub.cfg.loop.reply_timeout_s
@@ -76,10 +72,6 @@ class Lockstep:
                     elif now - self._last_progress >= timeout_s:
                         self._stand_in(n)
                     until = self._last_progress + timeout_s
-                # Analysis when nothing else waits, breaking off when something comes.
-                idle = hub.live is not None and not hub.has_event()
-                if idle and self.work_live(pause=hub.has_event):
-                    continue
                 item = hub.wait_event(until)
                 with hub.lock:
                     if item is not None:
@@ -89,8 +81,6 @@ class Lockstep:
         finally:
             with hub.lock:
                 self.direct = False
-            if hub.live is not None:
-                self.work_live(flush=True)
 
     def on_reply(self, item: tuple) -> None:
         """A reply, in the thread it came on: take it, send what it allows."""
@@ -111,27 +101,6 @@ class Lockstep:
         """``role`` is back: the inputs it owes replies to go again; the loop waited."""
         self.hub.resend_unanswered(role)
         self._last_progress = time.monotonic()
-
-    def hand_over(self, spikes: SpikeBatch) -> None:
-        """A step's spikes for live analysis, which runs when the loop's thread is idle."""
-        self._live_in.put(spikes)
-
-    def work_live(self, *, flush: bool = False, pause: Callable[[], bool] | None = None) -> bool:
-        """Feed the live burst detector the spikes handed over once ONLINE_EVERY_MS of them
-        are in (``flush``: whatever is in, to the end), breaking off when ``pause()`` says
-        so. Records each network burst completed. True if it worked."""
-        hub, live = self.hub, self.hub.live
-        while True:
-            try:
-                live.add(self._live_in.get_nowait())
-            except queue.Empty:
-                break
-        if not (flush or live.due):
-            return False
-        done = live.finish() if flush else live.work(pause=pause)
-        with hub.lock:
-            hub.record_network_bursts(done)
-        return True
 
     def _advance(self, n: int) -> None:
         """Send every input whose reply is in (unless paused or stopping), and note the
@@ -177,5 +146,3 @@ class Lockstep:
                 hub.send("body", hub.inputs.motor_for(k + 1, reply))
             else:
                 hub.send("culture", hub.inputs.stim_for(k + 1, reply))
-        if role == "culture" and reply is not None and hub.live is not None:
-            self._live_in.put(reply)

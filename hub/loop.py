@@ -32,7 +32,6 @@ import sys
 import threading
 import time
 import uuid
-from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -42,21 +41,26 @@ import zenoh
 from hub import wire
 from hub.analysis.bursts import BurstParams
 from hub.analysis.network_bursts import NetworkBurstParams
+from hub.burst_observer import NAME as OBSERVER
+from hub.burst_observer import OnlineTally
 from hub.bus import open_session, payload_bytes
 from hub.config import ConfigError, ExperimentConfig
+from hub.launch import LocalProcess, start_burst_observer, stop_local_endpoints
 from hub.ledger import Ledger
 from hub.link import HubLink
-from hub.live import LiveBursts
 from hub.lockstep import Lockstep
 from hub.policy import InputPolicy, SchemeError
 from hub.protocol import (
     ROLES,
+    BurstReport,
     ControlReply,
     ControlRequest,
     Description,
     HubStatus,
     Message,
     MotorCommand,
+    ObserverEnd,
+    ObserverStart,
     ProtocolError,
     RunEnd,
     RunHold,
@@ -81,17 +85,15 @@ from hub.view import ObserverView
 
 log = logging.getLogger(__name__)
 
-# The live burst detector is fed this much simulated time at once (in realtime, on a
-# thread of its own).
-ONLINE_EVERY_MS = 100.0
-# Network bursts repeated in each HubStatus (``extra.recent_network_bursts``), for observers.
-RECENT_NETWORK_BURSTS = 8
+# The longest the hub waits for the burst observer's final report (one that fell behind
+# catches up first; it answers within seconds of its last spikes coming otherwise).
+OBSERVER_END_TIMEOUT_S = 60.0
 # Realtime: a view for live displays is built after a step, and only this long or more before
 # the next step's start (else after a later step), so that it never delays a step.
 VIEW_GUARD_S = 1e-3
 # The longest a thread holds the interpreter while another wants it during the steps.
-# Python's default, 5 ms, would let live analysis hold up a step start (realtime) or keep
-# Zenoh's callback from handing the loop a reply (both modes).
+# Python's default, 5 ms, would let the recorder or a status hold up a step start
+# (realtime) or keep Zenoh's callback from handing the loop a reply (both modes).
 GIL_SWITCH_S = 2e-4
 
 
@@ -201,7 +203,10 @@ class Hub:
         n = cfg.n_steps
         self.times = LoopTimes.for_run(cfg.loop.mode, cfg.loop.period_ms, n)
         self.recorder: Recorder | None = None
-        self.live: LiveBursts | None = None
+        # Live burst detection: the burst observer's reports (hub/burst_observer.py), and
+        # the key they are sealed with; None with online.enabled = false.
+        self.online: OnlineTally | None = OnlineTally() if cfg.online.enabled else None
+        self.report_key = wire.new_key()
         self.scheduling: Scheduling | None = None  # realtime: what the hub's threads got
         self.placement = Placement()  # the CPUs the hub's threads are kept on (loop.cpus)
         # Lockstep: replies are taken in the threads they arrive on (``scheduler.direct``).
@@ -211,9 +216,6 @@ class Hub:
         # hub itself did not run (frozen, starved): (when it ended, how long it was).
         self._last_wake = time.monotonic()
         self._stall: tuple[float, float] = (-math.inf, 0.0)
-        # The latest network bursts found online, for observers:
-        # [start_ms, end_ms, n_channels, core_start_ms, core_end_ms]
-        self._recent_network_bursts: deque = deque(maxlen=RECENT_NETWORK_BURSTS)
 
     # ================================================================ public
 
@@ -251,6 +253,8 @@ class Hub:
         if self.run_dir and cfg.record.enabled:
             self.recorder = Recorder(self.run_dir, flush_s=cfg.record.flush_s)
             write_manifest(self.run_dir, manifest)
+        # Started first: it builds its detector while the endpoints build their models.
+        observer = self._start_observer()
         # Before Zenoh starts its threads, which inherit the placement.
         self.placement = place_threads("loop.cpus", cfg.loop.cpus)
         if self.placement.reason:
@@ -259,6 +263,8 @@ class Hub:
             session = open_session(cfg.bus, listener=True)
         except BaseException:
             restore_placement(self.placement)
+            if observer is not None:
+                stop_local_endpoints([observer])
             raise
         outcome, reason = "completed", ""
         try:
@@ -266,8 +272,9 @@ class Hub:
             self._wait_for_endpoints()
             self._describe_all(session)
             self._wait_for_view()
-            self._announce_run(session)
             self.prepare(self.descriptions)
+            self._announce_observer()  # subscribed before the culture may send a spike
+            self._announce_run(session)
             self._record_event("start", mode=cfg.loop.mode, n_steps=cfg.n_steps)
             self._steps()
             if self.stop_reason:
@@ -287,6 +294,7 @@ class Hub:
             self._safe_stop_body()
             endpoint_stats = self._final_counters(session)  # those alive, whatever the outcome
             self._end_run(session, outcome)
+            self._end_observer()
             self._publish_view(time.monotonic(), last=True)  # the last steps, for live displays
             self.state = "stopped"
             self._publish_status()
@@ -315,6 +323,8 @@ class Hub:
                 write_manifest(self.run_dir, manifest)
             session.close()
             restore_placement(self.placement)
+            if observer is not None:
+                stop_local_endpoints([observer])
         return RunResult(
             outcome, reason, self.k_done, timing, counts, self.run_dir, self.descriptions
         )
@@ -348,20 +358,24 @@ class Hub:
         finally:
             sys.setswitchinterval(switch_s)
 
-    def record_network_bursts(self, done: list) -> None:
-        for nb in done:
+    def take_report(self, report: BurstReport) -> None:
+        """Count a burst observer's report and record each network burst it found."""
+        if self.online is None or report.run != self.run_id:
+            return
+        was_under_way = self.online.onset_ms
+        rows = self.online.take(report)
+        if report.onset_ms is not None and report.onset_ms != was_under_way:
+            # what a live display was told, and when
+            self._record_event("network_burst_under_way", onset_ms=report.onset_ms, at_step=self.k)
+        for start, end, n_channels, core_start, core_end in rows:
             self._record_event(
                 "network_burst",
-                start_ms=nb.start_ms,
-                end_ms=nb.end_ms,
-                n_channels=len(nb.channels),
-                core_start_ms=nb.core_start_ms,
-                core_end_ms=nb.core_end_ms,
+                start_ms=start,
+                end_ms=end,
+                n_channels=n_channels,
+                core_start_ms=core_start,
+                core_end_ms=core_end,
                 at_step=self.k,
-            )
-            extent, core = (nb.start_ms, nb.end_ms), (nb.core_start_ms, nb.core_end_ms)
-            self._recent_network_bursts.append(
-                [*(round(v, 3) for v in extent), len(nb.channels), *(round(v, 3) for v in core)]
             )
 
     def next_event(self, until: float) -> bool:
@@ -444,9 +458,22 @@ class Hub:
         elif kind == "status":  # an observer asks for the run's status (read-only)
             item[1].reply(item[1].key_expr, self.status().encode())
             item[1].drop()
+        elif kind == "report":
+            self._on_report(item[1])
+        elif kind == "report_refused":  # not sealed by the observer of this run
+            self.ledger.drop("observer", item[1], item[2])
         elif kind == "stop":
             self.stop_reason = self.stop_reason or item[1]
         # "wake": nothing to do but look at the state
+
+    def _on_report(self, raw: bytes) -> None:
+        """A burst observer's report (unsealed already): counted, its bursts recorded."""
+        try:
+            report = BurstReport.decode(raw)
+        except ProtocolError as exc:
+            self.ledger.drop("observer", exc.kind, str(exc))
+            return
+        self.take_report(report)
 
     def _on_refused(self, role: str, raw: bytes, kind: str, detail: str, t_wall_ns: int) -> None:
         """A payload on a reply key that did not unseal or reassemble: not the endpoint's."""
@@ -489,6 +516,12 @@ class Hub:
         if was == present:
             return
         self._record_event("alive" if present else "dead", role=parsed[0], id=parsed[1])
+        if parsed == ("observer", OBSERVER) and not present and self.online is not None:
+            if self.state in ("running", "paused") and not self.online.final:
+                # Live analysis only: the loop goes on, and the record keeps every spike.
+                log.warning("the burst observer vanished at step %d: no more live bursts", self.k)
+                self.online.lost = f"the burst observer vanished at step {self.k}"
+            return
         required = parsed[0] in ROLES and self.ids[parsed[0]] == parsed[1]
         if present and required and parsed[0] in self.gone:
             return self._rejoin(parsed[0])
@@ -615,7 +648,11 @@ class Hub:
             self.inbox.put(item)
 
     def _wait_for_endpoints(self) -> None:
+        """Wait until every endpoint (and the burst observer, with online analysis) is on
+        the bus."""
         needed = {(role, i) for role, i in self.ids.items()}
+        if self.online is not None:
+            needed.add(("observer", OBSERVER))
         start = time.monotonic()
         deadline = start + self.cfg.loop.wait_timeout_s
         next_note = start
@@ -633,10 +670,17 @@ class Hub:
                 raise HubError(f"stopped while waiting for endpoints ({self.stop_reason})")
             if time.monotonic() >= deadline:
                 missing = ", ".join(f"{r}/{i}" for r, i in sorted(needed - self.alive))
+                hint = ""
+                if ("observer", OBSERVER) in needed - self.alive:
+                    hint = (
+                        "; the burst observer is started by 'neuvision run' (online.launch = "
+                        "\"local\") or by 'neuvision observe bursts'; online.enabled = false "
+                        "runs without live burst detection"
+                    )
                 raise HubError(
                     f"endpoint(s) {missing} did not appear on session {self.cfg.bus.session!r} "
                     f"within {self.cfg.loop.wait_timeout_s} s (listening on "
-                    f"{', '.join(self.cfg.bus.listen)})"
+                    f"{', '.join(self.cfg.bus.listen)}){hint}"
                 )
             self.next_event(min(deadline, time.monotonic() + 0.1))
 
@@ -731,6 +775,75 @@ class Hub:
             raise HubError(f"{role}/{i} refused the run: {refusals[0]}")
         self._record_event("run_taken", role=role, id=i, run=self.run_id)
 
+    def _start_observer(self) -> LocalProcess | None:
+        """The burst observer of a run with ``online.launch = "local"``, as a child process
+        (its log: ``observer.log`` in the run folder)."""
+        online = self.cfg.online
+        if not online.enabled or online.launch != "local":
+            return None
+        return start_burst_observer(self.cfg.bus, self.run_dir if self.recorder else None)
+
+    def _announce_observer(self) -> None:
+        """Give the burst observer the run: the culture's spikes key, channels and run key,
+        the detector's parameters, the key that seals its reports."""
+        if self.online is None:
+            return
+        online, culture = self.cfg.online, self.ids["culture"]
+        start = ObserverStart(
+            run=self.run_id,
+            n_steps=self.n_steps,
+            spikes_key=self.keys.spikes(culture),
+            channel=self.descriptions["culture"].channel,
+            key=self.run_keys["culture"],
+            report_key=self.report_key,
+            burst=dict(online.burst),
+            network=dict(online.network),
+        )
+        self.link.watch_reports(self.keys.observer_reports(OBSERVER), self.report_key)
+        answers = []
+        for raw in self.link.query(self.keys.observer_run(OBSERVER), start.encode(), timeout_s=5.0):
+            try:
+                answers.append(RunReply.decode(raw))
+            except ProtocolError:
+                continue
+        if not answers:
+            raise HubError("the burst observer did not answer the run's announcement")
+        refused = [a.reason for a in answers if not a.ok or a.run != self.run_id]
+        if refused:
+            raise HubError(f"the burst observer refused the run: {refused[0]}")
+        self._record_event("run_taken", role="observer", id=OBSERVER, run=self.run_id)
+
+    def _end_observer(self) -> None:
+        """Ask the burst observer for its final report (every step's spikes analysed, every
+        burst still open completed), and count it."""
+        online = self.online
+        if online is None or self.link is None or online.final:
+            return
+        if ("observer", OBSERVER) not in self.alive:
+            online.lost = online.lost or "the burst observer was not there at the run's end"
+            return
+        self._take_reports()  # those that came before it
+        end = ObserverEnd(run=self.run_id, steps=self.k_done).encode()
+        key = self.keys.observer_run(OBSERVER)
+        for raw in self.link.query(key, end, timeout_s=OBSERVER_END_TIMEOUT_S):
+            try:
+                self.take_report(BurstReport.decode(raw))
+            except ProtocolError:
+                continue
+        if not online.final:
+            online.lost = online.lost or "the burst observer did not answer at the run's end"
+
+    def _take_reports(self) -> None:
+        """After the steps: handle the burst observer's reports waiting; nothing else
+        waiting matters to the run any more (an endpoint's end, a late reply)."""
+        while True:
+            try:
+                item = self.inbox.get_nowait()
+            except queue.Empty:
+                return
+            if item[0] in ("report", "report_refused"):
+                self.handle(item)
+
     def _end_run(self, session: zenoh.Session, outcome: str) -> None:
         """Tell each endpoint still there that the run is over (it makes itself safe)."""
         end = RunEnd(run=self.run_id, outcome=outcome).encode()
@@ -808,14 +921,11 @@ class Hub:
             on_refused=lambda scheme, why: self.ledger.drop(scheme, "limit", why),
         )
         if cfg.online.enabled:
-            params = {}
             for name, kind in (("burst", BurstParams), ("network", NetworkBurstParams)):
                 try:
-                    params[name] = kind(**getattr(cfg.online, name))
+                    kind(**getattr(cfg.online, name))
                 except (TypeError, ValueError) as exc:
                     raise ConfigError(f"online.{name}: {exc}") from None
-            culture = self.descriptions["culture"]
-            self.live = LiveBursts(culture, params["burst"], params["network"], ONLINE_EVERY_MS)
 
     # ================================================================ output
 
@@ -886,14 +996,18 @@ class Hub:
             steps_per_s=done / wall if wall > 0 else 0.0,
             extra={
                 "late_steps": self.times.late_steps,
-                "single_channel_bursts": self.live.bursts if self.live else 0,
-                "network_bursts": self.live.network_bursts if self.live else 0,
+                "single_channel_bursts": self.online.bursts if self.online else 0,
+                "network_bursts": self.online.network_bursts if self.online else 0,
+                "network_burst_under_way_ms": self.online.onset_ms if self.online else None,
                 "round_trip_ms": dict(self._last_round_trip_ms),
                 # for observers (the dashboard, docs/dashboard.md)
                 "run": self.run_id,
                 "period_ms": float(self.cfg.loop.period_ms),
                 "n_steps": self.cfg.n_steps,
-                "recent_network_bursts": list(self._recent_network_bursts),
+                # [start_ms, end_ms, n_channels, core_start_ms, core_end_ms] each
+                "recent_network_bursts": [
+                    [round(v, 3) for v in nb] for nb in (self.online.recent if self.online else ())
+                ],
                 **self.times.lateness_now(done),
             },
         )
@@ -934,4 +1048,4 @@ class Hub:
     def counts(self) -> dict:
         """Online bursts, late, missing and dropped messages so far."""
         ledger = self.ledger
-        return counts(self.live, ledger.late, ledger.missed, ledger.dropped)
+        return counts(self.online, ledger.late, ledger.missed, ledger.dropped)

@@ -122,13 +122,23 @@ class Keys:
         """Hub → observers: ``HubView``, what the loop carried, for live displays."""
         return f"{self.root}/hub/view"
 
+    def observer_run(self, name: str) -> str:
+        """Queryable of an observer (``name``: ``bursts``): the hub's ``ObserverStart`` /
+        ``ObserverEnd``."""
+        return f"{self.root}/observer/{name}/run"
+
+    def observer_reports(self, name: str) -> str:
+        """Observer → hub and live displays: its findings (``BurstReport``), sealed."""
+        return f"{self.root}/observer/{name}/reports"
+
     def parse_alive(self, key: str) -> tuple[str, str] | None:
-        """``nv/<s>/alive/<role>/<id>`` → ``(role, id)``, or None for another key."""
+        """``nv/<s>/alive/<role>/<id>`` → ``(role, id)``, or None for another key; the
+        roles are the endpoints', ``hub`` and ``observer``."""
         prefix = f"{self.root}/alive/"
         if not key.startswith(prefix):
             return None
         parts = key[len(prefix) :].split("/")
-        if len(parts) != 2 or parts[0] not in ROLES and parts[0] != "hub":
+        if len(parts) != 2 or parts[0] not in (*ROLES, "hub", "observer"):
             return None
         return parts[0], parts[1]
 
@@ -1055,6 +1065,113 @@ def decode_run_request(raw: bytes) -> RunStart | RunEnd | RunHold:
     if "period_ms" in data:
         return RunStart.from_dict(data)
     return (RunHold if "hold" in data else RunEnd).from_dict(data)
+
+
+@dataclass(frozen=True, eq=False)
+class ObserverStart(Message):
+    """Hub → the burst observer, on its ``run`` key (contract v3): a run begins; read the
+    culture's spikes (``spikes_key``, sealed with the culture's run key ``key``) and report
+    on ``observer/bursts/reports``, sealed with ``report_key``. ``channel``: the culture's
+    channel ids; ``burst`` and ``network``: the keyword arguments of ``BurstParams`` and
+    ``NetworkBurstParams`` (``online.burst``, ``online.network``)."""
+
+    run: str
+    n_steps: int
+    spikes_key: str
+    channel: np.ndarray
+    key: bytes
+    report_key: bytes
+    burst: dict = field(default_factory=dict)
+    network: dict = field(default_factory=dict)
+
+    SCHEMA = {
+        "run": _RUN,
+        "n_steps": Scalar(int, min=1),
+        "spikes_key": Scalar(str),
+        "channel": Array("<u4"),
+        "key": Blob(16),
+        "report_key": Blob(16),
+        "burst": Mapping(),
+        "network": Mapping(),
+    }
+
+    def _check(self):
+        _check_run_id(self.run)
+        if not self.channel.size:
+            raise ProtocolError("range", "channel must not be empty")
+
+
+@dataclass(frozen=True, eq=False)
+class ObserverEnd(Message):
+    """Hub → the burst observer, on its ``run`` key: the run is over after ``steps``
+    steps; the observer answers with its final ``BurstReport`` once it has analysed the
+    spikes of those steps (or given up waiting for them: ``missing_steps``)."""
+
+    run: str
+    steps: int
+
+    SCHEMA = {"run": _RUN, "steps": Scalar(int, min=0)}
+
+
+@dataclass(frozen=True, eq=False)
+class BurstReport(Message):
+    """The burst observer → hub and live displays (``observer/bursts/reports``): what live
+    burst detection found in the culture's spikes, up to ``until_ms`` of run time.
+
+    ``nb_*``: the network bursts completed since the previous report (extent, core and
+    number of channels, run time in ms, as ``hub.analysis.online.NetworkBurst``);
+    ``onset_ms``: the start of a network burst under way (enough channels bursting
+    now, not yet complete), for displays. ``bursts`` and ``network_bursts`` count from
+    the run's start; ``dropped`` counts the SpikeBatches refused (not sealed by the
+    culture, malformed, another run's). ``final``: the answer to ``ObserverEnd``,
+    everything still open completed as offline detection does at a record's end; its
+    ``nb_*`` carry every network burst of the run. ``missing_steps``: steps whose spikes
+    never came.
+    """
+
+    run: str
+    until_ms: float
+    bursts: int
+    network_bursts: int
+    dropped: int = 0
+    nb_start_ms: np.ndarray = field(default_factory=_empty("<f8"))
+    nb_end_ms: np.ndarray = field(default_factory=_empty("<f8"))
+    nb_core_start_ms: np.ndarray = field(default_factory=_empty("<f8"))
+    nb_core_end_ms: np.ndarray = field(default_factory=_empty("<f8"))
+    nb_channels: np.ndarray = field(default_factory=_empty("<u4"))
+    onset_ms: float | None = None
+    final: bool = False
+    missing_steps: int = 0
+
+    SCHEMA = {
+        "run": _RUN,
+        "until_ms": Scalar(float),
+        "bursts": Scalar(int, min=0),
+        "network_bursts": Scalar(int, min=0),
+        "dropped": Scalar(int, min=0),
+        "nb_start_ms": Array("<f8", group="nb"),
+        "nb_end_ms": Array("<f8", group="nb"),
+        "nb_core_start_ms": Array("<f8", group="nb"),
+        "nb_core_end_ms": Array("<f8", group="nb"),
+        "nb_channels": Array("<u4", group="nb"),
+        "onset_ms": Scalar(float, optional=True),
+        "final": Scalar(bool),
+        "missing_steps": Scalar(int, min=0),
+    }
+
+    def network_burst_rows(self) -> list[tuple[float, float, int, float, float]]:
+        """The network bursts reported: (start_ms, end_ms, n_channels, core_start_ms,
+        core_end_ms) each."""
+        return list(
+            zip(
+                self.nb_start_ms.tolist(),
+                self.nb_end_ms.tolist(),
+                self.nb_channels.tolist(),
+                self.nb_core_start_ms.tolist(),
+                self.nb_core_end_ms.tolist(),
+                strict=True,
+            )
+        )
 
 
 CONTROL_COMMANDS = ("status", "pause", "resume", "stop", "config")

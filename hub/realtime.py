@@ -5,7 +5,8 @@ nothing drifts. Both inputs leave the moment a step starts (coded and encoded in
 of the step before); the loop's thread then takes in events until both replies are in or
 the step's deadline passes, and the policy stands in for what is missing. A reply that
 comes after its deadline is *late*: counted, and kept in the record as data the loop did
-not use. Live burst analysis runs on a thread of its own in the rest of each step.
+not use. Live burst detection is not the loop's work: the burst observer does it, in a
+process of its own (hub/burst_observer.py).
 
 The scheduler keeps its own state (the step under way, the steps done) and drives the hub
 through the loop's services (:class:`hub.loop.Hub`: ``send``, ``next_event``, ``drain``,
@@ -17,7 +18,6 @@ from __future__ import annotations
 import time
 from typing import TYPE_CHECKING
 
-from hub.live import BackgroundLiveBursts
 from hub.protocol import ROLES, Message, MotorCommand, Stimulation
 
 if TYPE_CHECKING:
@@ -26,8 +26,6 @@ if TYPE_CHECKING:
 # A realtime step whose start lags its schedule by more than this share of a
 # period is counted late (its window is visibly shortened).
 LATE_START_SHARE = 0.25
-# Realtime live analysis stops this share of a period before the next step's start.
-LIVE_GUARD_SHARE = 0.1
 
 
 class Realtime:
@@ -49,14 +47,7 @@ class Realtime:
 
     def run(self) -> None:
         """Steps on a wall-clock schedule; a reply missing at its deadline is replaced by policy."""
-        hub = self.hub
-        live = hub.live
-        background = BackgroundLiveBursts(live, hub.scheduling) if live is not None else None
-        try:
-            self._steps_on_schedule(background)
-        finally:
-            if background is not None:
-                hub.record_network_bursts(background.close())
+        self._steps_on_schedule()
 
     def rejoined(self, role: str) -> None:
         """An endpoint is back: its next step's input goes on schedule."""
@@ -65,10 +56,9 @@ class Realtime:
         """When step ``k`` is due to start (monotonic), given the time paused so far."""
         return self.hub.times.t_start + self.hub.paused_s + k * self.period_s
 
-    def _steps_on_schedule(self, background: BackgroundLiveBursts | None) -> None:
+    def _steps_on_schedule(self) -> None:
         hub, ledger = self.hub, self.hub.ledger
         n = hub.cfg.n_steps
-        guard_s = LIVE_GUARD_SHARE * self.period_s
         # Each step's inputs are coded and encoded in the slack of the step before, so
         # that they leave the moment the step starts.
         inputs = self._encoded(hub.inputs.motor_for(0, None), hub.inputs.stim_for(0, None))
@@ -99,19 +89,12 @@ class Realtime:
                 late or hub.times.lateness_s[k] > LATE_START_SHARE * self.period_s
             )
             self.k_done = k + 1
-            if background is not None:
-                if prev["culture"] is not None:
-                    # Analysis may use what is left of this step, not the next one's start.
-                    background.add(prev["culture"], self.start_of(k + 1) - guard_s)
-                hub.record_network_bursts(background.completed())
             hub.tick()
         if lag:  # the last step's culture reply: in the record, and not missing
             ledger.expect["culture"] = n - 1
             steps = {"culture": n - 1}
             self.collect(steps, self._deadlines(steps))
-            last = ledger.pending["culture"].pop(n - 1, None)
-            if background is not None and last is not None:
-                background.add(last, time.monotonic() + guard_s)
+            ledger.pending["culture"].pop(n - 1, None)
 
     def collect(self, steps: dict[str, int], deadlines: dict[str, float]) -> bool:
         """Take in events until each role's reply for its step is in or its deadline passes

@@ -134,12 +134,17 @@ class LoopTimes:
         return out
 
 
-def counts(live, late: Counter, missed: dict[str, set[int]], dropped: dict[str, Counter]) -> dict:
-    """The manifest's ``counts``: online bursts, late, missing and dropped messages by role."""
+def counts(online, late: Counter, missed: dict[str, set[int]], dropped: dict[str, Counter]) -> dict:
+    """The manifest's ``counts``: online bursts (``online``: the hub's
+    :class:`~hub.burst_observer.OnlineTally`, None when off), late, missing and dropped
+    messages by role."""
+    if online is not None:
+        found = online.counts()
+    else:
+        found = {"single_channel_bursts_online": 0, "network_bursts_online": 0}
+        found["online_analysis"] = "off"
     return {
-        "single_channel_bursts_online": live.bursts if live else 0,
-        "spikes_not_analysed_online": live.skipped_spikes if live else 0,
-        "network_bursts_online": live.network_bursts if live else 0,
+        **found,
         "late": dict(late),
         "missing": {r: len(s) for r, s in missed.items() if s},
         "dropped": {r: dict(c) for r, c in dropped.items()},

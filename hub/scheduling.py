@@ -23,7 +23,6 @@ threads on the CPUs named, for any mode; by default the OS places them.
 from __future__ import annotations
 
 import os
-import threading
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -183,17 +182,3 @@ def restore_placement(got: Placement) -> None:
         except OSError:  # ended, or no longer ours to change
             pass
     got._previous.clear()
-
-
-def lower_this_thread(got: Scheduling) -> None:
-    """Run the calling thread just below the loop: one step under the run's real-time
-    priority if it has one (it then cannot be starved by busy endpoints while it holds
-    the interpreter the loop needs), else at the lowest ordinary priority."""
-    tid = threading.get_native_id()
-    try:
-        if got.policy == "fifo":
-            _raise(got, [tid], max(got.priority - 1, 1))
-        else:
-            os.setpriority(os.PRIO_PROCESS, tid, 19)
-    except (AttributeError, OSError):
-        pass

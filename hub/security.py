@@ -10,7 +10,9 @@ from ``<role>.password``; the hub checks them against ``passwords``, both made b
 machine. In either mode the hub's router admits each role's messages only on that role's own
 keys (Zenoh's access control, enforced where the message enters the router): only the
 culture may put ``spikes``, only the body ``sensors``; observers may subscribe, and query
-descriptions and ``hub/status``; only an operator may send ``hub/control`` (pause, resume,
+descriptions and ``hub/status``, and the burst observer's keys are theirs (its reports are
+sealed with a key the hub gives it, so another observer cannot forge them); only an
+operator may send ``hub/control`` (pause, resume,
 stop). The hub itself is the router: what it puts (``stim``, ``motor``, ``hub/status``)
 enters through no link, and no link may put on those keys. Nobody but a role may declare
 that role's liveliness token.
@@ -161,6 +163,13 @@ def access_control(keys: Keys, mode: str = "mtls") -> dict:
         _rule("culture out", ["ingress"], ["put"], [keys.spikes("*"), keys.potentials("*")]),
         _rule("culture serves", ["ingress"], ["declare_queryable", "reply"], serve("culture")),
         _rule("culture alive", ["ingress"], ["liveliness_token"], [keys.alive("culture", "*")]),
+        # the burst observer: its reports (sealed with the hub's key for the run), its run
+        # queryable, its liveliness
+        _rule("observer out", ["ingress"], ["put"], [keys.observer_reports("*")]),
+        _rule(
+            "observer serves", ["ingress"], ["declare_queryable", "reply"], [keys.observer_run("*")]
+        ),
+        _rule("observer alive", ["ingress"], ["liveliness_token"], [keys.alive("observer", "*")]),
     ]
     everyone = ["receive", "watch", "read"]
     policies = [
@@ -169,7 +178,10 @@ def access_control(keys: Keys, mode: str = "mtls") -> dict:
             "rules": everyone + ["culture out", "culture serves", "culture alive"],
             "subjects": ["culture"],
         },
-        {"rules": everyone, "subjects": ["observer"]},
+        {
+            "rules": everyone + ["observer out", "observer serves", "observer alive"],
+            "subjects": ["observer"],
+        },
         {"rules": everyone + ["control"], "subjects": ["operator"]},
     ]
     by = "cert_common_names" if mode == "mtls" else "usernames"

@@ -399,6 +399,14 @@ function drawRaster() {
 // stimulated channel bursts for seconds and the extent with it (docs/analysis.md).
 // A core is often a few ms: at least 3 px wide, so that it shows at any zoom.
 function shadeBursts(ctx, x, top, bottom, w, ratio) {
+  // A network burst under way (the burst observer's early mark, docs/analysis.md): hatched
+  // from its start to now, until the complete one is reported.
+  const onset = (nv.status.extra || {}).network_burst_under_way_ms;
+  if (typeof onset === "number") {
+    const a = Math.max(x(onset / 1000), 0), e = x(nv.t_s);
+    ctx.fillStyle = "rgba(224, 168, 0, 0.30)";
+    for (let xi = a; xi < e; xi += 4 * ratio) ctx.fillRect(xi, top, 2 * ratio, bottom - top);
+  }
   const shades = [[0, 1, "rgba(224, 168, 0, 0.10)", ratio], [3, 4, "rgba(224, 168, 0, 0.45)", 3 * ratio]];
   for (const [from, to, colour, least] of shades) {
     ctx.fillStyle = colour;
@@ -467,7 +475,10 @@ function drawLoopPanel() {
   rows.push(["late replies", byRole(st.late)]);
   rows.push(["missing replies", byRole(st.missing)]);
   rows.push(["dropped messages", byRole(st.dropped)]);
-  if (ex.network_bursts !== undefined) rows.push(["bursts online", `${ex.single_channel_bursts} single-channel, ${ex.network_bursts} network`]);
+  if (ex.network_bursts !== undefined) {
+    const now = typeof ex.network_burst_under_way_ms === "number" ? " (one under way)" : "";
+    rows.push(["bursts online", `${ex.single_channel_bursts} single-channel, ${ex.network_bursts} network${now}`]);
+  }
   if (nv.source.kind === "live") {
     rows.push(["alive", (st.alive || []).join(", ") || "—"]);
     rows.push(["motor (L, R)", nv.motor ? `${fmt(nv.motor[0], 3)}, ${fmt(nv.motor[1], 3)} m/s` : "—"]);

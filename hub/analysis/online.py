@@ -232,6 +232,29 @@ class OnlineBurstDetector:
         self._advance(np.inf, out)
         return out
 
+    def under_way(self) -> float | None:
+        """The start of a network burst under way at the watermark, before it is complete.
+
+        A channel counts as bursting when its open burst and the spikes of its last
+        ``window_ms`` (whose core status is not final yet) make ``min_spikes`` or more; when
+        the network threshold of channels are bursting, the network burst is under way
+        since the threshold-th of them began. An early mark for live displays, a guess
+        that the complete network burst (reported ``window_ms + max_isi_ms`` or so later)
+        confirms or not.
+
+        Returns
+        -------
+        float or None
+            Absolute ms, or None when too few channels are bursting.
+        """
+        bursting = self._open_n + self._q_len >= self._m
+        k = self._threshold
+        if np.count_nonzero(bursting) < k:
+            return None
+        first = self._q_t[np.arange(self.n_channels), self._q_head]  # oldest queued spike
+        start = np.where(self._open_n > 0, self._open_start, first)[bursting]
+        return float(np.partition(start, k - 1)[k - 1])
+
     @property
     def bursts(self) -> np.ndarray:
         """All bursts reported so far, as a ``BURST_DTYPE`` array sorted like ``detect_bursts``."""

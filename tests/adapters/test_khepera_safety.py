@@ -135,7 +135,7 @@ def test_the_robot_link_dying_mid_run_ends_the_run_as_a_fault_with_its_record(
         end(run, emu)
 
 
-def test_the_runner_killed_outright_takes_its_local_endpoints_with_it(
+def test_the_runner_killed_outright_takes_its_local_processes_with_it(
     emulator, bus_overrides, tmp_path
 ):
     run = neuvision(
@@ -146,7 +146,7 @@ def test_the_runner_killed_outright_takes_its_local_endpoints_with_it(
     try:
         wait_for(lambda: moving(emulator), 60.0)
         endpoints = children(run.pid)
-        assert len(endpoints) == 2
+        assert len(endpoints) == 3  # the body, the culture and the burst observer
         run.kill()
         killed = time.monotonic()
         wait_for(lambda: not moving(emulator), 5.0)

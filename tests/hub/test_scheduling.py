@@ -14,7 +14,6 @@ from hub.scheduling import (
     available_cpus,
     check_cpus,
     endpoint_priority,
-    lower_this_thread,
     place_threads,
     raise_threads,
     restore_placement,
@@ -89,24 +88,6 @@ def test_raised_threads_run_fifo_and_are_put_back_afterwards():
     assert all(after[tid] == before[tid] for tid in after if tid in before)
     assert after[waiting.native_id] == (os.SCHED_OTHER, 0)
     release.set()
-
-
-@needs_fifo
-def test_the_live_analysis_thread_runs_one_priority_below_the_loop():
-    got = raise_threads(5)
-    seen = {}
-
-    def analyse():
-        lower_this_thread(got)
-        seen["policy"] = _policy()
-
-    try:
-        thread = threading.Thread(target=analyse)
-        thread.start()
-        thread.join()
-    finally:
-        restore_threads(got)
-    assert seen["policy"] == (os.SCHED_FIFO, 4)
 
 
 def test_a_refused_request_changes_nothing_and_says_why():

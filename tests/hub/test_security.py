@@ -154,7 +154,7 @@ def test_the_access_policy_lets_each_role_put_only_on_its_own_keys():
     assert puts == {
         "body": ["nv/s/body/*/sensors"],
         "culture": ["nv/s/culture/*/potentials", "nv/s/culture/*/spikes"],
-        "observer": [],
+        "observer": ["nv/s/observer/*/reports"],  # the burst observer's, sealed by the hub
         "operator": [],
     }
     # Nobody may put what only the hub sends (it is the router: its puts enter by no link).

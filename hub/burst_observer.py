@@ -1,0 +1,338 @@
+"""The burst observer: live burst detection beside the loop, in a process of its own.
+
+The paper detects bursts and network bursts "on the fly". The hub's loop must never wait
+for that analysis (the end of a large network burst takes tens of milliseconds of
+Python), so it runs here, on the bus beside the loop: the observer reads the culture's
+SpikeBatches as the hub does (a second subscriber to the same key), feeds
+:class:`~hub.live.LiveBursts` and publishes a :class:`~hub.protocol.BurstReport` after
+each feed (every ``ONLINE_EVERY_MS`` of run time). The hub records each network burst
+reported (a ``network_burst`` event) and counts them in its status and the run's
+manifest; live displays may read the reports too.
+
+Runs come as they come to endpoints: an ``ObserverStart`` on the observer's ``run``
+queryable (the culture's key, its channels, the detector's parameters, a key to seal the
+reports with), then an ``ObserverEnd`` after the last step, answered with the final
+report once the spikes of every step have been analysed. The hub starts the observer
+for its run (``online.launch = "local"``), or one runs it on another machine:
+``neuvision observe bursts CONFIG --connect HOST``.
+
+The culture's spikes wait in a ring that Zenoh's own thread fills: an observer that falls
+behind (a burst of a 100,000-neuron culture) reports later and never holds up the loop;
+one that falls more than the ring behind loses the oldest steps, and counts them.
+"""
+
+from __future__ import annotations
+
+import logging
+import queue
+import signal
+import sys
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass, field
+
+import zenoh
+
+from hub import wire
+from hub.analysis.bursts import BurstParams
+from hub.analysis.network_bursts import NetworkBurstParams
+from hub.analysis.online import OnlineBurstDetector
+from hub.bus import LOOP_PUBLISH, open_session, payload_bytes
+from hub.config import BusSection
+from hub.live import LiveBursts
+from hub.protocol import (
+    BurstReport,
+    Keys,
+    ObserverEnd,
+    ObserverStart,
+    ProtocolError,
+    RunReply,
+    SpikeBatch,
+    unpack_map,
+)
+from hub.stopping import StopFlag
+
+log = logging.getLogger(__name__)
+
+NAME = "bursts"  # the observer's name in its keys (observer/bursts/...)
+# The detector is fed this much run time at once (its cost is mostly per call).
+ONLINE_EVERY_MS = 100.0
+# Spike messages (frames) the ring holds: about 40 s of 10 ms steps of a 1024-channel culture.
+RING_MESSAGES = 4096
+TAKE_AT_ONCE = 64  # spike messages analysed before queries are looked at
+POLL_S = 0.005  # how long to wait for a query when no spikes wait
+# ObserverEnd: how long to wait for more of the last steps' spikes (from the last that came).
+END_WAIT_S = 5.0
+
+
+def params_of(start: ObserverStart) -> tuple[BurstParams, NetworkBurstParams]:
+    """The detector's parameters an ``ObserverStart`` carries (``online.burst`` and
+    ``online.network``).
+
+    Raises
+    ------
+    TypeError, ValueError
+        A parameter unknown or out of range.
+    """
+    return BurstParams(**start.burst), NetworkBurstParams(**start.network)
+
+
+class BurstObserver:
+    """Serves live burst detection on a bus session, one run after another.
+
+    Parameters
+    ----------
+    session : zenoh.Session
+    keys : Keys
+    every_ms : float
+        Run time buffered between two feeds of the detector, and so between two reports.
+    """
+
+    def __init__(self, session: zenoh.Session, keys: Keys, every_ms: float = ONLINE_EVERY_MS):
+        self.session = session
+        self.keys = keys
+        self.every_ms = every_ms
+        self.runs_done = 0
+        self._events: queue.SimpleQueue = queue.SimpleQueue()
+        self._run: _Run | None = None
+        self._ending: tuple[zenoh.Query, int] | None = None  # ObserverEnd's query, steps
+        # The detector's compiled kernels loaded now, not while the hub waits for an answer.
+        OnlineBurstDetector(1)
+        self._declared = [
+            session.declare_queryable(keys.observer_run(NAME), self._events.put),
+            session.liveliness().declare_token(keys.alive("observer", NAME)),
+        ]
+
+    def serve(self, stop: threading.Event | StopFlag, *, once: bool = False) -> None:
+        """Handle runs until ``stop`` is set (or, with ``once``, the first run ends)."""
+        while not stop.is_set() and not (once and self.runs_done):
+            took = self._take_spikes()
+            try:
+                query = self._events.get(timeout=0.0 if took else POLL_S)
+            except queue.Empty:
+                query = None
+            if query is not None:
+                self._on_query(query)
+            if self._ending is not None and not took:
+                self._try_end()
+        self._close_run()
+
+    def _take_spikes(self) -> int:
+        """Analyse the spike messages waiting in the run's ring; how many there were."""
+        run = self._run
+        n = 0
+        while run is not None and n < TAKE_AT_ONCE:
+            sample = run.subscriber.try_recv()
+            if sample is None:
+                break
+            self._on_spikes(run, sample.payload.to_bytes(), sample.attachment)
+            n += 1
+        return n
+
+    # ---------------------------------------------------------------- queries
+
+    def _on_query(self, query: zenoh.Query) -> None:
+        try:
+            data = unpack_map(payload_bytes(query))
+            request = (ObserverStart if "spikes_key" in data else ObserverEnd).from_dict(data)
+        except ProtocolError as exc:
+            log.warning("a malformed request on %s dropped: %s", query.key_expr, exc)
+            query.drop()
+            return
+        if isinstance(request, ObserverStart):
+            self._start(query, request)
+        elif self._run is None or request.run != self._run.start.run:
+            self._reply(query, RunReply(ok=False, run=request.run, reason="not this run's"))
+        else:
+            self._ending = (query, request.steps)
+
+    def _start(self, query: zenoh.Query, start: ObserverStart) -> None:
+        if self._run is not None and self._run.start.run == start.run:  # announced again
+            return self._reply(query, RunReply(ok=True, run=start.run))
+        self._close_run()
+        try:
+            burst, network = params_of(start)
+        except (TypeError, ValueError) as exc:
+            return self._reply(query, RunReply(ok=False, run=start.run, reason=str(exc)))
+        live = LiveBursts(start.channel, burst, network, self.every_ms)
+        run = _Run(start, live, wire.Inbox(start.key))
+        publisher = self.session.declare_publisher(self.keys.observer_reports(NAME), **LOOP_PUBLISH)
+        run.outbox = wire.Outbox(publisher, start.report_key)
+        # Zenoh's own thread puts each spike message in a ring, without the interpreter:
+        # the link from the hub's router is drained even while the analysis runs (the
+        # culture's spikes are published with congestion control BLOCK, and a subscriber
+        # that lags would hold up the router, and the loop with it). A full ring drops its
+        # oldest messages; the steps lost are counted.
+        run.subscriber = self.session.declare_subscriber(
+            start.spikes_key, zenoh.handlers.RingChannel(RING_MESSAGES)
+        )
+        self._run = run
+        log.info("observing run %s: %d channels", start.run, start.channel.size)
+        self._reply(query, RunReply(ok=True, run=start.run))
+
+    def _reply(self, query: zenoh.Query, message) -> None:
+        wire.reply(query, message.encode())
+
+    # ---------------------------------------------------------------- spikes
+
+    def _on_spikes(self, run: _Run, payload: bytes, attachment) -> None:
+        run_id = run.start.run
+        try:
+            whole = run.inbox.feed(payload, attachment)
+            if whole is None:
+                return  # more frames to come
+            batch = SpikeBatch.decode(whole)
+        except (wire.WireError, ProtocolError) as exc:
+            run.drop(str(exc))
+            return
+        if batch.run != run_id:
+            run.drop(f"a SpikeBatch of run {batch.run}")
+            return
+        if batch.step < run.steps:  # sent again (a culture that rejoined): analysed once
+            return
+        run.lost += batch.step - run.steps  # dropped by a full ring
+        run.steps = batch.step + 1
+        run.last_came = time.monotonic()
+        run.live.add(batch)
+        if run.live.due:
+            self._publish(run, run.live.work())
+
+    def _publish(self, run: _Run, done: list, *, final: bool = False, missing: int = 0):
+        """Report the network bursts ``done`` (the final report: all of the run's)."""
+        run.found.extend(done)
+        report = run.report(run.found if final else done, final=final, missing=missing)
+        if not final:
+            run.outbox.put(report.encode())
+        return report
+
+    # ---------------------------------------------------------------- the run's end
+
+    def _try_end(self) -> None:
+        query, steps = self._ending
+        run = self._run
+        if run.steps < steps and time.monotonic() < run.last_came + END_WAIT_S:
+            return  # the last steps' spikes may still be on their way, or queued here
+        missing = max(steps - run.steps, 0) + run.lost
+        if missing:
+            log.warning(
+                "run %s: the spikes of %d step(s) never came or were dropped",
+                run.start.run,
+                missing,
+            )
+        report = self._publish(run, run.live.finish(), final=True, missing=missing)
+        self._reply(query, report)
+        self._ending = None
+        self._close_run()
+        self.runs_done += 1
+
+    def _close_run(self) -> None:
+        run, self._run = self._run, None
+        if run is not None:
+            run.subscriber.undeclare()
+            run.outbox.publisher.undeclare()
+
+
+@dataclass
+class _Run:
+    """One run being observed."""
+
+    start: ObserverStart
+    live: LiveBursts
+    inbox: wire.Inbox
+    outbox: wire.Outbox | None = None
+    subscriber: zenoh.Subscriber | None = None
+    steps: int = 0  # the steps whose spikes came (in order)
+    dropped: int = 0
+    lost: int = 0  # steps whose spikes a full ring dropped
+    last_came: float = field(default_factory=time.monotonic)  # when the last spikes came
+    found: list = field(default_factory=list)  # every network burst reported
+
+    def drop(self, why: str) -> None:
+        self.dropped += 1
+        if self.dropped <= 3:
+            log.warning("a SpikeBatch refused (%s)", why)
+
+    def report(self, done: list, *, final: bool, missing: int) -> BurstReport:
+        live = self.live
+        return BurstReport(
+            run=self.start.run,
+            until_ms=live.until_ms,
+            bursts=live.bursts,
+            network_bursts=live.network_bursts,
+            dropped=self.dropped,
+            nb_start_ms=[nb.start_ms for nb in done],
+            nb_end_ms=[nb.end_ms for nb in done],
+            nb_core_start_ms=[nb.core_start_ms for nb in done],
+            nb_core_end_ms=[nb.core_end_ms for nb in done],
+            nb_channels=[len(nb.channels) for nb in done],
+            onset_ms=None if final else live.under_way(),
+            final=final,
+            missing_steps=missing,
+        )
+
+
+@dataclass
+class OnlineTally:
+    """What the hub keeps of the observer's reports: the counts, the latest network
+    bursts (for its status), and whether the final report came."""
+
+    bursts: int = 0
+    network_bursts: int = 0
+    dropped: int = 0
+    until_ms: float = 0.0
+    onset_ms: float | None = None
+    final: bool = False
+    missing_steps: int = 0
+    lost: str = ""  # why the final report never came, if it did not
+    recent: deque = field(default_factory=lambda: deque(maxlen=8))
+    taken: int = 0  # network bursts taken so far
+
+    def take(self, report: BurstReport) -> list[tuple]:
+        """Count one report; return the rows (``network_burst_rows``) of the network bursts
+        not taken before. The final report carries every network burst of the run, so
+        one that overtook an earlier report loses nothing."""
+        if self.final:  # the run's analysis is complete: later reports are duplicates
+            return []
+        rows = report.network_burst_rows()
+        if report.final:
+            rows = rows[self.taken :]
+        self.bursts, self.network_bursts = report.bursts, report.network_bursts
+        self.dropped, self.until_ms = report.dropped, report.until_ms
+        self.onset_ms, self.final = report.onset_ms, report.final
+        self.missing_steps = report.missing_steps
+        self.taken += len(rows)
+        self.recent.extend(rows)
+        return rows
+
+    def counts(self) -> dict:
+        """The manifest's counts of online analysis."""
+        if self.final:
+            state = "complete" if not self.missing_steps else "incomplete"
+        else:
+            state = f"incomplete: {self.lost}" if self.lost else "incomplete"
+        return {
+            "single_channel_bursts_online": self.bursts,
+            "network_bursts_online": self.network_bursts,
+            "online_analysis": state,
+            "online_steps_missing": self.missing_steps,
+            "online_spike_batches_refused": self.dropped,
+        }
+
+
+def main(bus: BusSection, *, once: bool = False) -> int:
+    """``neuvision observe bursts``: serve on the bus until SIGINT/SIGTERM."""
+    stop = StopFlag()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    # Zenoh's thread hands queries over through the interpreter: never wait long for it.
+    sys.setswitchinterval(0.001)
+    where = ", ".join(bus.connect or bus.listen)
+    log.info("burst observer: connecting to the hub at %s", where)
+    session = open_session(bus, listener=False, role="observer")
+    try:
+        observer = BurstObserver(session, bus.keys)
+        observer.serve(stop, once=once)
+    finally:
+        session.close()
+    return 0

@@ -1,0 +1,153 @@
+"""The burst observer detects bursts beside the loop and reports them to the hub, which
+records them; the loop never waits for it and goes on without it."""
+
+import json
+import queue
+import signal
+import threading
+
+import pytest
+
+from hub import wire
+from hub.burst_observer import NAME, BurstObserver
+from hub.bus import LOOP_PUBLISH, open_session
+from hub.config import load_config
+from hub.launch import start_burst_observer
+from hub.protocol import BurstReport, ObserverEnd, ObserverStart, RunReply
+from tests.harness import harness, wait_for
+from tests.hub.test_live import CHANNELS, PLANTED, _batches
+from tests.windows import RUN
+
+
+@pytest.fixture
+def observed(bus_overrides):
+    """A router (the hub's side) and a burst observer on its own session and thread."""
+    bus = load_config(None, bus_overrides).bus
+    hub = open_session(bus, listener=True)
+    observer_session = open_session(bus, listener=False)
+    stop = threading.Event()
+    observer = BurstObserver(observer_session, bus.keys, every_ms=10.0)
+    thread = threading.Thread(target=observer.serve, args=(stop,), daemon=True)
+    thread.start()
+    yield hub, bus.keys
+    stop.set()
+    thread.join(5)
+    observer_session.close()
+    hub.close()
+
+
+def _start(hub, keys, culture_key, report_key, **params):
+    start = ObserverStart(
+        run=RUN,
+        n_steps=60,
+        spikes_key=keys.spikes("0"),
+        channel=CHANNELS,
+        key=culture_key,
+        report_key=report_key,
+        **params,
+    )
+    (raw,) = wire.get(hub, keys.observer_run(NAME), start.encode(), timeout_s=5)
+    return RunReply.decode(raw)
+
+
+def test_it_reports_a_network_burst_under_way_then_complete_and_a_final_count(observed):
+    hub, keys = observed
+    culture_key, report_key = wire.new_key(), wire.new_key()
+    reports: queue.SimpleQueue = queue.SimpleQueue()
+    inbox = wire.Inbox(report_key)
+    declared = [  # noqa: F841
+        hub.declare_subscriber(
+            keys.observer_reports(NAME),
+            lambda s: reports.put(inbox.feed(s.payload, s.attachment)),
+        )
+    ]
+    assert _start(hub, keys, culture_key, report_key).ok
+    culture = wire.Outbox(hub.declare_publisher(keys.spikes("0"), **LOOP_PUBLISH), culture_key)
+    stranger = wire.Outbox(hub.declare_publisher(keys.spikes("0"), **LOOP_PUBLISH), b"x" * 16)
+    for batch in _batches(PLANTED, 60):
+        culture.put(batch.encode())
+        if batch.step == 12:  # another copy of a step, not sealed with the culture's key
+            stranger.put(batch.encode())
+    (raw,) = wire.get(
+        hub, keys.observer_run(NAME), ObserverEnd(run=RUN, steps=60).encode(), timeout_s=10
+    )
+    final = BurstReport.decode(raw)
+    assert final.final and final.missing_steps == 0
+    assert (final.bursts, final.network_bursts, final.dropped) == (3, 1, 1)
+    assert final.network_burst_rows() == [(100.0, 119.0, 3, 102.0, 117.0)]
+
+    seen = []
+    while not reports.empty():
+        seen.append(BurstReport.decode(reports.get()))
+    with_nb = next(i for i, r in enumerate(seen) if r.network_bursts)
+    under_way = [r for r in seen[:with_nb] if r.onset_ms is not None]
+    assert under_way and under_way[0].onset_ms == pytest.approx(102.0)
+    assert seen[with_nb].network_burst_rows() == final.network_burst_rows()
+
+
+def test_it_refuses_a_run_whose_detector_parameters_are_wrong_and_says_which(observed):
+    hub, keys = observed
+    reply = _start(hub, keys, wire.new_key(), wire.new_key(), network={"min_fraction": 2.0})
+    assert not reply.ok and "min_fraction" in reply.reason
+
+
+def test_the_end_of_a_run_whose_last_spikes_never_come_says_how_many_are_missing(
+    observed, monkeypatch
+):
+    monkeypatch.setattr("hub.burst_observer.END_WAIT_S", 0.2)
+    hub, keys = observed
+    culture_key = wire.new_key()
+    assert _start(hub, keys, culture_key, wire.new_key()).ok
+    culture = wire.Outbox(hub.declare_publisher(keys.spikes("0"), **LOOP_PUBLISH), culture_key)
+    for batch in _batches(PLANTED, 20):
+        culture.put(batch.encode())
+    (raw,) = wire.get(
+        hub, keys.observer_run(NAME), ObserverEnd(run=RUN, steps=60).encode(), timeout_s=10
+    )
+    final = BurstReport.decode(raw)
+    assert final.final and final.missing_steps == 40 and final.network_bursts == 1
+
+
+def _manifest(run_dir):
+    return json.loads((run_dir / "manifest.json").read_text())
+
+
+def test_a_run_records_the_observers_reports_and_counts(tmp_path, bus_overrides):
+    with harness(tmp_path, bus_overrides, "online.enabled=true", "experiment.duration_s=2") as h:
+        result = h.run()  # the hub starts the observer (online.launch = "local")
+    assert result.outcome == "completed"
+    assert "observing run" in (h.run_dir / "observer.log").read_text()
+    counts = _manifest(h.run_dir)["counts"]
+    assert counts["online_analysis"] == "complete"
+    # The test culture fires on one channel only: bursts, never a network burst.
+    assert counts["single_channel_bursts_online"] > 0 and counts["network_bursts_online"] == 0
+    taken = [e.payload["role"] for e in h.record.events if e.key == "run_taken"]
+    assert sorted(taken) == ["body", "culture", "observer"]
+
+
+def test_the_loop_goes_on_when_the_observer_dies_and_the_manifest_says_so(
+    tmp_path, bus_overrides, monkeypatch
+):
+    overrides = ["online.enabled=true", 'loop.mode="realtime"', "experiment.duration_s=3"]
+    with harness(tmp_path, bus_overrides, *overrides) as h:
+        started = []
+
+        def start(*args):  # the hub's own start of its observer, kept to be killed
+            started.append(start_burst_observer(*args))
+            return started[-1]
+
+        monkeypatch.setattr("hub.loop.start_burst_observer", start)
+
+        def kill_when_running():
+            wait_for(lambda: h.hub is not None and h.hub.k > 50, timeout_s=60)
+            started[0].popen.send_signal(signal.SIGKILL)
+
+        killer = threading.Thread(target=kill_when_running, daemon=True)
+        killer.start()
+        result = h.run()
+        killer.join(5)
+    assert result.outcome == "completed" and result.steps == 300
+    counts = _manifest(h.run_dir)["counts"]
+    assert counts["online_analysis"].startswith("incomplete: the burst observer vanished")
+    dead = [e.payload for e in h.record.events if e.key == "dead"]
+    assert dead == [{"role": "observer", "id": NAME}]
