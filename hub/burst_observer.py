@@ -3,11 +3,12 @@
 The paper detects bursts and network bursts "on the fly". The hub's loop must never wait
 for that analysis (the end of a large network burst takes tens of milliseconds of
 Python), so it runs here, on the bus beside the loop: the observer reads the culture's
-SpikeBatches as the hub does (a second subscriber to the same key), feeds
-:class:`~hub.live.LiveBursts` and publishes a :class:`~hub.protocol.BurstReport` after
-each feed (every ``ONLINE_EVERY_MS`` of run time). The hub records each network burst
-reported (a ``network_burst`` event) and counts them in its status and the run's
-manifest; live displays may read the reports too.
+SpikeBatches as the hub does (a second subscriber to the same key), feeds them to
+:class:`~hub.live.LiveBursts` as they come (all that wait at once when it is behind), and
+publishes a :class:`~hub.protocol.BurstReport` when a network burst completes, when one
+starts or stops being under way, and every ``REPORT_EVERY_MS`` of run time besides. The
+hub records each network burst reported (a ``network_burst`` event) and counts them in
+its status and the run's manifest; live displays may read the reports too.
 
 Runs come as they come to endpoints: an ``ObserverStart`` on the observer's ``run``
 queryable (the culture's key, its channels, the detector's parameters, a key to seal the
@@ -56,8 +57,8 @@ from hub.stopping import StopFlag
 log = logging.getLogger(__name__)
 
 NAME = "bursts"  # the observer's name in its keys (observer/bursts/...)
-# The detector is fed this much run time at once (its cost is mostly per call).
-ONLINE_EVERY_MS = 100.0
+# A report goes out at least this often in run time (counts for the hub's status).
+REPORT_EVERY_MS = 100.0
 # Spike messages (frames) the ring holds: about 40 s of 10 ms steps of a 1024-channel culture.
 RING_MESSAGES = 4096
 TAKE_AT_ONCE = 64  # spike messages analysed before queries are looked at
@@ -86,10 +87,11 @@ class BurstObserver:
     session : zenoh.Session
     keys : Keys
     every_ms : float
-        Run time buffered between two feeds of the detector, and so between two reports.
+        Run time buffered between two feeds of the detector (0: each step's spikes as
+        they come, so that a network burst under way is seen within a step).
     """
 
-    def __init__(self, session: zenoh.Session, keys: Keys, every_ms: float = ONLINE_EVERY_MS):
+    def __init__(self, session: zenoh.Session, keys: Keys, every_ms: float = 0.0):
         self.session = session
         self.keys = keys
         self.every_ms = every_ms
@@ -128,6 +130,8 @@ class BurstObserver:
                 break
             self._on_spikes(run, sample.payload.to_bytes(), sample.attachment)
             n += 1
+        if n and run.live.due:  # one feed for all that waited (the cost is mostly per call)
+            self._publish(run, run.live.work())
         return n
 
     # ---------------------------------------------------------------- queries
@@ -195,15 +199,19 @@ class BurstObserver:
         run.steps = batch.step + 1
         run.last_came = time.monotonic()
         run.live.add(batch)
-        if run.live.due:
-            self._publish(run, run.live.work())
 
     def _publish(self, run: _Run, done: list, *, final: bool = False, missing: int = 0):
-        """Report the network bursts ``done`` (the final report: all of the run's)."""
+        """Report the network bursts ``done`` (the final report: all of the run's), if
+        there is news: a network burst complete, one under way or no longer, or
+        REPORT_EVERY_MS since the last report."""
         run.found.extend(done)
-        report = run.report(run.found if final else done, final=final, missing=missing)
-        if not final:
+        onset_ms = None if final else run.live.under_way()
+        until_ms = run.live.until_ms
+        news = done or onset_ms != run.onset_ms or until_ms >= run.reported_ms + REPORT_EVERY_MS
+        report = run.report(run.found if final else done, onset_ms, final=final, missing=missing)
+        if news and not final:
             run.outbox.put(report.encode())
+            run.onset_ms, run.reported_ms = onset_ms, until_ms
         return report
 
     # ---------------------------------------------------------------- the run's end
@@ -244,6 +252,8 @@ class _Run:
     subscriber: zenoh.Subscriber | None = None
     steps: int = 0  # the steps whose spikes came (in order)
     dropped: int = 0
+    onset_ms: float | None = None  # the network burst under way in the last report
+    reported_ms: float = 0.0  # run time of the last report
     lost: int = 0  # steps whose spikes a full ring dropped
     last_came: float = field(default_factory=time.monotonic)  # when the last spikes came
     found: list = field(default_factory=list)  # every network burst reported
@@ -253,7 +263,9 @@ class _Run:
         if self.dropped <= 3:
             log.warning("a SpikeBatch refused (%s)", why)
 
-    def report(self, done: list, *, final: bool, missing: int) -> BurstReport:
+    def report(
+        self, done: list, onset_ms: float | None, *, final: bool, missing: int
+    ) -> BurstReport:
         live = self.live
         return BurstReport(
             run=self.start.run,
@@ -266,7 +278,7 @@ class _Run:
             nb_core_start_ms=[nb.core_start_ms for nb in done],
             nb_core_end_ms=[nb.core_end_ms for nb in done],
             nb_channels=[len(nb.channels) for nb in done],
-            onset_ms=None if final else live.under_way(),
+            onset_ms=onset_ms,
             final=final,
             missing_steps=missing,
         )

@@ -364,7 +364,7 @@ class Hub:
             return
         was_under_way = self.online.onset_ms
         rows = self.online.take(report)
-        if report.onset_ms is not None and report.onset_ms != was_under_way:
+        if report.onset_ms is not None and was_under_way is None:
             # what a live display was told, and when
             self._record_event("network_burst_under_way", onset_ms=report.onset_ms, at_step=self.k)
         for start, end, n_channels, core_start, core_end in rows:

@@ -26,7 +26,7 @@ def observed(bus_overrides):
     hub = open_session(bus, listener=True)
     observer_session = open_session(bus, listener=False)
     stop = threading.Event()
-    observer = BurstObserver(observer_session, bus.keys, every_ms=10.0)
+    observer = BurstObserver(observer_session, bus.keys)
     thread = threading.Thread(target=observer.serve, args=(stop,), daemon=True)
     thread.start()
     yield hub, bus.keys
@@ -64,25 +64,33 @@ def test_it_reports_a_network_burst_under_way_then_complete_and_a_final_count(ob
     assert _start(hub, keys, culture_key, report_key).ok
     culture = wire.Outbox(hub.declare_publisher(keys.spikes("0"), **LOOP_PUBLISH), culture_key)
     stranger = wire.Outbox(hub.declare_publisher(keys.spikes("0"), **LOOP_PUBLISH), b"x" * 16)
-    for batch in _batches(PLANTED, 60):
+    batches = list(_batches(PLANTED, 60))
+
+    def next_report(timeout_s=10.0):
+        return BurstReport.decode(reports.get(timeout=timeout_s))
+
+    # Up to 130 ms: three channels are bursting (from 100, 102 and 104 ms), none has ended.
+    for batch in batches[:13]:
         culture.put(batch.encode())
-        if batch.step == 12:  # another copy of a step, not sealed with the culture's key
-            stranger.put(batch.encode())
+    report = next_report()
+    while report.onset_ms is None:
+        report = next_report()
+    assert report.onset_ms == pytest.approx(102.0) and report.network_bursts == 0
+    stranger.put(batches[12].encode())  # a copy of a step, not sealed with the culture's key
+    for batch in batches[13:]:
+        culture.put(batch.encode())
+    report = next_report()
+    while not report.network_bursts:
+        report = next_report()
+    assert report.network_burst_rows() == [(100.0, 119.0, 3, 102.0, 117.0)]
+
     (raw,) = wire.get(
         hub, keys.observer_run(NAME), ObserverEnd(run=RUN, steps=60).encode(), timeout_s=10
     )
     final = BurstReport.decode(raw)
     assert final.final and final.missing_steps == 0
     assert (final.bursts, final.network_bursts, final.dropped) == (3, 1, 1)
-    assert final.network_burst_rows() == [(100.0, 119.0, 3, 102.0, 117.0)]
-
-    seen = []
-    while not reports.empty():
-        seen.append(BurstReport.decode(reports.get()))
-    with_nb = next(i for i, r in enumerate(seen) if r.network_bursts)
-    under_way = [r for r in seen[:with_nb] if r.onset_ms is not None]
-    assert under_way and under_way[0].onset_ms == pytest.approx(102.0)
-    assert seen[with_nb].network_burst_rows() == final.network_burst_rows()
+    assert final.network_burst_rows() == report.network_burst_rows()
 
 
 def test_it_refuses_a_run_whose_detector_parameters_are_wrong_and_says_which(observed):
