@@ -2,29 +2,32 @@
 
 The paper detects bursts and network bursts "on the fly". The hub's loop must never wait
 for that analysis (the end of a large network burst takes tens of milliseconds of
-Python), so it runs here, on the bus beside the loop: the observer reads the culture's
-SpikeBatches as the hub does (a second subscriber to the same key), feeds them to
-:class:`~hub.live.LiveBursts` as they come (all that wait at once when it is behind), and
-publishes a :class:`~hub.protocol.BurstReport` when a network burst completes, when one
-starts or stops being under way, and every ``REPORT_EVERY_MS`` of run time besides. The
-hub records each network burst reported (a ``network_burst`` event) and counts them in
-its status and the run's manifest; live displays may read the reports too.
+Python), so it runs here, on the bus beside the loop. The hub forwards it the culture's
+SpikeBatches it took, as the culture sent them (``ObservedSpikes``: every step in
+realtime, every 100 ms of run time in lockstep, one put for many steps); the observer
+feeds them to :class:`~hub.live.LiveBursts` and publishes a
+:class:`~hub.protocol.BurstReport` when a network burst completes, when one starts or
+stops being under way, and every ``REPORT_EVERY_MS`` of run time besides. The hub
+records each network burst reported (a ``network_burst`` event) and counts them in its
+status and the run's manifest; live displays may read the reports too.
 
 Runs come as they come to endpoints: an ``ObserverStart`` on the observer's ``run``
-queryable (the culture's key, its channels, the detector's parameters, a key to seal the
-reports with), then an ``ObserverEnd`` after the last step, answered with the final
-report once the spikes of every step have been analysed. The hub starts the observer
-for its run (``online.launch = "local"``), or one runs it on another machine:
+queryable (the culture's channels, the detector's parameters, the run's key that seals
+what goes both ways), then an ``ObserverEnd`` after the last step, answered with the
+final report once the spikes of every step have been analysed. The hub starts the
+observer for its run (``online.launch = "local"``), or one runs it on another machine:
 ``neuvision observe bursts CONFIG --connect HOST``.
 
-The culture's spikes wait in a ring that Zenoh's own thread fills: an observer that falls
-behind (a burst of a 100,000-neuron culture) reports later and never holds up the loop;
-one that falls more than the ring behind loses the oldest steps, and counts them.
+The spikes come as telemetry (dropped, never waited for, when the observer's link is
+congested): an observer that falls behind reports later and never holds up the loop,
+even frozen; steps it never got are counted.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import logging
+import os
 import queue
 import signal
 import sys
@@ -45,6 +48,7 @@ from hub.live import LiveBursts
 from hub.protocol import (
     BurstReport,
     Keys,
+    ObservedSpikes,
     ObserverEnd,
     ObserverStart,
     ProtocolError,
@@ -59,10 +63,9 @@ log = logging.getLogger(__name__)
 NAME = "bursts"  # the observer's name in its keys (observer/bursts/...)
 # A report goes out at least this often in run time (counts for the hub's status).
 REPORT_EVERY_MS = 100.0
-# Spike messages (frames) the ring holds: about 40 s of 10 ms steps of a 1024-channel culture.
-RING_MESSAGES = 4096
-TAKE_AT_ONCE = 64  # spike messages analysed before queries are looked at
-POLL_S = 0.005  # how long to wait for a query when no spikes wait
+TAKE_AT_ONCE = 64  # messages of spikes analysed in one feed, at most
+WAKE_S = 0.1  # the longest the observer sleeps (to see that the spikes of a run's end came)
+ANALYSIS_NICE = 19  # the analysing thread's nice value
 # ObserverEnd: how long to wait for more of the last steps' spikes (from the last that came).
 END_WAIT_S = 5.0
 
@@ -86,15 +89,11 @@ class BurstObserver:
     ----------
     session : zenoh.Session
     keys : Keys
-    every_ms : float
-        Run time buffered between two feeds of the detector (0: each step's spikes as
-        they come, so that a network burst under way is seen within a step).
     """
 
-    def __init__(self, session: zenoh.Session, keys: Keys, every_ms: float = 0.0):
+    def __init__(self, session: zenoh.Session, keys: Keys):
         self.session = session
         self.keys = keys
-        self.every_ms = every_ms
         self.runs_done = 0
         self._events: queue.SimpleQueue = queue.SimpleQueue()
         self._run: _Run | None = None
@@ -109,37 +108,42 @@ class BurstObserver:
     def serve(self, stop: threading.Event | StopFlag, *, once: bool = False) -> None:
         """Handle runs until ``stop`` is set (or, with ``once``, the first run ends)."""
         while not stop.is_set() and not (once and self.runs_done):
-            took = self._take_spikes()
             try:
-                query = self._events.get(timeout=0.0 if took else POLL_S)
+                item = self._events.get(timeout=WAKE_S)
             except queue.Empty:
-                query = None
-            if query is not None:
-                self._on_query(query)
-            if self._ending is not None and not took:
+                item = None
+            if isinstance(item, zenoh.Query):
+                self._on_query(item)
+            elif item is not None:
+                self._take_spikes(item)
+            if self._ending is not None and self._events.empty():
                 self._try_end()
         self._close_run()
 
-    def _take_spikes(self) -> int:
-        """Analyse the spike messages waiting in the run's ring; how many there were."""
+    def _take_spikes(self, first: tuple) -> None:
+        """Analyse a message of spikes and those waiting behind it, in one feed (its cost
+        is mostly per call)."""
         run = self._run
-        n = 0
-        while run is not None and n < TAKE_AT_ONCE:
-            sample = run.subscriber.try_recv()
-            if sample is None:
+        item = first
+        for _ in range(TAKE_AT_ONCE):
+            if run is not None and item[0] is run:  # else: a run that ended
+                self._on_spikes(*item)
+            try:
+                item = self._events.get_nowait()
+            except queue.Empty:
                 break
-            self._on_spikes(run, sample.payload.to_bytes(), sample.attachment)
-            n += 1
-        if n and run.live.due:  # one feed for all that waited (the cost is mostly per call)
+            if isinstance(item, zenoh.Query):
+                self._events.put(item)  # after the spikes: an end must see them analysed
+                break
+        if run is not None and run.live.due:
             self._publish(run, run.live.work())
-        return n
 
     # ---------------------------------------------------------------- queries
 
     def _on_query(self, query: zenoh.Query) -> None:
         try:
             data = unpack_map(payload_bytes(query))
-            request = (ObserverStart if "spikes_key" in data else ObserverEnd).from_dict(data)
+            request = (ObserverStart if "channel" in data else ObserverEnd).from_dict(data)
         except ProtocolError as exc:
             log.warning("a malformed request on %s dropped: %s", query.key_expr, exc)
             query.drop()
@@ -159,17 +163,15 @@ class BurstObserver:
             burst, network = params_of(start)
         except (TypeError, ValueError) as exc:
             return self._reply(query, RunReply(ok=False, run=start.run, reason=str(exc)))
-        live = LiveBursts(start.channel, burst, network, self.every_ms)
+        live = LiveBursts(start.channel, burst, network, 0.0)  # fed each message
         run = _Run(start, live, wire.Inbox(start.key))
         publisher = self.session.declare_publisher(self.keys.observer_reports(NAME), **LOOP_PUBLISH)
-        run.outbox = wire.Outbox(publisher, start.report_key)
-        # Zenoh's own thread puts each spike message in a ring, without the interpreter:
-        # the link from the hub's router is drained even while the analysis runs (the
-        # culture's spikes are published with congestion control BLOCK, and a subscriber
-        # that lags would hold up the router, and the loop with it). A full ring drops its
-        # oldest messages; the steps lost are counted.
+        run.outbox = wire.Outbox(publisher, start.key)
+        # Queued as they come (the hub sends them as telemetry: a lagging observer never
+        # holds it up; it catches up, and a message the link dropped is steps missing).
         run.subscriber = self.session.declare_subscriber(
-            start.spikes_key, zenoh.handlers.RingChannel(RING_MESSAGES)
+            self.keys.observer_spikes(NAME),
+            lambda s: self._events.put((run, s.payload.to_bytes(), s.attachment)),
         )
         self._run = run
         log.info("observing run %s: %d channels", start.run, start.channel.size)
@@ -181,24 +183,31 @@ class BurstObserver:
     # ---------------------------------------------------------------- spikes
 
     def _on_spikes(self, run: _Run, payload: bytes, attachment) -> None:
+        """One ``ObservedSpikes`` message (or a frame of one) from the hub."""
         run_id = run.start.run
         try:
             whole = run.inbox.feed(payload, attachment)
             if whole is None:
                 return  # more frames to come
-            batch = SpikeBatch.decode(whole)
+            observed = ObservedSpikes.decode(whole)
         except (wire.WireError, ProtocolError) as exc:
             run.drop(str(exc))
             return
-        if batch.run != run_id:
-            run.drop(f"a SpikeBatch of run {batch.run}")
+        if observed.run != run_id:
+            run.drop(f"spikes of run {observed.run}")
             return
-        if batch.step < run.steps:  # sent again (a culture that rejoined): analysed once
-            return
-        run.lost += batch.step - run.steps  # dropped by a full ring
-        run.steps = batch.step + 1
         run.last_came = time.monotonic()
-        run.live.add(batch)
+        for raw in observed.batches:
+            try:
+                batch = SpikeBatch.decode(raw)
+            except ProtocolError as exc:
+                run.drop(str(exc))
+                continue
+            if batch.run != run_id or batch.step < run.steps:  # another run's; again
+                continue
+            run.lost += batch.step - run.steps  # in a message dropped on the way
+            run.steps = batch.step + 1
+            run.live.add(batch)
 
     def _publish(self, run: _Run, done: list, *, final: bool = False, missing: int = 0):
         """Report the network bursts ``done`` (the final report: all of the run's), if
@@ -208,10 +217,13 @@ class BurstObserver:
         onset_ms = None if final else run.live.under_way()
         until_ms = run.live.until_ms
         news = done or onset_ms != run.onset_ms or until_ms >= run.reported_ms + REPORT_EVERY_MS
+        if not (news or final):
+            return None
         report = run.report(run.found if final else done, onset_ms, final=final, missing=missing)
-        if news and not final:
-            run.outbox.put(report.encode())
-            run.onset_ms, run.reported_ms = onset_ms, until_ms
+        if final:
+            return dataclasses.replace(report, cpu_s=time.process_time() - run.cpu_at_start)
+        run.outbox.put(report.encode())
+        run.onset_ms, run.reported_ms = onset_ms, until_ms
         return report
 
     # ---------------------------------------------------------------- the run's end
@@ -229,6 +241,11 @@ class BurstObserver:
                 missing,
             )
         report = self._publish(run, run.live.finish(), final=True, missing=missing)
+        log.info(
+            "run %s: %d steps analysed, %d network bursts; %.2f s of CPU (%.0f us a step)",
+            run.start.run, run.steps, report.network_bursts, report.cpu_s,
+            report.cpu_s / max(run.steps, 1) * 1e6,
+        )  # fmt: skip
         self._reply(query, report)
         self._ending = None
         self._close_run()
@@ -254,6 +271,7 @@ class _Run:
     dropped: int = 0
     onset_ms: float | None = None  # the network burst under way in the last report
     reported_ms: float = 0.0  # run time of the last report
+    cpu_at_start: float = field(default_factory=time.process_time)
     lost: int = 0  # steps whose spikes a full ring dropped
     last_came: float = field(default_factory=time.monotonic)  # when the last spikes came
     found: list = field(default_factory=list)  # every network burst reported
@@ -296,6 +314,7 @@ class OnlineTally:
     onset_ms: float | None = None
     final: bool = False
     missing_steps: int = 0
+    cpu_s: float | None = None  # the observer's, over the run (its final report)
     lost: str = ""  # why the final report never came, if it did not
     recent: deque = field(default_factory=lambda: deque(maxlen=8))
     taken: int = 0  # network bursts taken so far
@@ -312,7 +331,7 @@ class OnlineTally:
         self.bursts, self.network_bursts = report.bursts, report.network_bursts
         self.dropped, self.until_ms = report.dropped, report.until_ms
         self.onset_ms, self.final = report.onset_ms, report.final
-        self.missing_steps = report.missing_steps
+        self.missing_steps, self.cpu_s = report.missing_steps, report.cpu_s
         self.taken += len(rows)
         self.recent.extend(rows)
         return rows
@@ -329,6 +348,7 @@ class OnlineTally:
             "online_analysis": state,
             "online_steps_missing": self.missing_steps,
             "online_spike_batches_refused": self.dropped,
+            "online_observer_cpu_s": self.cpu_s,
         }
 
 
@@ -344,6 +364,13 @@ def main(bus: BusSection, *, once: bool = False) -> int:
     session = open_session(bus, listener=False, role="observer")
     try:
         observer = BurstObserver(session, bus.keys)
+        # The analysis (this thread) takes only the CPU the loop leaves: it falls behind and
+        # catches up. Zenoh's threads, which drain the link into the ring, keep their
+        # priority: a lagging reader must never hold up the hub's router.
+        try:
+            os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), ANALYSIS_NICE)
+        except (AttributeError, OSError):
+            pass
         observer.serve(stop, once=once)
     finally:
         session.close()

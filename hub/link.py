@@ -54,6 +54,7 @@ class HubLink:
     ):
         self.session = session
         self._deliver = deliver
+        self.keys = keys
         # One subscription for both replies: Zenoh gives each subscription its own Python
         # thread, and two would hand the interpreter and the loop's lock back and forth
         # every step. Keys are told apart here; the hub's own publications are not
@@ -105,11 +106,13 @@ class HubLink:
             session.liveliness().declare_token(keys.alive("hub", "0")),
         ]
 
-    def watch_reports(self, key: str, report_key: bytes) -> None:
-        """Subscribe to the burst observer's reports, sealed with ``report_key``: each one
-        whole is delivered as ``("report", raw)``; one that does not unseal as
-        ``("report_refused", kind, detail)``."""
-        inbox = wire.Inbox(report_key)
+    def watch_observer(self, name: str, key: bytes) -> None:
+        """Declare the run's exchange with the burst observer ``name``, sealed both ways
+        with ``key``: the spikes forwarded to it (:meth:`forward_spikes`; telemetry,
+        dropped rather than waited for) and its reports, each one whole delivered as
+        ``("report", raw)``, one that does not unseal as ``("report_refused", kind,
+        detail)``."""
+        inbox = wire.Inbox(key)
 
         def on_report(sample):
             try:
@@ -120,7 +123,17 @@ class HubLink:
             if raw is not None:
                 self._deliver(("report", raw))
 
-        self._declared.append(self.session.declare_subscriber(key, on_report))
+        publisher = self.session.declare_publisher(
+            self.keys.observer_spikes(name), **TELEMETRY_PUBLISH
+        )
+        self._observer = wire.Outbox(publisher, key)
+        self._declared.append(
+            self.session.declare_subscriber(self.keys.observer_reports(name), on_report)
+        )
+
+    def forward_spikes(self, raw: bytes) -> None:
+        """Put an ``ObservedSpikes`` for the burst observer (sealed; framed if large)."""
+        self._observer.put(raw)
 
     def send(self, role: str, raw: bytes) -> None:
         """Put an input to ``role``, sealed with its run key (framed if large)."""

@@ -59,6 +59,7 @@ from hub.protocol import (
     HubStatus,
     Message,
     MotorCommand,
+    ObservedSpikes,
     ObserverEnd,
     ObserverStart,
     ProtocolError,
@@ -85,6 +86,10 @@ from hub.view import ObserverView
 
 log = logging.getLogger(__name__)
 
+# The culture's spikes go to the burst observer this much run time at once: in realtime,
+# soon enough for a live display to show a network burst under way within a frame or two;
+# in lockstep, one put for many steps (a put and a wake-up a step would cost the loop).
+FORWARD_MS = {"realtime": 30.0, "lockstep": 100.0}
 # The longest the hub waits for the burst observer's final report (one that fell behind
 # catches up first; it answers within seconds of its last spikes coming otherwise).
 OBSERVER_END_TIMEOUT_S = 60.0
@@ -203,10 +208,15 @@ class Hub:
         n = cfg.n_steps
         self.times = LoopTimes.for_run(cfg.loop.mode, cfg.loop.period_ms, n)
         self.recorder: Recorder | None = None
-        # Live burst detection: the burst observer's reports (hub/burst_observer.py), and
-        # the key they are sealed with; None with online.enabled = false.
+        # Live burst detection by the burst observer (hub/burst_observer.py): its reports
+        # (None with online.enabled = false), the key that seals what goes between it and
+        # the hub, and the culture's SpikeBatches taken and not forwarded to it yet
+        # (FORWARD_MS at once; in realtime after a step, in the slack before the next).
         self.online: OnlineTally | None = OnlineTally() if cfg.online.enabled else None
-        self.report_key = wire.new_key()
+        self.observer_key = wire.new_key()
+        self._to_observe: list[bytes] = []
+        forward_ms = FORWARD_MS[cfg.loop.mode]
+        self._observe_every = max(round(forward_ms / cfg.loop.period_ms), 1)
         self.scheduling: Scheduling | None = None  # realtime: what the hub's threads got
         self.placement = Placement()  # the CPUs the hub's threads are kept on (loop.cpus)
         # Lockstep: replies are taken in the threads they arrive on (``scheduler.direct``).
@@ -430,6 +440,8 @@ class Hub:
             self.handle(item)
 
     def tick(self) -> None:
+        if len(self._to_observe) >= self._observe_every and not self.scheduler.direct:
+            self._forward_spikes()
         if self.gone:
             self._check_rejoin_deadlines()
         now = time.monotonic()
@@ -486,6 +498,16 @@ class Hub:
         verdict = self._classify_reply(role, raw, t_arrival)
         if self.recorder:
             self.recorder.message(verdict, self.output_key[role], raw, t_wall_ns)
+        if verdict == "rx" and role == "culture" and self.online is not None:
+            self._to_observe.append(raw)
+            if self.scheduler.direct and len(self._to_observe) >= self._observe_every:
+                self._forward_spikes()  # lockstep; realtime: after the step (tick)
+
+    def _forward_spikes(self) -> None:
+        """The culture's SpikeBatches taken since the last forward, to the burst observer."""
+        if self._to_observe and self.link is not None:
+            batches, self._to_observe = self._to_observe, []
+            self.link.forward_spikes(ObservedSpikes(run=self.run_id, batches=batches).encode())
 
     def _note_round_trip(self, role: str, step: int, t_arrival: float) -> None:
         """The time from the input of ``step`` to ``role`` going out to its reply coming in."""
@@ -784,22 +806,20 @@ class Hub:
         return start_burst_observer(self.cfg.bus, self.run_dir if self.recorder else None)
 
     def _announce_observer(self) -> None:
-        """Give the burst observer the run: the culture's spikes key, channels and run key,
-        the detector's parameters, the key that seals its reports."""
+        """Give the burst observer the run: the culture's channels, the detector's
+        parameters, the key that seals what the hub and it send each other."""
         if self.online is None:
             return
-        online, culture = self.cfg.online, self.ids["culture"]
+        online = self.cfg.online
         start = ObserverStart(
             run=self.run_id,
             n_steps=self.n_steps,
-            spikes_key=self.keys.spikes(culture),
             channel=self.descriptions["culture"].channel,
-            key=self.run_keys["culture"],
-            report_key=self.report_key,
+            key=self.observer_key,
             burst=dict(online.burst),
             network=dict(online.network),
         )
-        self.link.watch_reports(self.keys.observer_reports(OBSERVER), self.report_key)
+        self.link.watch_observer(OBSERVER, self.observer_key)
         answers = []
         for raw in self.link.query(self.keys.observer_run(OBSERVER), start.encode(), timeout_s=5.0):
             try:
@@ -822,6 +842,7 @@ class Hub:
         if ("observer", OBSERVER) not in self.alive:
             online.lost = online.lost or "the burst observer was not there at the run's end"
             return
+        self._forward_spikes()  # the last steps'
         self._take_reports()  # those that came before it
         end = ObserverEnd(run=self.run_id, steps=self.k_done).encode()
         key = self.keys.observer_run(OBSERVER)

@@ -127,6 +127,10 @@ class Keys:
         ``ObserverEnd``."""
         return f"{self.root}/observer/{name}/run"
 
+    def observer_spikes(self, name: str) -> str:
+        """Hub → observer: the culture's spikes (``ObservedSpikes``), sealed."""
+        return f"{self.root}/observer/{name}/spikes"
+
     def observer_reports(self, name: str) -> str:
         """Observer → hub and live displays: its findings (``BurstReport``), sealed."""
         return f"{self.root}/observer/{name}/reports"
@@ -187,6 +191,13 @@ class Mapping:
 @dataclass(frozen=True)
 class StrList:
     """A list of str."""
+
+    optional: bool = False
+
+
+@dataclass(frozen=True)
+class BlobList:
+    """A list of opaque byte strings (msgpack ``bin`` each)."""
 
     optional: bool = False
 
@@ -352,6 +363,12 @@ def _quick_check(spec) -> Callable[[Any], bool]:
         def accepts(value):
             return type(value) is bytes and len(value) == length
 
+    elif isinstance(spec, BlobList):
+        optional = spec.optional
+
+        def accepts(value):
+            return type(value) is list and all(type(v) is bytes for v in value)
+
     else:
         optional = spec.optional
 
@@ -404,7 +421,7 @@ class Message:
     message that exists is a valid one, whether built locally or decoded.
     """
 
-    SCHEMA: ClassVar[dict[str, Scalar | Array | Mapping | StrList | Blob]]
+    SCHEMA: ClassVar[dict[str, Scalar | Array | Mapping | StrList | Blob | BlobList]]
 
     def __init_subclass__(cls, **kwargs):
         super().__init_subclass__(**kwargs)
@@ -474,6 +491,9 @@ class Message:
             elif isinstance(spec, Blob):
                 if not isinstance(value, bytes) or len(value) != spec.length:
                     raise ProtocolError("type", f"{name} must be {spec.length} bytes")
+            elif isinstance(spec, BlobList):
+                if not isinstance(value, list) or not all(isinstance(v, bytes) for v in value):
+                    raise ProtocolError("type", f"{name} must be a list of bytes")
             elif not isinstance(value, dict):
                 raise ProtocolError("type", f"{name} must be a map")
 
@@ -1069,28 +1089,25 @@ def decode_run_request(raw: bytes) -> RunStart | RunEnd | RunHold:
 
 @dataclass(frozen=True, eq=False)
 class ObserverStart(Message):
-    """Hub → the burst observer, on its ``run`` key (contract v3): a run begins; read the
-    culture's spikes (``spikes_key``, sealed with the culture's run key ``key``) and report
-    on ``observer/bursts/reports``, sealed with ``report_key``. ``channel``: the culture's
-    channel ids; ``burst`` and ``network``: the keyword arguments of ``BurstParams`` and
-    ``NetworkBurstParams`` (``online.burst``, ``online.network``)."""
+    """Hub → the burst observer, on its ``run`` key (contract v3): a run begins. The hub
+    forwards the culture's spikes to it (``ObservedSpikes`` on ``observer/bursts/spikes``)
+    and it reports on ``observer/bursts/reports``, both sealed with ``key``, the
+    observer's secret for this run. ``channel``: the culture's channel ids; ``burst``
+    and ``network``: the keyword arguments of ``BurstParams`` and ``NetworkBurstParams``
+    (``online.burst``, ``online.network``)."""
 
     run: str
     n_steps: int
-    spikes_key: str
     channel: np.ndarray
     key: bytes
-    report_key: bytes
     burst: dict = field(default_factory=dict)
     network: dict = field(default_factory=dict)
 
     SCHEMA = {
         "run": _RUN,
         "n_steps": Scalar(int, min=1),
-        "spikes_key": Scalar(str),
         "channel": Array("<u4"),
         "key": Blob(16),
-        "report_key": Blob(16),
         "burst": Mapping(),
         "network": Mapping(),
     }
@@ -1099,6 +1116,20 @@ class ObserverStart(Message):
         _check_run_id(self.run)
         if not self.channel.size:
             raise ProtocolError("range", "channel must not be empty")
+
+
+@dataclass(frozen=True, eq=False)
+class ObservedSpikes(Message):
+    """Hub → the burst observer (``observer/bursts/spikes``, sealed with its run key): the
+    culture's SpikeBatches the hub took since the last such message, each exactly as the
+    culture sent it, in step order (every 100 ms of run time in lockstep, every step in
+    realtime). Telemetry: dropped rather than waited for; the observer counts the steps
+    missing."""
+
+    run: str
+    batches: list
+
+    SCHEMA = {"run": _RUN, "batches": BlobList()}
 
 
 @dataclass(frozen=True, eq=False)
@@ -1125,8 +1156,8 @@ class BurstReport(Message):
     the run's start; ``dropped`` counts the SpikeBatches refused (not sealed by the
     culture, malformed, another run's). ``final``: the answer to ``ObserverEnd``,
     everything still open completed as offline detection does at a record's end; its
-    ``nb_*`` carry every network burst of the run. ``missing_steps``: steps whose spikes
-    never came.
+    ``nb_*`` carry every network burst of the run, ``cpu_s`` the observer's CPU time over
+    the run. ``missing_steps``: steps whose spikes never came (or a full ring dropped).
     """
 
     run: str
@@ -1142,6 +1173,7 @@ class BurstReport(Message):
     onset_ms: float | None = None
     final: bool = False
     missing_steps: int = 0
+    cpu_s: float | None = None
 
     SCHEMA = {
         "run": _RUN,
@@ -1157,6 +1189,7 @@ class BurstReport(Message):
         "onset_ms": Scalar(float, optional=True),
         "final": Scalar(bool),
         "missing_steps": Scalar(int, min=0),
+        "cpu_s": Scalar(float, min=0.0, optional=True),
     }
 
     def network_burst_rows(self) -> list[tuple[float, float, int, float, float]]:

@@ -10,10 +10,10 @@ import pytest
 
 from hub import wire
 from hub.burst_observer import NAME, BurstObserver
-from hub.bus import LOOP_PUBLISH, open_session
+from hub.bus import open_session
 from hub.config import load_config
 from hub.launch import start_burst_observer
-from hub.protocol import BurstReport, ObserverEnd, ObserverStart, RunReply
+from hub.protocol import BurstReport, ObservedSpikes, ObserverEnd, ObserverStart, RunReply
 from tests.harness import harness, wait_for
 from tests.hub.test_live import CHANNELS, PLANTED, _batches
 from tests.windows import RUN
@@ -36,49 +36,50 @@ def observed(bus_overrides):
     hub.close()
 
 
-def _start(hub, keys, culture_key, report_key, **params):
-    start = ObserverStart(
-        run=RUN,
-        n_steps=60,
-        spikes_key=keys.spikes("0"),
-        channel=CHANNELS,
-        key=culture_key,
-        report_key=report_key,
-        **params,
-    )
+def _start(hub, keys, key, **params):
+    start = ObserverStart(run=RUN, n_steps=60, channel=CHANNELS, key=key, **params)
     (raw,) = wire.get(hub, keys.observer_run(NAME), start.encode(), timeout_s=5)
     return RunReply.decode(raw)
 
 
+def _forwarder(hub, keys, key):
+    """Puts SpikeBatches to the observer as the hub forwards them, sealed with ``key``."""
+    outbox = wire.Outbox(hub.declare_publisher(keys.observer_spikes(NAME)), key)
+    return lambda *batches: outbox.put(
+        ObservedSpikes(run=RUN, batches=[b.encode() for b in batches]).encode()
+    )
+
+
 def test_it_reports_a_network_burst_under_way_then_complete_and_a_final_count(observed):
     hub, keys = observed
-    culture_key, report_key = wire.new_key(), wire.new_key()
+    key = wire.new_key()
     reports: queue.SimpleQueue = queue.SimpleQueue()
-    inbox = wire.Inbox(report_key)
+    inbox = wire.Inbox(key)
     declared = [  # noqa: F841
         hub.declare_subscriber(
             keys.observer_reports(NAME),
             lambda s: reports.put(inbox.feed(s.payload, s.attachment)),
         )
     ]
-    assert _start(hub, keys, culture_key, report_key).ok
-    culture = wire.Outbox(hub.declare_publisher(keys.spikes("0"), **LOOP_PUBLISH), culture_key)
-    stranger = wire.Outbox(hub.declare_publisher(keys.spikes("0"), **LOOP_PUBLISH), b"x" * 16)
+    assert _start(hub, keys, key).ok
+    forward = _forwarder(hub, keys, key)
+    stranger = _forwarder(hub, keys, b"x" * 16)
     batches = list(_batches(PLANTED, 60))
 
     def next_report(timeout_s=10.0):
         return BurstReport.decode(reports.get(timeout=timeout_s))
 
-    # Up to 130 ms: three channels are bursting (from 100, 102 and 104 ms), none has ended.
+    # Up to 130 ms, a step at a time: three channels are bursting (from 100, 102 and
+    # 104 ms), none has ended.
     for batch in batches[:13]:
-        culture.put(batch.encode())
+        forward(batch)
     report = next_report()
     while report.onset_ms is None:
         report = next_report()
     assert report.onset_ms == pytest.approx(102.0) and report.network_bursts == 0
-    stranger.put(batches[12].encode())  # a copy of a step, not sealed with the culture's key
-    for batch in batches[13:]:
-        culture.put(batch.encode())
+    stranger(batches[12])  # a copy of a step, not sealed with the run's key
+    forward(*batches[13:30])  # many steps at once, as in lockstep
+    forward(*batches[30:])
     report = next_report()
     while not report.network_bursts:
         report = next_report()
@@ -95,25 +96,24 @@ def test_it_reports_a_network_burst_under_way_then_complete_and_a_final_count(ob
 
 def test_it_refuses_a_run_whose_detector_parameters_are_wrong_and_says_which(observed):
     hub, keys = observed
-    reply = _start(hub, keys, wire.new_key(), wire.new_key(), network={"min_fraction": 2.0})
+    reply = _start(hub, keys, wire.new_key(), network={"min_fraction": 2.0})
     assert not reply.ok and "min_fraction" in reply.reason
 
 
-def test_the_end_of_a_run_whose_last_spikes_never_come_says_how_many_are_missing(
-    observed, monkeypatch
-):
+def test_steps_whose_spikes_never_come_are_counted_missing(observed, monkeypatch):
     monkeypatch.setattr("hub.burst_observer.END_WAIT_S", 0.2)
     hub, keys = observed
-    culture_key = wire.new_key()
-    assert _start(hub, keys, culture_key, wire.new_key()).ok
-    culture = wire.Outbox(hub.declare_publisher(keys.spikes("0"), **LOOP_PUBLISH), culture_key)
-    for batch in _batches(PLANTED, 20):
-        culture.put(batch.encode())
+    key = wire.new_key()
+    assert _start(hub, keys, key).ok
+    forward = _forwarder(hub, keys, key)
+    batches = list(_batches(PLANTED, 20))
+    forward(*batches[:5])
+    forward(*batches[8:])  # steps 5-7 lost on the way
     (raw,) = wire.get(
         hub, keys.observer_run(NAME), ObserverEnd(run=RUN, steps=60).encode(), timeout_s=10
     )
     final = BurstReport.decode(raw)
-    assert final.final and final.missing_steps == 40 and final.network_bursts == 1
+    assert final.final and final.missing_steps == 3 + 40 and final.network_bursts == 1
 
 
 def _manifest(run_dir):
