@@ -61,8 +61,8 @@ from hub.stopping import StopFlag
 log = logging.getLogger(__name__)
 
 NAME = "bursts"  # the observer's name in its keys (observer/bursts/...)
-# A report goes out at least this often in run time (counts for the hub's status).
-REPORT_EVERY_MS = 100.0
+# A report goes out at least this often in run time (the counts in the hub's status).
+REPORT_EVERY_MS = 1000.0
 TAKE_AT_ONCE = 64  # messages of spikes analysed in one feed, at most
 WAKE_S = 0.1  # the longest the observer sleeps (to see that the spikes of a run's end came)
 ANALYSIS_NICE = 19  # the analysing thread's nice value

@@ -27,6 +27,7 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -147,20 +148,37 @@ def start_local_endpoints(
     return procs
 
 
-def start_burst_observer(bus: BusSection, log_dir: Path | None) -> LocalProcess:
-    """Start ``neuvision observe bursts --once`` on the hub's bus. The hub starts it for a
-    run with ``online.launch = "local"``."""
+def start_burst_observer(
+    bus: BusSection, log_dir: Path | None, hub_cpus: Sequence[int] = ()
+) -> LocalProcess:
+    """Start ``neuvision observe bursts --once`` on the hub's bus, off the CPUs kept for the
+    hub (``loop.cpus``) where others are left. The hub starts it for a run with
+    ``online.launch = "local"``."""
     overrides = [f"bus.{k}={json.dumps(v)}" for k, v in dataclasses.asdict(bus).items()]
     # It reaches the hub where the hub listens (a wildcard address: on this machine).
     connect = [re.sub(r"/(0\.0\.0\.0|\[::\]):", "/127.0.0.1:", a) for a in bus.listen]
     overrides.append(f"bus.connect={json.dumps(bus.connect or connect)}")
-    return _start_local("observer", ["observe", "bursts", "--once"], None, overrides, log_dir)
+    others = set(os.sched_getaffinity(0)) - set(hub_cpus) if hub_cpus else set()
+    command = ["observe", "bursts", "--once"]
+    return _start_local("observer", command, None, overrides, log_dir, cpus=others)
 
 
 def _start_local(
-    role: str, command: list[str], config_path: str | None, overrides: list[str], log_dir
+    role: str,
+    command: list[str],
+    config_path: str | None,
+    overrides: list[str],
+    log_dir,
+    cpus: set[int] | None = None,
 ) -> LocalProcess:
-    """``neuvision COMMAND [CONFIG] --set ...`` as a child that ends with its runner."""
+    """``neuvision COMMAND [CONFIG] --set ...`` as a child that ends with its runner (on
+    ``cpus`` if given)."""
+
+    def child() -> None:
+        die_with_parent()
+        if cpus:
+            os.sched_setaffinity(0, cpus)
+
     cmd = [sys.executable, "-m", "hub.cli", *command]
     if config_path:
         cmd.append(str(config_path))
@@ -175,7 +193,7 @@ def _start_local(
         stderr=subprocess.STDOUT,
         start_new_session=True,  # Ctrl-C goes to the runner, which stops us in order
         # A runner killed outright: its endpoints end too (a body stops its motors).
-        preexec_fn=die_with_parent,
+        preexec_fn=child,
         env={**os.environ, "PYTHONUNBUFFERED": "1"},
     )
     if log_path:

@@ -803,7 +803,8 @@ class Hub:
         online = self.cfg.online
         if not online.enabled or online.launch != "local":
             return None
-        return start_burst_observer(self.cfg.bus, self.run_dir if self.recorder else None)
+        log_dir = self.run_dir if self.recorder else None
+        return start_burst_observer(self.cfg.bus, log_dir, self.cfg.loop.cpus)
 
     def _announce_observer(self) -> None:
         """Give the burst observer the run: the culture's channels, the detector's
