@@ -3,8 +3,8 @@
 The paper detects bursts and network bursts "on the fly". The hub's loop must never wait
 for that analysis (the end of a large network burst takes tens of milliseconds of
 Python), so it runs here, on the bus beside the loop. The hub forwards it the culture's
-SpikeBatches it took, as the culture sent them (``ObservedSpikes``: every step in
-realtime, every 100 ms of run time in lockstep, one put for many steps); the observer
+SpikeBatches it took, as the culture sent them (``ObservedSpikes``: what came in 30 ms
+in realtime, in 50 ms in lockstep, one put for many steps); the observer
 feeds them to :class:`~hub.live.LiveBursts` and publishes a
 :class:`~hub.protocol.BurstReport` when a network burst completes, when one starts or
 stops being under way, and every ``REPORT_EVERY_MS`` of run time besides. The hub

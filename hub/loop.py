@@ -86,10 +86,11 @@ from hub.view import ObserverView
 
 log = logging.getLogger(__name__)
 
-# The culture's spikes go to the burst observer this much run time at once: in realtime,
-# soon enough for a live display to show a network burst under way within a frame or two;
-# in lockstep, one put for many steps (a put and a wake-up a step would cost the loop).
-FORWARD_MS = {"realtime": 30.0, "lockstep": 100.0}
+# The culture's spikes go to the burst observer every this many seconds of wall time, many
+# steps in one put: in realtime soon enough for a live display to show a network burst
+# under way within a frame or two; in lockstep a put and a wake-up of the observer a step
+# (or even every 100 ms of run time, at thousands of steps a second) would cost the loop.
+FORWARD_S = {"realtime": 0.03, "lockstep": 0.05}
 # The longest the hub waits for the burst observer's final report (one that fell behind
 # catches up first; it answers within seconds of its last spikes coming otherwise).
 OBSERVER_END_TIMEOUT_S = 60.0
@@ -211,12 +212,12 @@ class Hub:
         # Live burst detection by the burst observer (hub/burst_observer.py): its reports
         # (None with online.enabled = false), the key that seals what goes between it and
         # the hub, and the culture's SpikeBatches taken and not forwarded to it yet
-        # (FORWARD_MS at once; in realtime after a step, in the slack before the next).
+        # (every FORWARD_S; in realtime after a step, in the slack before the next).
         self.online: OnlineTally | None = OnlineTally() if cfg.online.enabled else None
         self.observer_key = wire.new_key()
         self._to_observe: list[bytes] = []
-        forward_ms = FORWARD_MS[cfg.loop.mode]
-        self._observe_every = max(round(forward_ms / cfg.loop.period_ms), 1)
+        self._forward_s = FORWARD_S[cfg.loop.mode]
+        self._forwarded_at = 0.0  # monotonic
         self.scheduling: Scheduling | None = None  # realtime: what the hub's threads got
         self.placement = Placement()  # the CPUs the hub's threads are kept on (loop.cpus)
         # Lockstep: replies are taken in the threads they arrive on (``scheduler.direct``).
@@ -440,8 +441,9 @@ class Hub:
             self.handle(item)
 
     def tick(self) -> None:
-        if len(self._to_observe) >= self._observe_every and not self.scheduler.direct:
-            self._forward_spikes()
+        if self._to_observe and not self.scheduler.direct:
+            if time.monotonic() - self._forwarded_at >= self._forward_s:
+                self._forward_spikes()
         if self.gone:
             self._check_rejoin_deadlines()
         now = time.monotonic()
@@ -500,12 +502,13 @@ class Hub:
             self.recorder.message(verdict, self.output_key[role], raw, t_wall_ns)
         if verdict == "rx" and role == "culture" and self.online is not None:
             self._to_observe.append(raw)
-            if self.scheduler.direct and len(self._to_observe) >= self._observe_every:
+            if self.scheduler.direct and t_arrival - self._forwarded_at >= self._forward_s:
                 self._forward_spikes()  # lockstep; realtime: after the step (tick)
 
     def _forward_spikes(self) -> None:
         """The culture's SpikeBatches taken since the last forward, to the burst observer."""
         if self._to_observe and self.link is not None:
+            self._forwarded_at = time.monotonic()
             batches, self._to_observe = self._to_observe, []
             self.link.forward_spikes(ObservedSpikes(run=self.run_id, batches=batches).encode())
 

@@ -1122,8 +1122,8 @@ class ObserverStart(Message):
 class ObservedSpikes(Message):
     """Hub → the burst observer (``observer/bursts/spikes``, sealed with its run key): the
     culture's SpikeBatches the hub took since the last such message, each exactly as the
-    culture sent it, in step order (every 100 ms of run time in lockstep, every step in
-    realtime). Telemetry: dropped rather than waited for; the observer counts the steps
+    culture sent it, in step order (what came in 50 ms of wall time in lockstep, in 30 ms
+    in realtime). Telemetry: dropped rather than waited for; the observer counts the steps
     missing."""
 
     run: str
