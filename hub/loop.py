@@ -698,9 +698,10 @@ class Hub:
                 hint = ""
                 if ("observer", OBSERVER) in needed - self.alive:
                     hint = (
-                        "; the burst observer is started by 'neuvision run' (online.launch = "
-                        "\"local\") or by 'neuvision observe bursts'; online.enabled = false "
-                        "runs without live burst detection"
+                        '; with online.launch = "external" start it with \'neuvision observe '
+                        'bursts CONFIG --connect HOST\' ("local": the hub starts it, see '
+                        "observer.log in the run folder); online.enabled = false runs "
+                        "without live burst detection"
                     )
                 raise HubError(
                     f"endpoint(s) {missing} did not appear on session {self.cfg.bus.session!r} "

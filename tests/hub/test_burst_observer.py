@@ -159,3 +159,14 @@ def test_the_loop_goes_on_when_the_observer_dies_and_the_manifest_says_so(
     assert counts["online_analysis"].startswith("incomplete: the burst observer vanished")
     dead = [e.payload for e in h.record.events if e.key == "dead"]
     assert dead == [{"role": "observer", "id": NAME}]
+
+
+def test_an_external_observer_that_never_comes_is_named_with_how_to_start_it(
+    tmp_path, bus_overrides
+):
+    overrides = ["online.enabled=true", 'online.launch="external"', "loop.wait_timeout_s=2"]
+    with harness(tmp_path, bus_overrides, *overrides) as h:
+        result = h.run()
+    assert result.outcome == "fault"
+    assert "observer/bursts did not appear" in result.reason
+    assert "neuvision observe bursts CONFIG --connect HOST" in result.reason
