@@ -128,32 +128,18 @@ def build_parser() -> argparse.ArgumentParser:
         "stopped (SIGINT/SIGTERM), for a hub started with 'neuvision hub'.",
     )
     p.add_argument("role", choices=("body", "culture"), help="which endpoint of CONFIG")
-    _add_config_args(p, shortcuts=False)
-    p.add_argument(
-        "--connect",
-        metavar="HOST[:PORT]",
-        help="where the hub listens (bus.connect; the port defaults to bus.listen's)",
-    )
-    p.add_argument("--session", help="bus.session")
-    p.add_argument("--once", action="store_true", help="exit when the first run ends")
+    _add_participant_args(p)
     p = sub.add_parser(
         "observe",
         help="serve live burst detection for a hub (the burst observer)",
         description="Serve the burst observer on the bus until stopped (SIGINT/SIGTERM): it "
         "reads the culture's spikes of each run, detects bursts and network bursts as they "
-        "complete and reports them to the hub, which records them. 'neuvision run' starts one "
-        'itself (online.launch = "local"); this is for a hub whose observer runs elsewhere '
+        "complete and reports them to the hub, which records them. The hub starts one itself "
+        '(online.launch = "local"); this is for a hub whose observer runs elsewhere '
         '(online.launch = "external").',
     )
     p.add_argument("what", choices=("bursts",), help="what to observe")
-    _add_config_args(p, shortcuts=False)
-    p.add_argument(
-        "--connect",
-        metavar="HOST[:PORT]",
-        help="where the hub listens (bus.connect; the port defaults to bus.listen's)",
-    )
-    p.add_argument("--session", help="bus.session")
-    p.add_argument("--once", action="store_true", help="exit when the first run ends")
+    _add_participant_args(p)
     p = sub.add_parser(
         "record-info",
         help="summarise a recorded run",
@@ -282,6 +268,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--culture", type=Path, help="culture file (default configs/culture_1024.toml)")
     _add_dashboard_commands(sub)
     return parser
+
+
+def _add_participant_args(p: argparse.ArgumentParser) -> None:
+    """CONFIG and what a participant started apart from its hub needs to find it."""
+    _add_config_args(p, shortcuts=False)
+    p.add_argument(
+        "--connect",
+        metavar="HOST[:PORT]",
+        help="where the hub listens (bus.connect; the port defaults to bus.listen's)",
+    )
+    p.add_argument("--session", help="bus.session")
+    p.add_argument("--once", action="store_true", help="exit when the first run ends")
 
 
 def _add_dashboard_flag(p: argparse.ArgumentParser) -> None:
