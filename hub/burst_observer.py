@@ -315,6 +315,7 @@ class OnlineTally:
     final: bool = False
     missing_steps: int = 0
     cpu_s: float | None = None  # the observer's, over the run (its final report)
+    announced: bool = False  # the observer took the run
     lost: str = ""  # why the final report never came, if it did not
     recent: deque = field(default_factory=lambda: deque(maxlen=8))
     taken: int = 0  # network bursts taken so far
@@ -365,8 +366,8 @@ def main(bus: BusSection, *, once: bool = False) -> int:
     try:
         observer = BurstObserver(session, bus.keys)
         # The analysis (this thread) takes only the CPU the loop leaves: it falls behind and
-        # catches up. Zenoh's threads, which drain the link into the ring, keep their
-        # priority: a lagging reader must never hold up the hub's router.
+        # catches up. Zenoh's threads keep their priority, so the spikes are taken off the
+        # link and queued meanwhile (the hub would drop what a congested link cannot take).
         try:
             os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), ANALYSIS_NICE)
         except (AttributeError, OSError):

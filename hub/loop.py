@@ -837,12 +837,16 @@ class Hub:
         if refused:
             raise HubError(f"the burst observer refused the run: {refused[0]}")
         self._record_event("run_taken", role="observer", id=OBSERVER, run=self.run_id)
+        self.online.announced = True
 
     def _end_observer(self) -> None:
         """Ask the burst observer for its final report (every step's spikes analysed, every
         burst still open completed), and count it."""
         online = self.online
-        if online is None or self.link is None or online.final:
+        if online is None or online.final:
+            return
+        if not online.announced:
+            online.lost = "the run ended before the burst observer had it"
             return
         if ("observer", OBSERVER) not in self.alive:
             online.lost = online.lost or "the burst observer was not there at the run's end"
