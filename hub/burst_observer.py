@@ -66,6 +66,8 @@ REPORT_EVERY_MS = 1000.0
 TAKE_AT_ONCE = 64  # messages of spikes analysed in one feed, at most
 WAKE_S = 0.1  # the longest the observer sleeps (to see that the spikes of a run's end came)
 ANALYSIS_NICE = 19  # the analysing thread's nice value
+# An onset this close after the last network burst under way was seen is the same one.
+UNDER_WAY_GAP_MS = 50.0
 # ObserverEnd: how long to wait for more of the last steps' spikes (from the last that came).
 END_WAIT_S = 5.0
 
@@ -318,6 +320,9 @@ class OnlineTally:
     announced: bool = False  # the observer took the run
     lost: str = ""  # why the final report never came, if it did not
     recent: deque = field(default_factory=lambda: deque(maxlen=8))
+    # The latest network bursts seen under way, [onset_ms, last seen under way (ms)] each:
+    # a status (a few a second) may fall between a burst's start and end.
+    under_way: deque = field(default_factory=lambda: deque(maxlen=8))
     taken: int = 0  # network bursts taken so far
 
     def take(self, report: BurstReport) -> list[tuple]:
@@ -329,6 +334,14 @@ class OnlineTally:
         rows = report.network_burst_rows()
         if report.final:
             rows = rows[self.taken :]
+        last = self.under_way[-1] if self.under_way else None
+        if report.onset_ms is not None:
+            if last is not None and report.onset_ms <= last[1] + UNDER_WAY_GAP_MS:
+                last[1] = report.until_ms  # the same one, still under way
+            else:
+                self.under_way.append([report.onset_ms, report.until_ms])
+        elif self.onset_ms is not None and last is not None:
+            last[1] = report.until_ms  # over by then
         self.bursts, self.network_bursts = report.bursts, report.network_bursts
         self.dropped, self.until_ms = report.dropped, report.until_ms
         self.onset_ms, self.final = report.onset_ms, report.final

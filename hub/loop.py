@@ -1029,6 +1029,10 @@ class Hub:
                 "single_channel_bursts": self.online.bursts if self.online else 0,
                 "network_bursts": self.online.network_bursts if self.online else 0,
                 "network_burst_under_way_ms": self.online.onset_ms if self.online else None,
+                # [onset_ms, last seen under way (ms)] each, the latest 8
+                "recent_network_bursts_under_way": [
+                    [round(v, 3) for v in u] for u in (self.online.under_way if self.online else ())
+                ],
                 "round_trip_ms": dict(self._last_round_trip_ms),
                 # for observers (the dashboard, docs/dashboard.md)
                 "run": self.run_id,

@@ -399,12 +399,17 @@ function drawRaster() {
 // stimulated channel bursts for seconds and the extent with it (docs/analysis.md).
 // A core is often a few ms: at least 3 px wide, so that it shows at any zoom.
 function shadeBursts(ctx, x, top, bottom, w, ratio) {
-  // A network burst under way (the burst observer's early mark, docs/analysis.md): hatched
-  // from its start to now, until the complete one is reported.
-  const onset = (nv.status.extra || {}).network_burst_under_way_ms;
-  if (typeof onset === "number") {
-    const a = Math.max(x(onset / 1000), 0), e = x(nv.t_s);
-    ctx.fillStyle = "rgba(224, 168, 0, 0.30)";
+  // Network bursts seen under way (the burst observer's early marks, docs/analysis.md):
+  // hatched from their start to the last time they were seen under way (to now for the one
+  // under way now), long before the complete ones are reported.
+  const ex = nv.status.extra || {};
+  const marks = (ex.recent_network_bursts_under_way || []).map((u) => [u[0], u[1]]);
+  if (typeof ex.network_burst_under_way_ms === "number" && marks.length) {
+    marks[marks.length - 1][1] = Math.max(marks[marks.length - 1][1], nv.t_s * 1000);
+  }
+  ctx.fillStyle = "rgba(224, 168, 0, 0.30)";
+  for (const [from, to] of marks) {
+    const a = Math.max(x(from / 1000), 0), e = Math.min(x(Math.max(to, from + 5) / 1000), w);
     for (let xi = a; xi < e; xi += 4 * ratio) ctx.fillRect(xi, top, 2 * ratio, bottom - top);
   }
   const shades = [[0, 1, "rgba(224, 168, 0, 0.10)", ratio], [3, 4, "rgba(224, 168, 0, 0.45)", 3 * ratio]];

@@ -9,7 +9,7 @@ import threading
 import pytest
 
 from hub import wire
-from hub.burst_observer import NAME, BurstObserver
+from hub.burst_observer import NAME, BurstObserver, OnlineTally
 from hub.bus import open_session
 from hub.config import load_config
 from hub.launch import start_burst_observer
@@ -170,3 +170,18 @@ def test_an_external_observer_that_never_comes_is_named_with_how_to_start_it(
     assert result.outcome == "fault"
     assert "observer/bursts did not appear" in result.reason
     assert "neuvision observe bursts CONFIG --connect HOST" in result.reason
+
+
+def test_the_hub_keeps_each_network_burst_seen_under_way_with_when_it_was_last_seen():
+    tally = OnlineTally()
+
+    def report(until_ms, onset_ms=None):
+        tally.take(BurstReport(run=RUN, until_ms=until_ms, bursts=0, network_bursts=0,
+                               onset_ms=onset_ms))  # fmt: skip
+
+    report(120.0, 102.0)
+    report(130.0, 102.5)  # the same burst, its onset refined as channels join
+    report(150.0)  # over by 150 ms
+    report(900.0, 880.0)  # another
+    assert [list(u) for u in tally.under_way] == [[102.0, 150.0], [880.0, 900.0]]
+    assert tally.onset_ms == 880.0
