@@ -274,7 +274,7 @@ class _Run:
     onset_ms: float | None = None  # the network burst under way in the last report
     reported_ms: float = 0.0  # run time of the last report
     cpu_at_start: float = field(default_factory=time.process_time)
-    lost: int = 0  # steps whose spikes a full ring dropped
+    lost: int = 0  # steps skipped in what came (a message the link dropped)
     last_came: float = field(default_factory=time.monotonic)  # when the last spikes came
     found: list = field(default_factory=list)  # every network burst reported
 

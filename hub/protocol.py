@@ -1153,11 +1153,12 @@ class BurstReport(Message):
     number of channels, run time in ms, as ``hub.analysis.online.NetworkBurst``);
     ``onset_ms``: the start of a network burst under way (enough channels bursting
     now, not yet complete), for displays. ``bursts`` and ``network_bursts`` count from
-    the run's start; ``dropped`` counts the SpikeBatches refused (not sealed by the
-    culture, malformed, another run's). ``final``: the answer to ``ObserverEnd``,
-    everything still open completed as offline detection does at a record's end; its
+    the run's start; ``dropped`` counts what the observer refused (a message not sealed
+    with the run's key, a malformed SpikeBatch, another run's). ``final``: the answer to
+    ``ObserverEnd``, everything still open completed as offline detection does at a
+    record's end; its
     ``nb_*`` carry every network burst of the run, ``cpu_s`` the observer's CPU time over
-    the run. ``missing_steps``: steps whose spikes never came (or a full ring dropped).
+    the run. ``missing_steps``: steps whose spikes never came (the link dropped them).
     """
 
     run: str
