@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from adapters.mea.layout import ElectrodeLayout
-from adapters.mea.rhx import spike_record
+from adapters.mea.rhx import spike_record_bytes
 from hub.stopping import StopFlag
 from sim_network import Network
 from sim_network.config import load_config
@@ -84,9 +84,11 @@ class IntanEmulator:
         self.faults = Faults()
         self.values: dict[str, str] = {"sampleratehertz": str(SAMPLE_RATE_HZ), "runmode": "stop"}
         self.uploaded: dict[str, dict[str, str]] = {}
+        self._channel_values: dict[str, dict[str, str]] = {}  # a-010: {stimenabled: true, …}
         self.triggers: list[tuple[float, list[int]]] = []  # (time, channels fired)
         self.commands = 0
         self._index = self.layout.index()
+        self._record_names = np.array([n.encode("ascii")[:5] for n in self.layout.names], "S5")
         self._run_t0: float | None = None
         self._pending: list[Pulses] = []
         self._lock = threading.Lock()
@@ -202,18 +204,18 @@ class IntanEmulator:
                 return f"Error: set {name} needs a value"
             if name == "runmode":
                 self._set_runmode(value.lower())
-            self.values[name] = value.lower() if value.lower() in ("true", "false") else value
+            value = value.lower() if value.lower() in ("true", "false") else value
+            self.values[name] = value
+            channel, dot, parameter = name.partition(".")
+            if dot:
+                self._channel_values.setdefault(channel, {})[parameter] = value
             return ""
         if verb == "execute":
             action, _, arg = rest.strip().partition(" ")
             action = action.lower()
             if action == "uploadstimparameters":
                 channel = arg.strip().lower()
-                self.uploaded[channel] = {
-                    k.split(".", 1)[1]: v
-                    for k, v in self.values.items()
-                    if k.startswith(channel + ".")
-                }
+                self.uploaded[channel] = dict(self._channel_values.get(channel, {}))
                 return ""
             if action == "manualstimtriggerpulse":
                 self._trigger(arg.strip().upper())
@@ -295,10 +297,7 @@ class IntanEmulator:
             if spikes.channel.size == 0:
                 continue
             samples = ((spikes.t_ms - self._sim_origin_ms) * SAMPLE_RATE_HZ / 1e3).astype(np.int64)
-            data = b"".join(
-                spike_record(self.layout.names[c], int(s))
-                for c, s in zip(spikes.channel, samples, strict=True)
-            )
+            data = spike_record_bytes(self._record_names[spikes.channel], samples)
             if self.faults.malformed_next_spike:
                 self.faults.malformed_next_spike = False
                 self.faults.fired["malformed"] += 1

@@ -27,7 +27,7 @@ from collections import Counter
 
 import numpy as np
 
-from adapters.mea.driver import ClockMap, spike_arrays
+from adapters.mea.driver import ClockMap
 from adapters.mea.layout import ElectrodeLayout
 from adapters.mea.safety import BiphasicPulse
 from hub.endpoint import DeviceFault
@@ -36,6 +36,10 @@ log = logging.getLogger(__name__)
 
 SPIKE_MAGIC = 0x3AE2710F
 SPIKE_RECORD = struct.Struct("<I5sIB")  # 14 bytes
+SPIKE_DTYPE = np.dtype(
+    [("magic", "<u4"), ("name", "S5"), ("timestamp", "<u4"), ("spike_id", "u1")]
+)  # the same record, packed, for numpy
+_MAGIC_BYTES = SPIKE_MAGIC.to_bytes(4, "little")
 TRIGGER = "F1"  # every pulse fires on this key: the channels enabled are those of the step
 
 
@@ -50,29 +54,46 @@ class RhxError(DeviceFault):
     """The instrument answered ``Error …``, did not answer, or a write did not hold."""
 
 
-def spike_records(buffer: bytearray, counts: Counter) -> list[tuple[str, int]]:
-    """Take the complete records off the front of ``buffer``: ``(channel name, timestamp)``.
+def spike_records(buffer: bytearray, counts: Counter) -> np.ndarray:
+    """Take the complete records off the front of ``buffer``, as :data:`SPIKE_DTYPE` records.
 
     An incomplete record stays in the buffer for the next read; bytes before a valid magic
     are dropped and counted (``bad_magic``) — the stream resynchronised on the next magic.
+    Records are read as one array: a burst's thousands of records would otherwise hold the
+    interpreter for milliseconds, and the thread firing pulses with it.
     """
     out = []
-    magic = SPIKE_MAGIC.to_bytes(4, "little")
     while len(buffer) >= SPIKE_RECORD.size:
-        if buffer[:4] != magic:
-            at = buffer.find(magic, 1)
+        if buffer[:4] != _MAGIC_BYTES:
+            at = buffer.find(_MAGIC_BYTES, 1)
             dropped = at if at > 0 else len(buffer) - 3
             del buffer[:dropped]
             counts["bad_magic"] += 1
             continue
-        _, name, timestamp, _ = SPIKE_RECORD.unpack_from(buffer)
-        del buffer[: SPIKE_RECORD.size]
-        out.append((name.decode("ascii", "replace").rstrip("\0 ").lower(), timestamp))
-    return out
+        n = len(buffer) // SPIKE_RECORD.size
+        records = np.frombuffer(bytes(buffer[: n * SPIKE_RECORD.size]), SPIKE_DTYPE)
+        bad = np.flatnonzero(records["magic"] != SPIKE_MAGIC)
+        if bad.size:  # good up to the first bad one; the loop resynchronises there
+            n = int(bad[0])
+            records = records[:n]
+        out.append(records)
+        del buffer[: n * SPIKE_RECORD.size]
+    return np.concatenate(out) if out else np.zeros(0, SPIKE_DTYPE)
+
+
+def spike_record_bytes(names: np.ndarray, timestamps: np.ndarray, spike_id: int = 1) -> bytes:
+    """Records for spikes on channels ``names`` (``S5``) at ``timestamps`` (the emulator's
+    side)."""
+    records = np.empty(len(names), SPIKE_DTYPE)
+    records["magic"] = SPIKE_MAGIC
+    records["name"] = names
+    records["timestamp"] = timestamps
+    records["spike_id"] = spike_id
+    return records.tobytes()
 
 
 def spike_record(name: str, timestamp: int, spike_id: int = 1) -> bytes:
-    """One record (the emulator's side)."""
+    """One record."""
     return SPIKE_RECORD.pack(SPIKE_MAGIC, name.encode("ascii")[:5], timestamp, spike_id)
 
 
@@ -111,9 +132,10 @@ class RhxDriver:
         self._spk: socket.socket | None = None
         self._reply = b""
         self._lock = threading.Lock()
-        self._spikes: list[tuple[int, int, float]] = []  # channel, timestamp, local arrival
+        self._spikes: list[tuple[np.ndarray, np.ndarray, float]] = []  # per read: channel,
+        # timestamp, local arrival
         self._spikes_lock = threading.Lock()
-        self._stim_state: dict[int, tuple[float, float, bool]] = {}  # channel: amp, phase, on
+        self._held: dict[str, str] = {}  # parameter → the value the instrument confirmed
         self._stop = threading.Event()
         self._reader: threading.Thread | None = None
 
@@ -182,6 +204,7 @@ class RhxDriver:
             got = self._value(name, line)
             if got.lower() != text.lower() and not _same_number(got, text):
                 raise RhxError(f"set {name} {text}: the instrument holds {got!r}")
+        self._held.update(texts)
 
     def execute(self, action: str, arg: str = "") -> None:
         """``execute action [arg]``: answered by nothing, or an ``Error`` line (checked by
@@ -208,7 +231,9 @@ class RhxDriver:
         self._reader.start()
 
     def start(self) -> None:
-        """Run mode on; the clock mapped afresh."""
+        """Run mode on; the clock mapped afresh; each pulse parameter written afresh at its
+        first use (one changed at the instrument between runs is not trusted)."""
+        self._held = {k: v for k, v in self._held.items() if k.endswith(".stimenabled")}
         self.set("runmode", "run")
         self.clock = ClockMap([])
         for _ in range(5):
@@ -224,13 +249,19 @@ class RhxDriver:
         del self.clock.pairs[:-200]
 
     def stop(self) -> None:
-        """Nothing more delivered: every electrode disabled (as far as the instrument
-        answers). Run mode stays on, so the recording goes on: turning it off here stopped
-        the spikes and the clock for the rest of a run after a pause or an input timeout."""
-        for channel, (amp, phase, on) in list(self._stim_state.items()):
-            if on:
-                self.set(f"{self.layout.names[channel]}.stimenabled", False)
-                self._stim_state[channel] = (amp, phase, False)
+        """Nothing more delivered: every electrode disabled and uploaded (as far as the
+        instrument answers). Run mode stays on, so the recording goes on: turning it off here
+        stopped the spikes and the clock for the rest of a run after a pause or an input
+        timeout."""
+        self._configure({f"{self.layout.names[c]}.stimenabled": "false" for c in self.enabled})
+
+    @property
+    def enabled(self) -> frozenset[int]:
+        """The channels whose stimulation the instrument confirmed enabled."""
+        return frozenset(
+            c for c, name in enumerate(self.layout.names)
+            if self._held.get(f"{name}.stimenabled") == "true"
+        )  # fmt: skip
 
     def finish(self) -> None:
         """The run is over: every electrode disabled, then run mode off."""
@@ -257,37 +288,46 @@ class RhxDriver:
     # ------------------------------------------------------------ stimulation
 
     def deliver(self, pulses: list[BiphasicPulse]) -> None:
-        """Fire ``pulses`` together: each electrode's parameters set (when changed) and
-        uploaded, exactly those electrodes enabled, then one trigger."""
-        wanted = {p.channel: p for p in pulses}
-        writes, uploads, state = [], [], dict(self._stim_state)
-        for channel, (amp, phase, on) in self._stim_state.items():
-            if on and channel not in wanted:
-                writes.append((f"{self.layout.names[channel]}.stimenabled", False))
-                state[channel] = (amp, phase, False)
+        """Fire ``pulses`` together: exactly their electrodes enabled, each with its pulse,
+        then one trigger.
+
+        Only the parameters that differ from what the instrument confirmed are written (a
+        pulse of a new amplitude: its two amplitudes), in one round trip, and every
+        electrode written is uploaded — a disabled one too, or it would fire again with its
+        last upload.
+        """
+        wanted = {p.channel for p in pulses}
+        settings = {f"{self.layout.names[c]}.stimenabled": "false" for c in self.enabled - wanted}
         for p in pulses:
-            name = self.layout.names[p.channel]
-            amp, phase, on = self._stim_state.get(p.channel, (None, None, False))
-            if (amp, phase) != (p.amplitude_ua, p.phase_us):
-                polarity = "NegativeFirst" if p.negative_first else "PositiveFirst"
-                writes.append((f"{name}.polarity", polarity))
-                for phase_name in ("first", "second"):
-                    writes.append((f"{name}.{phase_name}phaseamplitudemicroamps",
-                                   f"{p.amplitude_ua:g}"))  # fmt: skip
-                    writes.append((f"{name}.{phase_name}phasedurationmicroseconds",
-                                   f"{p.phase_us:g}"))  # fmt: skip
-            if not on:
-                writes.append((f"{name}.stimenabled", True))
-            if (amp, phase) != (p.amplitude_ua, p.phase_us) or not on:
-                uploads.append(name)
-            state[p.channel] = (p.amplitude_ua, p.phase_us, True)
-        self.set_many(writes)  # every parameter confirmed before anything is uploaded
-        self._stim_state = state
-        for name in uploads:
-            self.execute("uploadstimparameters", name)
-        self.execute("manualstimtriggerpulse", TRIGGER)
+            name, amp, phase = (
+                self.layout.names[p.channel],
+                f"{p.amplitude_ua:g}",
+                f"{p.phase_us:g}",
+            )
+            settings |= {
+                f"{name}.polarity": "NegativeFirst" if p.negative_first else "PositiveFirst",
+                f"{name}.firstphaseamplitudemicroamps": amp,
+                f"{name}.secondphaseamplitudemicroamps": amp,
+                f"{name}.firstphasedurationmicroseconds": phase,
+                f"{name}.secondphasedurationmicroseconds": phase,
+                f"{name}.stimenabled": "true",
+            }
+        self._configure(settings, then=f"execute manualstimtriggerpulse {TRIGGER}")
         self.counts["triggers"] += 1
         self.counts["pulses"] += len(pulses)
+
+    def _configure(self, settings: dict[str, str], then: str = "") -> None:
+        """Write the ``settings`` the instrument does not hold, confirm them (one round
+        trip), then upload each electrode written and send ``then``, in one write."""
+        writes = [(k, v) for k, v in settings.items() if self._held.get(k) != v]
+        self.set_many(writes)  # every parameter confirmed before anything is uploaded
+        names = dict.fromkeys(name.partition(".")[0] for name, _ in writes)
+        commands = [f"execute uploadstimparameters {name}" for name in names]
+        if then:
+            commands.append(then)
+        if commands:
+            with self._lock:
+                self._send(";".join(commands))
 
     # ------------------------------------------------------------ spikes
 
@@ -309,19 +349,29 @@ class RhxDriver:
             now = time.monotonic()
             buffer += chunk
             records = spike_records(buffer, self.counts)
+            if not records.size:
+                continue
+            names, which = np.unique(records["name"], return_inverse=True)
+            channel = np.array([self._name_channel(n) for n in names], np.int64)[which]
+            known = channel >= 0
+            self.counts["unknown_channel"] += int(known.size - known.sum())
             with self._spikes_lock:
-                for name, timestamp in records:
-                    channel = self._names.get(name)
-                    if channel is None:
-                        self.counts["unknown_channel"] += 1
-                        continue
-                    self._spikes.append((channel, timestamp, now))
+                self._spikes.append((channel[known], records["timestamp"][known], now))
+
+    def _name_channel(self, name: bytes) -> int:
+        """A record's channel name → the layout's channel (-1: not in the layout)."""
+        return self._names.get(name.decode("ascii", "replace").rstrip("\0 ").lower(), -1)
 
     def take_spikes(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Every spike read since the last call: channel, instrument time (s), arrival."""
         with self._spikes_lock:
-            spikes, self._spikes = self._spikes, []
-        return spike_arrays(spikes, 1.0 / self.sample_rate_hz)
+            reads, self._spikes = self._spikes, []
+        if not reads:
+            return np.zeros(0, np.uint32), np.zeros(0), np.zeros(0)
+        channel = np.concatenate([c for c, _, _ in reads]).astype(np.uint32)
+        inst_s = np.concatenate([t for _, t, _ in reads]) / self.sample_rate_hz
+        arrived = np.concatenate([np.full(c.size, now) for c, _, now in reads])
+        return channel, inst_s, arrived
 
 
 def _same_number(a: str, b: str) -> bool:

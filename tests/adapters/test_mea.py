@@ -4,6 +4,7 @@ stimulation that evokes a response, the instrument's clock, and safety."""
 from __future__ import annotations
 
 import time
+from collections import Counter
 
 import numpy as np
 import pytest
@@ -11,7 +12,7 @@ import pytest
 from adapters.mea.emulator import IntanEmulator
 from adapters.mea.endpoint import MeaEndpoint
 from adapters.mea.layout import ElectrodeLayout
-from adapters.mea.rhx import RhxDriver, RhxError, spike_record, spike_records
+from adapters.mea.rhx import RhxDriver, RhxError, spike_record, spike_record_bytes, spike_records
 from adapters.mea.safety import BiphasicPulse, PulseLimits, SafetyGate
 from hub import conformance
 from hub.config import ConfigError, load_config
@@ -34,15 +35,27 @@ def driver_for(emu: IntanEmulator) -> RhxDriver:
 
 
 def test_spike_records_split_across_reads_are_joined_and_bad_bytes_skipped():
-    from collections import Counter
-
     counts = Counter()
     data = spike_record("a-010", 1234) + b"\x01\x02junk" + spike_record("b-003", 99)
     buffer = bytearray(data[:9])  # a record cut in the middle
-    assert spike_records(buffer, counts) == []
+    assert spike_records(buffer, counts).size == 0
     buffer += data[9:]
-    assert spike_records(buffer, counts) == [("a-010", 1234), ("b-003", 99)]
+    records = spike_records(buffer, counts)
+    assert records["name"].tolist() == [b"a-010", b"b-003"]
+    assert records["timestamp"].tolist() == [1234, 99]
     assert counts["bad_magic"] >= 1 and not buffer
+
+
+def test_records_of_a_burst_are_read_as_one_array_and_match_one_by_one():
+    names = np.array([b"a-%03d" % (i % 30) for i in range(3000)], "S5")
+    timestamps = np.arange(3000, dtype=np.uint32) * 7
+    data = spike_record_bytes(names, timestamps)
+    assert data[:14] == spike_record("a-000", 0)  # the same bytes as one record alone
+    buffer = bytearray(data + data[:5])
+    records = spike_records(buffer, Counter())
+    assert records["name"].tolist() == names.tolist()
+    assert records["timestamp"].tolist() == timestamps.tolist()
+    assert len(buffer) == 5  # the cut record waits for its rest
 
 
 def test_the_default_layout_is_the_mcs_60_grid_on_two_ports():
@@ -77,6 +90,28 @@ def test_every_write_is_confirmed_and_pulse_parameters_read_back(emulator):
         assert d.get(f"{name}.stimenabled") == "true"
         with pytest.raises(RhxError, match="Error"):
             d.get("nosuchparameter")
+    finally:
+        d.close()
+
+
+def test_each_trigger_fires_exactly_its_electrodes_and_only_changes_are_written(emulator):
+    d = driver_for(emulator)
+    d.open()
+    try:
+        d.start()
+        d.deliver([BiphasicPulse(1, 10.0, 200.0, True), BiphasicPulse(2, 10.0, 200.0, True)])
+        wait_for(lambda: len(emulator.triggers) == 1, 2.0)
+        commands = emulator.commands
+        d.deliver([BiphasicPulse(2, 30.0, 200.0, True), BiphasicPulse(3, 10.0, 200.0, True)])
+        wait_for(lambda: len(emulator.triggers) == 2, 2.0)
+        assert [sorted(fired) for _, fired in emulator.triggers] == [[1, 2], [2, 3]]
+        # 1 disabled; 2's two amplitudes; 3's six parameters: 9 sets and their 9 gets, 3
+        # uploads and the trigger
+        assert emulator.commands - commands == 9 + 9 + 3 + 1
+        assert emulator.uploaded[emulator.layout.names[2]]["firstphaseamplitudemicroamps"] == "30"
+        d.stop()
+        assert not d.enabled
+        wait_for(lambda: all(p["stimenabled"] == "false" for p in emulator.uploaded.values()), 2.0)
     finally:
         d.close()
 
@@ -275,7 +310,7 @@ def test_a_pause_or_an_input_timeout_stops_stimulation_but_not_the_recording(emu
         wait_for(lambda: hub.hooks.calls["make_safe"] >= 1, 5.0)
         time.sleep(0.6)  # past the suite's input timeout too: made safe again
         assert emu.values["runmode"] == "run" and emu._run_t0 == run_t0
-        assert not any(on for _, _, on in hub.endpoint.driver._stim_state.values())
+        assert not hub.endpoint.driver.enabled
         clock_pairs = len(hub.endpoint.driver.clock.pairs)
         wait_for(lambda: len(hub.endpoint.driver.clock.pairs) > clock_pairs, 5.0)
         _, drift = hub.endpoint.driver.clock.fit()
