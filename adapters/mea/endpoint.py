@@ -99,6 +99,7 @@ class MeaEndpoint(Endpoint):
         self._due: dict[str, list] = {lane: [] for lane in dict.fromkeys(LANES.values())}
         self._seq = 0
         self._wake = threading.Condition()
+        self._delivering = threading.Lock()  # one delivery (or stop) at a time
         self._workers: list[threading.Thread] = []
         self._closing = False
 
@@ -262,11 +263,17 @@ class MeaEndpoint(Endpoint):
             pulse = self.gate.admit(int(c), float(a), float(w), window.t0_s + float(o) / 1e3)
             if not isinstance(pulse, str):
                 by_onset.setdefault(float(o), []).append(pulse)
+        due_now = []
         with self._wake:
             for onset_ms, pulses in by_onset.items():
                 due = self._origin + window.t0_s + onset_ms / 1e3
-                self._schedule(due, "fire", (pulses, max(now, due)))
+                if due <= now:
+                    due_now.append(pulses)
+                else:
+                    self._schedule(due, "fire", (pulses, due))
             self._schedule(self._origin + window.t1_s + self.reply_margin_s, "reply", window)
+        for pulses in due_now:  # fired from here: a hand-over to the device thread cost
+            self._fire(pulses, now)  # ~0.25 ms before the instrument heard of them
         return None
 
     def make_safe(self) -> None:
@@ -287,9 +294,28 @@ class MeaEndpoint(Endpoint):
     def _to_driver(self, call) -> None:
         if self._opened:
             try:
-                call()
+                with self._delivering:
+                    call()
             except DeviceFault as exc:
                 log.error("could not stop the stimulation: %s", exc)
+
+    def _fire(self, pulses: list, due: float) -> None:
+        """Deliver ``pulses`` now, from the calling thread; the instrument failing ends the
+        run."""
+        if self.driver.fault is not None:
+            return
+        try:
+            with self._delivering:
+                self.driver.deliver(pulses)
+        except DeviceFault as exc:
+            self._failed(exc)
+            return
+        self.trigger_lag_ms.append((time.monotonic() - due) * 1e3)
+
+    def _failed(self, exc: DeviceFault) -> None:
+        log.error("the instrument failed: %s", exc)
+        self.driver.fault = exc
+        self.request_stop()
 
     def close(self) -> None:
         with self._wake:
@@ -319,12 +345,13 @@ class MeaEndpoint(Endpoint):
                     self._wake.wait(due[0][0] - now if due else 0.1)
                 else:
                     return
+            if kind == "fire":
+                self._fire(*payload)
+                if self.driver.fault is not None:
+                    return
+                continue
             try:
-                if kind == "fire":
-                    pulses, due = payload
-                    self.driver.deliver(pulses)
-                    self.trigger_lag_ms.append((time.monotonic() - due) * 1e3)
-                elif kind == "reply":
+                if kind == "reply":
                     self._answer(payload)
                 else:
                     self.driver.sample_clock()
@@ -332,9 +359,7 @@ class MeaEndpoint(Endpoint):
                         if self.run is not None:
                             self._schedule(time.monotonic() + CLOCK_SAMPLE_S, "clock", None)
             except DeviceFault as exc:
-                log.error("the instrument failed: %s", exc)
-                self.driver.fault = exc
-                self.request_stop()
+                self._failed(exc)
                 return
 
     def _answer(self, window: StepWindow) -> None:
