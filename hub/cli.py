@@ -21,11 +21,14 @@ import time
 from pathlib import Path
 
 from hub.bus import BusError
-from hub.config import ConfigError, load_config
+from hub.config import ConfigError, LoopSection, load_config
 from hub.logs import install_log_cap
+from hub.scheduling import endpoint_priority
 from hub.security import PARTICIPANTS
 
 EXIT_OK, EXIT_FAULT, EXIT_CONFIG, EXIT_INTERRUPTED = 0, 2, 3, 130
+# `emulate intan`: the real-time priority an endpoint takes in a realtime run by default
+EMULATOR_PRIORITY = endpoint_priority("realtime", LoopSection.realtime_priority)
 log = logging.getLogger("neuvision")
 
 
@@ -190,6 +193,16 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--command-port", type=int, default=5000, help="intan: RHX command port")
     p.add_argument("--spike-port", type=int, default=5002, help="intan: RHX spike port")
+    p.add_argument(
+        "--realtime-priority",
+        type=int,
+        default=EMULATOR_PRIORITY,
+        metavar="P",
+        help="intan: SCHED_FIFO priority of the emulator's threads (0: ordinary scheduling; "
+        f"default {EMULATOR_PRIORITY}, the endpoints' in a realtime run), so that it is not "
+        "starved by the loop's real-time threads as an instrument on a machine of its own is "
+        "not",
+    )
     p.add_argument(
         "--world",
         help="world file with the robot (default: the dialect's robot in the paper's "
@@ -359,7 +372,6 @@ def _one_line(exc: BaseException) -> str:
 def cmd_endpoint(args) -> int:
     from hub.endpoint import DeviceFault
     from hub.launch import make_endpoint
-    from hub.scheduling import endpoint_priority
 
     cfg = load_config(args.config, _overrides(args))
     priority = endpoint_priority(cfg.loop.mode, cfg.loop.realtime_priority)
@@ -568,6 +580,7 @@ def cmd_emulate(args) -> int:
                 seed=args.seed or 1,
                 command_port=args.command_port,
                 spike_port=args.spike_port,
+                realtime_priority=args.realtime_priority,
             )
         except OSError as exc:  # a port taken: another emulator, or RHX itself
             raise InputError(

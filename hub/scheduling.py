@@ -23,6 +23,7 @@ threads on the CPUs named, for any mode; by default the OS places them.
 from __future__ import annotations
 
 import os
+import threading
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -91,6 +92,19 @@ def raise_threads(priority: int) -> Scheduling:
         _raise(got, _thread_ids())
     except OSError as exc:
         restore_threads(got)
+        return Scheduling("normal", reason=f"SCHED_FIFO refused: {exc.strerror}")
+    return got
+
+
+def raise_this_thread(priority: int) -> Scheduling:
+    """Put the calling thread alone under ``SCHED_FIFO`` at ``priority`` (for a thread
+    started after :func:`raise_threads`, which it does not inherit); refused: unchanged."""
+    if priority <= 0 or not hasattr(os, "sched_setscheduler"):
+        return Scheduling("normal", reason="no real-time priority asked, or no SCHED_FIFO")
+    got = Scheduling("fifo", priority)
+    try:
+        _raise(got, [threading.get_native_id()])
+    except OSError as exc:
         return Scheduling("normal", reason=f"SCHED_FIFO refused: {exc.strerror}")
     return got
 

@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import os
 import time
 from contextlib import contextmanager
+
+import pytest
 
 from hub.config import load_config
 from hub.launch import start_local_endpoints, stop_local_endpoints
@@ -55,3 +58,17 @@ def wait_for(condition, timeout_s=10.0):
         if time.monotonic() > deadline:
             raise AssertionError("condition not reached in time")
         time.sleep(0.01)
+
+
+def _fifo_permitted() -> bool:
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))
+    except (AttributeError, OSError):
+        return False
+    os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    return True
+
+
+needs_fifo = pytest.mark.skipif(
+    not _fifo_permitted(), reason="SCHED_FIFO not permitted here (needs CAP_SYS_NICE)"
+)

@@ -27,6 +27,7 @@ import numpy as np
 
 from adapters.mea.layout import ElectrodeLayout
 from adapters.mea.rhx import spike_record_bytes
+from hub.scheduling import raise_this_thread, raise_threads
 from hub.stopping import StopFlag
 from sim_network import Network
 from sim_network.config import load_config
@@ -62,6 +63,12 @@ class IntanEmulator:
         The channel names (default the MCS 60 layout on ports A and B).
     command_port, spike_port : int
         0: free ports, read back from the attributes of the same names.
+    realtime_priority : int
+        > 0: the emulator's threads run under ``SCHED_FIFO`` at this priority (refused:
+        ordinary scheduling, logged). A realtime run puts the hub's and the endpoints'
+        threads there (:mod:`hub.scheduling`); an instrument on the same machine under the
+        ordinary scheduler then waits for a CPU until every one of them sleeps: 1–3 ms
+        for a command's answer at a step's start, measured here.
     """
 
     def __init__(
@@ -72,6 +79,7 @@ class IntanEmulator:
         layout: ElectrodeLayout | None = None,
         command_port: int = 0,
         spike_port: int = 0,
+        realtime_priority: int = 0,
     ):
         cfg = load_config(culture, ['channels="mea"'])
         self.net = Network(cfg, seed=seed)
@@ -82,6 +90,7 @@ class IntanEmulator:
                 f"{self.net.channels.channel.size}"
             )
         self.faults = Faults()
+        self.realtime_priority = realtime_priority
         self.values: dict[str, str] = {"sampleratehertz": str(SAMPLE_RATE_HZ), "runmode": "stop"}
         self.uploaded: dict[str, dict[str, str]] = {}
         self._channel_values: dict[str, dict[str, str]] = {}  # a-010: {stimenabled: true, …}
@@ -110,10 +119,20 @@ class IntanEmulator:
 
     def start(self) -> IntanEmulator:
         for target in (self._accept_commands, self._accept_spikes, self._simulate):
-            t = threading.Thread(target=target, daemon=True, name=f"intan-{target.__name__}")
+            t = threading.Thread(
+                target=self._raised, args=(target,), daemon=True, name=f"intan-{target.__name__}"
+            )
             t.start()
             self._threads.append(t)
         return self
+
+    def _raised(self, target, *args) -> None:
+        """Run ``target`` on this thread, under ``SCHED_FIFO`` if asked (not inherited)."""
+        if self.realtime_priority:
+            got = raise_this_thread(self.realtime_priority)
+            if got.policy != "fifo":
+                log.warning("emulator: realtime priority not applied: %s", got.reason)
+        target(*args)
 
     def stop(self) -> None:
         self._stop.set()
@@ -144,7 +163,9 @@ class IntanEmulator:
                 continue
             except OSError:
                 return
-            threading.Thread(target=self._serve_commands, args=(conn,), daemon=True).start()
+            threading.Thread(
+                target=self._raised, args=(self._serve_commands, conn), daemon=True
+            ).start()
 
     def _serve_commands(self, conn: socket.socket) -> None:
         conn.settimeout(0.2)
@@ -328,6 +349,9 @@ def run_until_signalled(emulator: IntanEmulator, report_s: float = 5.0) -> None:
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
     emulator.start()
+    # this thread too: one under the ordinary scheduler holding the interpreter would keep
+    # the raised ones waiting for it (a priority inversion)
+    raise_threads(emulator.realtime_priority)
     print(
         f"neuvision: Intan RHX emulator: commands on 127.0.0.1:{emulator.command_port}, spikes "
         f"on 127.0.0.1:{emulator.spike_port} ({emulator.layout.n} electrodes); Ctrl-C ends it",

@@ -98,7 +98,11 @@ class MeaEndpoint(Endpoint):
         # per lane, a heap of (local time, seq, kind, payload)
         self._due: dict[str, list] = {lane: [] for lane in dict.fromkeys(LANES.values())}
         self._seq = 0
-        self._wake = threading.Condition()
+        self._timing = threading.Lock()  # guards the heaps and _due_now
+        self._due_now: list[tuple[list, float]] = []  # pulses due at their input's arrival
+        # each lane's worker sleeps until its earliest item, woken when an earlier one comes
+        # (not by the other lane's: a wake-up takes the interpreter as a pulse goes out)
+        self._wake = {lane: threading.Condition(self._timing) for lane in self._due}
         self._delivering = threading.Lock()  # one delivery (or stop) at a time
         self._workers: list[threading.Thread] = []
         self._closing = False
@@ -241,11 +245,11 @@ class MeaEndpoint(Endpoint):
         except DeviceFault as exc:
             raise RunRefused(f"the instrument did not start: {exc}") from None
         self.driver.take_spikes()  # what came before the run is not the run's
-        with self._wake:
+        with self._timing:
             self._origin = math.inf
             self._answered_until_s = -math.inf
             self._carry, self._late = [], []
-            self._due = {lane: [] for lane in self._due}
+            self._due, self._due_now = {lane: [] for lane in self._due}, []
             self.gate = SafetyGate(self.limits)
             self._schedule(time.monotonic() + CLOCK_SAMPLE_S, "clock", None)
 
@@ -263,32 +267,41 @@ class MeaEndpoint(Endpoint):
             pulse = self.gate.admit(int(c), float(a), float(w), window.t0_s + float(o) / 1e3)
             if not isinstance(pulse, str):
                 by_onset.setdefault(float(o), []).append(pulse)
-        due_now = []
-        with self._wake:
+        with self._timing:
             for onset_ms, pulses in by_onset.items():
                 due = self._origin + window.t0_s + onset_ms / 1e3
-                if due <= now:
-                    due_now.append(pulses)
+                if due <= now:  # fired by handle() as soon as this input is done
+                    self._due_now.append((pulses, now))
                 else:
                     self._schedule(due, "fire", (pulses, due))
             self._schedule(self._origin + window.t1_s + self.reply_margin_s, "reply", window)
-        for pulses in due_now:  # fired from here: a hand-over to the device thread cost
-            self._fire(pulses, now)  # ~0.25 ms before the instrument heard of them
         return None
+
+    def handle(self, payload, attachment=None):
+        """:meth:`Endpoint.handle`, then the pulses already due fired from this thread: a
+        hand-over to the device thread cost ~0.25 ms before the instrument heard of them.
+        They go out after the input's lock is released, so that a reply owed meanwhile does
+        not wait for the instrument's round trip."""
+        output = super().handle(payload, attachment)
+        with self._timing:
+            due_now, self._due_now = self._due_now, []
+        for pulses, due in due_now:
+            self._fire(pulses, due)
+        return output
 
     def make_safe(self) -> None:
         """Nothing more delivered: pending pulses dropped, every electrode disabled. The
         recording goes on (a pause or an input timeout may be followed by more steps)."""
-        with self._wake:
+        with self._timing:
             device = [d for d in self._due["device"] if d[2] != "fire"]
             heapq.heapify(device)
-            self._due["device"] = device
+            self._due["device"], self._due_now = device, []
         self._to_driver(self.driver.stop)
 
     def end_run(self) -> None:
         """The run is over: nothing pending, nothing delivered, the instrument out of its run."""
-        with self._wake:
-            self._due = {lane: [] for lane in self._due}
+        with self._timing:
+            self._due, self._due_now = {lane: [] for lane in self._due}, []
         self._to_driver(self.driver.finish)
 
     def _to_driver(self, call) -> None:
@@ -318,9 +331,10 @@ class MeaEndpoint(Endpoint):
         self.request_stop()
 
     def close(self) -> None:
-        with self._wake:
+        with self._timing:
             self._closing = True
-            self._wake.notify_all()
+            for wake in self._wake.values():
+                wake.notify_all()
         for worker in self._workers:
             worker.join(timeout=2.0)
         self.driver.close()
@@ -329,20 +343,22 @@ class MeaEndpoint(Endpoint):
 
     def _schedule(self, at: float, kind: str, payload) -> None:
         self._seq += 1
-        heapq.heappush(self._due[LANES[kind]], (at, self._seq, kind, payload))
-        self._wake.notify_all()
+        lane, item = LANES[kind], (at, self._seq, kind, payload)
+        heapq.heappush(self._due[lane], item)
+        if self._due[lane][0] is item:
+            self._wake[lane].notify()
 
     def _work(self, lane: str) -> None:
         """What falls due in ``lane``: fire pulses at their onsets and sample the clock
         ("device"), or answer windows once they have passed ("replies")."""
         while True:
-            with self._wake:
+            with self._timing:
                 while not self._closing:
                     now, due = time.monotonic(), self._due[lane]
                     if due and due[0][0] <= now:
                         _, _, kind, payload = heapq.heappop(due)
                         break
-                    self._wake.wait(due[0][0] - now if due else 0.1)
+                    self._wake[lane].wait(due[0][0] - now if due else 0.1)
                 else:
                     return
             if kind == "fire":
@@ -355,7 +371,7 @@ class MeaEndpoint(Endpoint):
                     self._answer(payload)
                 else:
                     self.driver.sample_clock()
-                    with self._wake:
+                    with self._timing:
                         if self.run is not None:
                             self._schedule(time.monotonic() + CLOCK_SAMPLE_S, "clock", None)
             except DeviceFault as exc:

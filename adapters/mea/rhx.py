@@ -136,6 +136,7 @@ class RhxDriver:
         # timestamp, local arrival
         self._spikes_lock = threading.Lock()
         self._held: dict[str, str] = {}  # parameter → the value the instrument confirmed
+        self._enabled: set[int] = set()  # channels confirmed stimenabled true
         self._stop = threading.Event()
         self._reader: threading.Thread | None = None
 
@@ -205,6 +206,12 @@ class RhxDriver:
             if got.lower() != text.lower() and not _same_number(got, text):
                 raise RhxError(f"set {name} {text}: the instrument holds {got!r}")
         self._held.update(texts)
+        for name, text in texts:
+            electrode, _, parameter = name.partition(".")
+            if parameter == "stimenabled" and electrode in self._names:
+                (self._enabled.add if text == "true" else self._enabled.discard)(
+                    self._names[electrode]
+                )
 
     def execute(self, action: str, arg: str = "") -> None:
         """``execute action [arg]``: answered by nothing, or an ``Error`` line (checked by
@@ -258,10 +265,7 @@ class RhxDriver:
     @property
     def enabled(self) -> frozenset[int]:
         """The channels whose stimulation the instrument confirmed enabled."""
-        return frozenset(
-            c for c, name in enumerate(self.layout.names)
-            if self._held.get(f"{name}.stimenabled") == "true"
-        )  # fmt: skip
+        return frozenset(self._enabled)
 
     def finish(self) -> None:
         """The run is over: every electrode disabled, then run mode off."""

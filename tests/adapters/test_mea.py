@@ -3,6 +3,8 @@ stimulation that evokes a response, the instrument's clock, and safety."""
 
 from __future__ import annotations
 
+import os
+import threading
 import time
 from collections import Counter
 
@@ -16,7 +18,7 @@ from adapters.mea.rhx import RhxDriver, RhxError, spike_record, spike_record_byt
 from adapters.mea.safety import BiphasicPulse, PulseLimits, SafetyGate
 from hub import conformance
 from hub.config import ConfigError, load_config
-from tests.harness import wait_for
+from tests.harness import needs_fifo, wait_for
 
 HYBRID = "configs/hybrid_mea.toml"
 
@@ -114,6 +116,27 @@ def test_each_trigger_fires_exactly_its_electrodes_and_only_changes_are_written(
         wait_for(lambda: all(p["stimenabled"] == "false" for p in emulator.uploaded.values()), 2.0)
     finally:
         d.close()
+
+
+@needs_fifo
+def test_the_emulator_may_run_its_threads_at_a_real_time_priority():
+    """So that a realtime run's raised threads do not starve it (an instrument has a
+    machine of its own)."""
+    with IntanEmulator(realtime_priority=3) as emu:
+        d = driver_for(emu)
+        d.open()
+        try:
+            mine = {t.name: t.native_id for t in threading.enumerate()}
+            served = [tid for name, tid in mine.items() if name.startswith("intan-")]
+            assert len(served) == 3 and os.sched_getscheduler(0) == os.SCHED_OTHER
+            try:
+                policies = {os.sched_getscheduler(tid) & ~os.SCHED_RESET_ON_FORK
+                            for tid in served}  # fmt: skip
+            except ProcessLookupError:
+                pytest.fail("an emulator thread ended")
+            assert policies == {os.SCHED_FIFO}
+        finally:
+            d.close()
 
 
 def test_a_write_the_instrument_did_not_take_stops_the_trigger(emulator, monkeypatch):

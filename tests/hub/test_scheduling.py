@@ -15,10 +15,12 @@ from hub.scheduling import (
     check_cpus,
     endpoint_priority,
     place_threads,
+    raise_this_thread,
     raise_threads,
     restore_placement,
     restore_threads,
 )
+from tests.harness import needs_fifo
 
 
 def _policy(tid: int = 0) -> tuple[int, int]:
@@ -35,20 +37,6 @@ def _policies() -> dict[int, tuple[int, int]]:
         except ProcessLookupError:
             pass
     return out
-
-
-def _fifo_permitted() -> bool:
-    try:
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))
-    except (AttributeError, OSError):
-        return False
-    os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
-    return True
-
-
-needs_fifo = pytest.mark.skipif(
-    not _fifo_permitted(), reason="SCHED_FIFO not permitted here (needs CAP_SYS_NICE)"
-)
 
 
 @needs_fifo
@@ -88,6 +76,23 @@ def test_raised_threads_run_fifo_and_are_put_back_afterwards():
     assert all(after[tid] == before[tid] for tid in after if tid in before)
     assert after[waiting.native_id] == (os.SCHED_OTHER, 0)
     release.set()
+
+
+@needs_fifo
+def test_a_thread_may_raise_itself_alone():
+    seen = {}
+
+    def raised():
+        seen["got"] = raise_this_thread(4)
+        seen["policy"] = _policy()
+
+    before = _policies()
+    thread = threading.Thread(target=raised)
+    thread.start()
+    thread.join()
+    assert seen["got"].policy == "fifo" and seen["policy"] == (os.SCHED_FIFO, 4)
+    assert _policies() == {tid: p for tid, p in before.items() if tid in _policies()}
+    assert raise_this_thread(0).policy == "normal" and _policy() == (os.SCHED_OTHER, 0)
 
 
 def test_a_refused_request_changes_nothing_and_says_why():
