@@ -72,12 +72,14 @@ def spike_records(buffer: bytearray, counts: Counter) -> np.ndarray:
             continue
         n = len(buffer) // SPIKE_RECORD.size
         records = np.frombuffer(bytes(buffer[: n * SPIKE_RECORD.size]), SPIKE_DTYPE)
-        bad = np.flatnonzero(records["magic"] != SPIKE_MAGIC)
-        if bad.size:  # good up to the first bad one; the loop resynchronises there
-            n = int(bad[0])
+        good = records["magic"] == SPIKE_MAGIC
+        if not good.all():  # good up to the first bad one; the loop resynchronises there
+            n = int(good.argmin())
             records = records[:n]
         out.append(records)
         del buffer[: n * SPIKE_RECORD.size]
+    if len(out) == 1:
+        return out[0]
     return np.concatenate(out) if out else np.zeros(0, SPIKE_DTYPE)
 
 
@@ -128,6 +130,7 @@ class RhxDriver:
         self.clock = ClockMap([])
         self.fault: DeviceFault | None = None
         self._names = layout.index()
+        self._by_record_name: dict[bytes, int] = {}  # as the records spell it
         self._cmd: socket.socket | None = None
         self._spk: socket.socket | None = None
         self._reply = b""
@@ -355,8 +358,7 @@ class RhxDriver:
             records = spike_records(buffer, self.counts)
             if not records.size:
                 continue
-            names, which = np.unique(records["name"], return_inverse=True)
-            channel = np.array([self._name_channel(n) for n in names], np.int64)[which]
+            channel = np.array([self._name_channel(n) for n in records["name"].tolist()])
             known = channel >= 0
             self.counts["unknown_channel"] += int(known.size - known.sum())
             with self._spikes_lock:
@@ -364,7 +366,11 @@ class RhxDriver:
 
     def _name_channel(self, name: bytes) -> int:
         """A record's channel name → the layout's channel (-1: not in the layout)."""
-        return self._names.get(name.decode("ascii", "replace").rstrip("\0 ").lower(), -1)
+        channel = self._by_record_name.get(name)
+        if channel is None:
+            text = name.decode("ascii", "replace").rstrip("\0 ").lower()
+            channel = self._by_record_name[name] = self._names.get(text, -1)
+        return channel
 
     def take_spikes(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Every spike read since the last call: channel, instrument time (s), arrival."""
