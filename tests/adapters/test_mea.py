@@ -11,6 +11,7 @@ from collections import Counter
 import numpy as np
 import pytest
 
+from adapters.mea.driver import ClockMap
 from adapters.mea.emulator import IntanEmulator
 from adapters.mea.endpoint import MeaEndpoint
 from adapters.mea.layout import ElectrodeLayout
@@ -58,6 +59,19 @@ def test_records_of_a_burst_are_read_as_one_array_and_match_one_by_one():
     assert records["name"].tolist() == names.tolist()
     assert records["timestamp"].tolist() == timestamps.tolist()
     assert len(buffer) == 5  # the cut record waits for its rest
+
+
+def test_the_clock_map_follows_each_new_pair_and_is_not_refitted_without_one():
+    clock = ClockMap([(t, 100.0 + t * (1 + 20e-6)) for t in np.linspace(0.0, 10.0, 50)])
+    a, b = clock.fit()
+    assert a == pytest.approx(100.0) and (b - 1.0) * 1e6 == pytest.approx(20.0)
+    assert clock.fit() is clock.fit()  # the same fit, not fitted again
+    clock.pairs.append((11.0, 100.0 + 11.0 * (1 + 20e-6) + 1e-3))  # a pair 1 ms off the line
+    assert clock.fit()[0] != a  # refitted
+    before = clock.fit()
+    del clock.pairs[0]  # as the driver keeps the last 200: same length, a new last pair
+    clock.pairs.append((12.0, 100.0 + 12.0 * (1 + 20e-6) + 2e-3))
+    assert clock.fit() != before
 
 
 def test_the_default_layout_is_the_mcs_60_grid_on_two_ports():
