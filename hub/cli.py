@@ -199,9 +199,8 @@ def build_parser() -> argparse.ArgumentParser:
         default=EMULATOR_PRIORITY,
         metavar="P",
         help="intan: SCHED_FIFO priority of the emulator's threads (0: ordinary scheduling; "
-        f"default {EMULATOR_PRIORITY}, the endpoints' in a realtime run), so that it is not "
-        "starved by the loop's real-time threads as an instrument on a machine of its own is "
-        "not",
+        f"default {EMULATOR_PRIORITY}, the endpoints' in a realtime run), so that a realtime "
+        "run's raised threads do not starve it (an instrument has a machine of its own)",
     )
     p.add_argument(
         "--world",

@@ -23,7 +23,6 @@ threads on the CPUs named, for any mode; by default the OS places them.
 from __future__ import annotations
 
 import os
-import threading
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -73,8 +72,9 @@ def _thread_ids() -> list[int]:
     return [int(t) for t in os.listdir("/proc/self/task")]
 
 
-def raise_threads(priority: int) -> Scheduling:
-    """Put every thread of this process under ``SCHED_FIFO`` at ``priority``.
+def raise_threads(priority: int, tids: Sequence[int] | None = None) -> Scheduling:
+    """Put every thread of this process (or those of ``tids``: a thread raising itself
+    passes ``[threading.get_native_id()]``) under ``SCHED_FIFO`` at ``priority``.
 
     Threads and processes started later do not inherit it (``SCHED_RESET_ON_FORK``):
     call this once the threads that matter (Zenoh's) exist. Returns what was done,
@@ -89,22 +89,9 @@ def raise_threads(priority: int) -> Scheduling:
         return Scheduling("normal", reason="this platform has no SCHED_FIFO")
     got = Scheduling("fifo", priority)
     try:
-        _raise(got, _thread_ids())
+        _raise(got, _thread_ids() if tids is None else list(tids))
     except OSError as exc:
         restore_threads(got)
-        return Scheduling("normal", reason=f"SCHED_FIFO refused: {exc.strerror}")
-    return got
-
-
-def raise_this_thread(priority: int) -> Scheduling:
-    """Put the calling thread alone under ``SCHED_FIFO`` at ``priority`` (for a thread
-    started after :func:`raise_threads`, which it does not inherit); refused: unchanged."""
-    if priority <= 0 or not hasattr(os, "sched_setscheduler"):
-        return Scheduling("normal", reason="no real-time priority asked, or no SCHED_FIFO")
-    got = Scheduling("fifo", priority)
-    try:
-        _raise(got, [threading.get_native_id()])
-    except OSError as exc:
         return Scheduling("normal", reason=f"SCHED_FIFO refused: {exc.strerror}")
     return got
 

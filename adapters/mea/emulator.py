@@ -27,7 +27,7 @@ import numpy as np
 
 from adapters.mea.layout import ElectrodeLayout
 from adapters.mea.rhx import spike_record_bytes
-from hub.scheduling import raise_this_thread, raise_threads
+from hub.scheduling import raise_threads
 from hub.stopping import StopFlag
 from sim_network import Network
 from sim_network.config import load_config
@@ -129,7 +129,7 @@ class IntanEmulator:
     def _raised(self, target, *args) -> None:
         """Run ``target`` on this thread, under ``SCHED_FIFO`` if asked (not inherited)."""
         if self.realtime_priority:
-            got = raise_this_thread(self.realtime_priority)
+            got = raise_threads(self.realtime_priority, [threading.get_native_id()])
             if got.policy != "fifo":
                 log.warning("emulator: realtime priority not applied: %s", got.reason)
         target(*args)

@@ -216,12 +216,6 @@ class RhxDriver:
                     self._names[electrode]
                 )
 
-    def execute(self, action: str, arg: str = "") -> None:
-        """``execute action [arg]``: answered by nothing, or an ``Error`` line (checked by
-        the next ``get``, which the caller makes when it matters)."""
-        with self._lock:
-            self._send(f"execute {action} {arg}".strip())
-
     # ------------------------------------------------------------ life
 
     def open(self) -> None:
