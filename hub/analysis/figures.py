@@ -145,9 +145,20 @@ def plot_raster(
         ax.set_xlim(lo / 1000.0, hi / 1000.0 if hi > lo else lo / 1000.0 + 1.0)
         ax.set_xlabel("time (s)")
         ax.set_ylabel("channel")
-        ax.set_title("Raster (red excitatory, blue inhibitory; shaded and ▼: network bursts)")
+        ax.set_title(_raster_title(colors, network_bursts))
 
     return _render(draw, out, figsize=(10.0, 5.0), formats=formats)
+
+
+def _raster_title(colors: np.ndarray, network_bursts: NetworkBursts | None) -> str:
+    """The raster's title, naming only what it shows: an MEA's channels have no cell type,
+    and a raster without network bursts has nothing shaded."""
+    keys = []
+    if (colors != OTHER_COLOR).any():
+        keys.append("red excitatory, blue inhibitory")
+    if network_bursts is not None and len(network_bursts.start_ms):
+        keys.append("shaded and ▼: network bursts")
+    return "Raster" + (f" ({'; '.join(keys)})" if keys else "")
 
 
 def plot_potentials(

@@ -110,7 +110,8 @@ TIMING: dict[str, tuple[str, str]] = {
 #: figure file stem -> caption
 FIGURES: dict[str, str] = {
     "raster": "Raster: each spike as a tick, channel against time (red excitatory, blue "
-    "inhibitory); network bursts shaded and marked ▼ above.",
+    "inhibitory where the channels are a simulated culture's neurons; an MEA's electrodes "
+    "are black); network bursts shaded and marked ▼ above.",
     "raster_nb": "One second around the first network burst (shaded).",
     "rate": "Instantaneous firing rate of the population (all, excitatory, inhibitory), "
     "spikes per second per channel in 10 ms bins.",

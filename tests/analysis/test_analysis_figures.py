@@ -72,6 +72,22 @@ def test_figures_draw_into_a_given_axes_and_handle_empty_data(tmp_path):
     _check(figures.plot_ibi_histogram([], tmp_path / "no_ibi"))
 
 
+def test_the_raster_title_names_only_what_it_shows(record):
+    ch, t, res = record
+    assert len(res.network_bursts.start_ms) > 0
+    titles = []
+    for cell_type, bursts in ((CELL_TYPE, res.network_bursts), (None, res.network_bursts),
+                              (None, None)):  # fmt: skip
+        ax = Figure().add_subplot()
+        figures.plot_raster(ch, t, ax, cell_type, bursts)
+        titles.append(ax.get_title())
+    assert titles == [
+        "Raster (red excitatory, blue inhibitory; shaded and ▼: network bursts)",
+        "Raster (shaded and ▼: network bursts)",  # an MEA's channels: no cell type
+        "Raster",
+    ]
+
+
 def test_figure_input_errors_are_named(tmp_path):
     with pytest.raises(AnalysisInputError, match="rows\\*cols=16"):
         figures.plot_potentials(np.zeros(15), (4, 4), tmp_path / "v")
