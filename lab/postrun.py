@@ -7,7 +7,9 @@ computed from the record, so a summary always describes what was recorded:
 - the loop's timing figures and counts (always);
 - the behaviour metrics of any body that recorded its poses (``lab.behaviour``), with the
   arena metrics and ``trajectory.png``/``.svg`` when its world is known;
-- ``raster.png``/``.svg`` of the culture's activity when spikes were recorded.
+- ``raster.png``/``.svg`` of the culture's activity when spikes were recorded, with the
+  network bursts the burst observer reported during the run (its ``network_burst`` events;
+  none when live analysis was off — ``neuvision analyze`` detects them offline).
 
 A part that fails (a figure, say) is named in ``summary.json`` and in the manifest
 (``postrun_failures``); the rest is written, and the run keeps its outcome.
@@ -19,7 +21,10 @@ import json
 import logging
 from pathlib import Path
 
+import numpy as np
+
 from hub.analysis.figures import plot_raster
+from hub.analysis.network_bursts import NetworkBursts
 from hub.protocol import Stimulation
 from hub.record import read_run, write_manifest
 from lab.behaviour import behaviour_metrics, world_of
@@ -115,7 +120,9 @@ def summarize_run(run_dir: str | Path) -> dict:
         def raster():
             culture = rec.descriptions().get("culture")
             cell_type = culture.cell_type if culture is not None else None
-            paths = plot_raster(channel, t_ms, run_dir / "raster", cell_type=cell_type)
+            paths = plot_raster(
+                channel, t_ms, run_dir / "raster", cell_type, recorded_network_bursts(rec)
+            )
             summary["figures"] += [Path(p).name for p in paths]
 
         attempt("raster", raster)
@@ -124,6 +131,25 @@ def summarize_run(run_dir: str | Path) -> dict:
     if summary["failures"]:
         write_manifest(run_dir, {**m, "postrun_failures": summary["failures"]})
     return summary
+
+
+def recorded_network_bursts(rec) -> NetworkBursts | None:
+    """The network bursts the burst observer reported during the run, sorted by core start
+    (a record from before cores were recorded: the extent stands for the core); None when
+    none was reported."""
+    rows = [e.payload for e in rec.events if e.key == "network_burst"]
+    if not rows:
+        return None
+    for row in rows:
+        row.setdefault("core_start_ms", row["start_ms"])
+        row.setdefault("core_end_ms", row["end_ms"])
+    rows.sort(key=lambda row: row["core_start_ms"])
+    return NetworkBursts(
+        **{
+            key: np.array([row[key] for row in rows], np.float64)
+            for key in ("start_ms", "end_ms", "core_start_ms", "core_end_ms")
+        }
+    )
 
 
 def _pulse_count(rec) -> int:

@@ -41,7 +41,8 @@ def test_a_real_body_gets_path_metrics_and_late_batches_still_make_a_raster(tmp_
     assert not any(f.startswith("trajectory") for f in summary["figures"])
 
 
-def _small_run(run_dir, steps_in_order):
+def _small_run(run_dir, steps_in_order, events=()):
+    run_dir.mkdir(parents=True, exist_ok=True)
     config = {"loop": {"period_ms": 10.0}, "body": {"kind": "khepera", "params": {}}}
     write_manifest(run_dir, {"name": "r", "seed": 1, "config": config, "steps": 3,
                              "outcome": "completed"})  # fmt: skip
@@ -54,7 +55,28 @@ def _small_run(run_dir, steps_in_order):
         reading = SensorReading(step=k, run=RUN, t_s=(k + 1) * 0.01, ranges_m=[0.1],
                                 pose=[0.01 * k, 0.0, 0.0], contact=False)  # fmt: skip
         rec.message("rx", "nv/s/body/0/sensors", reading.encode())
+    for name, details in events:
+        rec.event(name, **details)
     rec.close()
+
+
+def test_the_raster_shades_the_network_bursts_the_observer_reported(tmp_path):
+    from hub.record import read_run
+    from lab.postrun import recorded_network_bursts
+
+    _small_run(tmp_path / "off", (0, 1, 2))
+    assert recorded_network_bursts(read_run(tmp_path / "off")) is None  # none reported
+    _small_run(tmp_path / "on", (0, 1, 2), events=[
+        ("network_burst", {"start_ms": 12.0, "end_ms": 25.0, "n_channels": 3,
+                           "core_start_ms": 14.0, "core_end_ms": 20.0, "at_step": 3}),
+        ("network_burst", {"start_ms": 1.0, "end_ms": 9.0, "n_channels": 3, "at_step": 1}),
+    ])  # fmt: skip
+    bursts = recorded_network_bursts(read_run(tmp_path / "on"))
+    assert bursts.start_ms.tolist() == [1.0, 12.0] and bursts.end_ms.tolist() == [9.0, 25.0]
+    # the second, from an older record, has no core: its extent stands for it
+    assert bursts.core_start_ms.tolist() == [1.0, 14.0]
+    assert bursts.core_end_ms.tolist() == [9.0, 20.0]
+    assert "raster.png" in summarize_run(tmp_path / "on")["figures"]
 
 
 def test_the_reader_gives_spikes_and_poses_in_order_whatever_the_records_order(tmp_path):
