@@ -116,12 +116,18 @@ def plot_raster(
 
     def draw(ax: Axes) -> None:
         if network_bursts is not None:
-            for s, e in zip(network_bursts.start_ms, network_bursts.end_ms, strict=True):
-                if e >= lo and s <= hi:  # an edge line keeps short bursts visible when zoomed out
-                    ax.axvspan(s / 1000.0, e / 1000.0, fc=NB_SHADE, ec=NB_SHADE, alpha=0.35, lw=0.8)
-            # A marker above each burst: visible at any time scale (a 50 ms burst is a
+            nb = network_bursts
+            for s, e, cs, ce in zip(nb.start_ms, nb.end_ms, nb.core_start_ms, nb.core_end_ms,
+                                    strict=True):  # fmt: skip
+                if e >= lo and s <= hi:  # the extent pale, the core strong: in a closed
+                    # loop a stimulated channel's burst of seconds stretches the extent
+                    ax.axvspan(s / 1000.0, e / 1000.0, fc=NB_SHADE, ec="none", alpha=0.12)
+                    # an edge line keeps short cores visible when zoomed out
+                    ax.axvspan(cs / 1000.0, ce / 1000.0, fc=NB_SHADE, ec=NB_SHADE, alpha=0.45,
+                               lw=0.8)  # fmt: skip
+            # A marker above each core: visible at any time scale (a 50 ms burst is a
             # hairline in a 60 s raster).
-            mid_s = (np.asarray(network_bursts.start_ms) + np.asarray(network_bursts.end_ms)) / 2e3
+            mid_s = (np.asarray(nb.core_start_ms) + np.asarray(nb.core_end_ms)) / 2e3
             shown = mid_s[(mid_s >= lo / 1e3) & (mid_s <= hi / 1e3)]
             top = (ch.max() if ch.size else 1) * 1.04 + 1
             ax.plot(shown, np.full(shown.size, top), ls="none", marker="v", ms=6,
@@ -157,7 +163,7 @@ def _raster_title(colors: np.ndarray, network_bursts: NetworkBursts | None) -> s
     if (colors != OTHER_COLOR).any():
         keys.append("red excitatory, blue inhibitory")
     if network_bursts is not None and len(network_bursts.start_ms):
-        keys.append("shaded and ▼: network bursts")
+        keys.append("shaded and ▼: network bursts, their cores darker")
     return "Raster" + (f" ({'; '.join(keys)})" if keys else "")
 
 

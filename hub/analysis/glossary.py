@@ -111,7 +111,7 @@ TIMING: dict[str, tuple[str, str]] = {
 FIGURES: dict[str, str] = {
     "raster": "Raster: each spike as a tick, channel against time (red excitatory, blue "
     "inhibitory where the channels are a simulated culture's neurons; an MEA's electrodes "
-    "are black); network bursts shaded and marked ▼ above.",
+    "are black); network bursts shaded (their cores darker) and marked ▼ above.",
     "raster_nb": "One second around the first network burst (shaded).",
     "rate": "Instantaneous firing rate of the population (all, excitatory, inhibitory), "
     "spikes per second per channel in 10 ms bins.",

@@ -82,8 +82,9 @@ def test_the_raster_title_names_only_what_it_shows(record):
         figures.plot_raster(ch, t, ax, cell_type, bursts)
         titles.append(ax.get_title())
     assert titles == [
-        "Raster (red excitatory, blue inhibitory; shaded and ▼: network bursts)",
-        "Raster (shaded and ▼: network bursts)",  # an MEA's channels: no cell type
+        "Raster (red excitatory, blue inhibitory; shaded and ▼: network bursts, their cores "
+        "darker)",
+        "Raster (shaded and ▼: network bursts, their cores darker)",  # an MEA's: no cell type
         "Raster",
     ]
 
