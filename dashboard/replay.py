@@ -25,7 +25,6 @@ from .scene import build_scene, world_for
 from .state import BURSTS_KEPT_S, RASTER_S, RATE_HISTORY_S, FrameState
 
 # A network burst's core, noted since 2026-11-26; an older record's extent stands for it.
-CORE_KEYS = (("core_start_ms", "start_ms"), ("core_end_ms", "end_ms"))
 SPEEDS = (0.1, 0.25, 0.5, 1.0, 2.0, 5.0, 10.0, 20.0, 50.0)
 
 
@@ -75,13 +74,11 @@ class ReplaySource:
         self.motor = [(m.step, m.left_mps, m.right_mps) for m in motors]
         # what the hub noted: network bursts (shown once ended), late and missing replies
         events = rec.events
-        bursts = sorted(
-            [e.payload["start_ms"], e.payload["end_ms"], e.payload["n_channels"]]
-            + [e.payload.get(k, e.payload[e_k]) for k, e_k in CORE_KEYS]
-            for e in events
-            if e.key == "network_burst"
-        )
-        self.bursts = sorted(bursts, key=lambda b: b[1])
+        bursts = [
+            [b[k] for k in ("start_ms", "end_ms", "n_channels", "core_start_ms", "core_end_ms")]
+            for b in rec.network_bursts()
+        ]
+        self.bursts = sorted(sorted(bursts), key=lambda b: b[1])
         self.burst_end_s = np.array([b[1] / 1e3 for b in self.bursts])
         self.noted: dict[str, list] = {"late": [], "missed": []}  # (run time, role)
         for e in events:

@@ -33,6 +33,7 @@ from pathlib import Path
 
 from hub.config import BusSection, ConfigError, EndpointSection, ExperimentConfig
 from hub.endpoint import Endpoint
+from hub.scheduling import available_cpus
 
 _PR_SET_PDEATHSIG = 1
 
@@ -158,7 +159,8 @@ def start_burst_observer(
     # It reaches the hub where the hub listens (a wildcard address: on this machine).
     connect = [re.sub(r"/(0\.0\.0\.0|\[::\]):", "/127.0.0.1:", a) for a in bus.listen]
     overrides.append(f"bus.connect={json.dumps(bus.connect or connect)}")
-    others = set(os.sched_getaffinity(0)) - set(hub_cpus) if hub_cpus else set()
+    available = available_cpus() if hub_cpus else None
+    others = available - set(hub_cpus) if available else set()
     command = ["observe", "bursts", "--once"]
     return _start_local("observer", command, None, overrides, log_dir, cpus=others)
 

@@ -55,6 +55,7 @@ class HubLink:
         self.session = session
         self._deliver = deliver
         self.keys = keys
+        self._observer: wire.Outbox | None = None  # to the burst observer (watch_observer)
         # One subscription for both replies: Zenoh gives each subscription its own Python
         # thread, and two would hand the interpreter and the loop's lock back and forth
         # every step. Keys are told apart here; the hub's own publications are not

@@ -1156,9 +1156,9 @@ class BurstReport(Message):
     the run's start; ``dropped`` counts what the observer refused (a message not sealed
     with the run's key, a malformed SpikeBatch, another run's). ``final``: the answer to
     ``ObserverEnd``, everything still open completed as offline detection does at a
-    record's end; its
-    ``nb_*`` carry every network burst of the run, ``cpu_s`` the observer's CPU time over
-    the run. ``missing_steps``: steps whose spikes never came (the link dropped them).
+    record's end; its ``nb_*`` carry every network burst of the run, ``cpu_s`` the
+    observer's CPU time over the run. ``missing_steps``: steps whose spikes never came
+    (the link dropped them).
     """
 
     run: str

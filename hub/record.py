@@ -293,6 +293,19 @@ class RunRecord:
     def events(self) -> list[Frame]:
         return [f for f in self.frames if f.direction == "ev"]
 
+    def network_bursts(self) -> list[dict]:
+        """The network bursts the burst observer reported during the run (its
+        ``network_burst`` events' details), sorted by core start; in a record from before
+        cores were recorded, the extent stands for the core."""
+        rows = []
+        for e in self.events:
+            if e.key == "network_burst":
+                row = dict(e.payload)
+                row.setdefault("core_start_ms", row["start_ms"])
+                row.setdefault("core_end_ms", row["end_ms"])
+                rows.append(row)
+        return sorted(rows, key=lambda row: row["core_start_ms"])
+
     @property
     def drops(self) -> list[Frame]:
         """Dropped payloads (a :class:`Dropped` each; whole bytes in a version 1 record)."""

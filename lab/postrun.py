@@ -134,16 +134,11 @@ def summarize_run(run_dir: str | Path) -> dict:
 
 
 def recorded_network_bursts(rec) -> NetworkBursts | None:
-    """The network bursts the burst observer reported during the run, sorted by core start
-    (a record from before cores were recorded: the extent stands for the core); None when
-    none was reported."""
-    rows = [e.payload for e in rec.events if e.key == "network_burst"]
+    """The network bursts the burst observer reported during the run
+    (:meth:`~hub.record.RunRecord.network_bursts`); None when none was reported."""
+    rows = rec.network_bursts()
     if not rows:
         return None
-    for row in rows:
-        row.setdefault("core_start_ms", row["start_ms"])
-        row.setdefault("core_end_ms", row["end_ms"])
-    rows.sort(key=lambda row: row["core_start_ms"])
     return NetworkBursts(
         **{
             key: np.array([row[key] for row in rows], np.float64)
