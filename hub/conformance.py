@@ -51,6 +51,7 @@ from hub.protocol import (
     SpikeBatch,
     StepWindow,
     Stimulation,
+    merge_parts,
 )
 
 Factory = Callable[[], Endpoint]
@@ -122,6 +123,7 @@ class FakeHub:
         self.run: RunStart | None = None
         self.error: BaseException | None = None
         self.status: int | None = None
+        self.parts = 0  # a culture's parts of a step's spikes taken (contract v4)
         self.thread = threading.Thread(target=self._serve, daemon=True)
         self.thread.start()
         if not self.alive.wait(REPLY_TIMEOUT_S):
@@ -236,8 +238,11 @@ class FakeHub:
         wire.Outbox(self.publisher, self.run.key if key == "run" else key).put(payload)
 
     def reply(self, timeout_s: float = REPLY_TIMEOUT_S) -> Message:
-        """The next output, authenticated with the run's key and decoded."""
+        """The next output, authenticated with the run's key and decoded; a culture's
+        parts streamed before it (contract v4) merged into it, as the hub does, each
+        checked to be of the same step and window."""
         deadline = time.monotonic() + timeout_s
+        parts: list[SpikeBatch] = []
         while True:
             left = deadline - time.monotonic()
             try:
@@ -245,8 +250,16 @@ class FakeHub:
             except queue.Empty:
                 raise AssertionError(f"no output within {timeout_s} s") from None
             whole = self.inbox.feed(payload, attachment)  # WireError: not sealed by the key
-            if whole is not None:
-                return OUTPUT_TYPE[self.role].decode(whole)
+            if whole is None:
+                continue
+            output = OUTPUT_TYPE[self.role].decode(whole)
+            if getattr(output, "partial", None):
+                parts.append(output)
+                self.parts += 1
+                continue
+            for part in parts:
+                check_reply(part, output.window)
+            return merge_parts(parts, output) if parts else output
 
     def step(self, step: int, **kw) -> Message:
         """Send a valid input of ``step`` and return its checked reply."""

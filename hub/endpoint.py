@@ -383,7 +383,9 @@ class Endpoint(abc.ABC):
             )
 
     def reply(self, output: Message) -> None:
-        """Publish the output of a step answered later (thread-safe).
+        """Publish the output of a step answered later (thread-safe). A culture's part of
+        a step's spikes (``SpikeBatch(partial=True)``, contract v4) leaves the step owed:
+        its batch must follow.
 
         Raises
         ------
@@ -392,7 +394,8 @@ class Endpoint(abc.ABC):
         """
         with self._lock:
             self._check_output(output)
-            self._owed.discard(output.step)
+            if not getattr(output, "partial", None):
+                self._owed.discard(output.step)
             if self._outbox is not None:
                 self._outbox.put(output.encode())
 

@@ -5,7 +5,9 @@ Plain data, no bus and no clock of its own: the loop tells the ledger what it se
 (:meth:`Ledger.await_replies`); each reply that passed :class:`~hub.replies.ReplyChecker`
 is judged with the time it *arrived* (:meth:`Ledger.judge`), so a reply in before its
 deadline is on time however late the loop's thread looked at it, and one in after it is
-late however soon. The verdicts are the record's (``rx``, ``late``, ``final``, ``drop``);
+late however soon. A culture may stream a step's spikes in parts before its reply
+(:meth:`Ledger.judge_part`): the reply accepted is then all of them. The verdicts are the
+record's (``rx``, ``late``, ``part``, ``final``, ``drop``);
 the counts are the run's (``late``, ``missing``, ``dropped``).
 """
 
@@ -15,7 +17,7 @@ import logging
 from collections import Counter, defaultdict
 from collections.abc import Callable
 
-from hub.protocol import ROLES, Message
+from hub.protocol import ROLES, Message, merge_parts
 
 log = logging.getLogger(__name__)
 
@@ -34,7 +36,9 @@ class Ledger:
     expect : dict
         Role → the step whose reply it owes next.
     pending : dict
-        Role → {step: reply} accepted and not yet used by the loop.
+        Role → {step: reply} accepted and not yet used by the loop (with its parts merged).
+    parts : dict
+        Role → {step: [part, ...]} streamed before their step's reply.
     missed : dict
         Role → steps whose reply missed its deadline (the policy stood in for it).
     late : Counter
@@ -50,6 +54,7 @@ class Ledger:
         self.expect = dict.fromkeys(ROLES, 0)
         self.last_sent: dict[str, int] = {}
         self.pending: dict[str, dict[int, Message]] = {role: {} for role in ROLES}
+        self.parts: dict[str, dict[int, list[Message]]] = {role: {} for role in ROLES}
         self.missed: dict[str, set[int]] = defaultdict(set)
         self.late: Counter[str] = Counter()
         self.dropped: dict[str, Counter[str]] = defaultdict(Counter)
@@ -82,7 +87,7 @@ class Ledger:
         if expected <= step <= self.last_sent.get(role, -1) and step not in missed:
             if step in self.pending[role]:
                 return self.drop(role, "duplicate", f"second reply for step {step}")
-            self.pending[role][step] = message
+            self.pending[role][step] = merge_parts(self.parts[role].pop(step, []), message)
             return "rx"
         if step in missed:
             self.late[role] += 1
@@ -93,8 +98,31 @@ class Ledger:
             return self.drop(role, "stale", f"reply for step {step} awaiting step {expected}")
         return self.drop(role, "future", f"reply for step {step} awaiting step {expected}")
 
+    def judge_part(self, role: str, message: Message, *, running: bool) -> str:
+        """The verdict on one part of a step's reply (contract v4's partial SpikeBatch).
+
+        ``part``: kept for its step's reply; ``late``: of a step the policy stood in for
+        already (the run's data, not a late reply); ``drop``: early, stale, from the
+        future, or after its step's reply (counted by kind).
+        """
+        step, expected = message.step, self.expect[role]
+        if not running:
+            return self.drop(role, "early", f"a part of step {step} before the run started")
+        if step in self.missed[role]:
+            return "late"
+        if expected <= step <= self.last_sent.get(role, -1):
+            if step in self.pending[role]:
+                return self.drop(role, "duplicate", f"a part of step {step} after its reply")
+            self.parts[role].setdefault(step, []).append(message)
+            return "part"
+        if step <= expected:
+            return self.drop(role, "stale", f"a part of step {step} awaiting step {expected}")
+        return self.drop(role, "future", f"a part of step {step} awaiting step {expected}")
+
     def miss(self, role: str, step: int) -> None:
-        """The reply of ``role`` for ``step`` is missing: the policy stands in for it."""
+        """The reply of ``role`` for ``step`` is missing: the policy stands in for it (its
+        parts are recorded already, and no reply will take them)."""
+        self.parts[role].pop(step, None)
         self.missed[role].add(step)
         self.on_event("missed", role=role, step=step)
 

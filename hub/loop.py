@@ -497,11 +497,13 @@ class Hub:
 
     def _on_reply(self, role: str, raw: bytes, t_wall_ns: int, t_arrival: float) -> None:
         """Accept, count as late, or drop one reply; record it with that verdict."""
-        verdict = self._classify_reply(role, raw, t_arrival)
+        verdict, message = self._classify_reply(role, raw, t_arrival)
         if self.recorder:
             self.recorder.message(verdict, self.output_key[role], raw, t_wall_ns)
         if verdict == "rx" and role == "culture" and self.online is not None:
-            self._to_observe.append(raw)
+            # the observer takes a step's spikes at once: with the parts streamed before
+            taken = self.ledger.pending[role].get(message.step, message)
+            self._to_observe.append(raw if taken is message else taken.encode())
             if self.scheduler.direct and t_arrival - self._forwarded_at >= self._forward_s:
                 self._forward_spikes()  # lockstep; realtime: after the step (tick)
 
@@ -521,16 +523,22 @@ class Hub:
                 self.times.round_trip_s[role][step] = rtt_s
                 self._last_round_trip_ms[role] = rtt_s * 1e3
 
-    def _classify_reply(self, role: str, raw: bytes, t_arrival: float) -> str:
+    def _classify_reply(self, role: str, raw: bytes, t_arrival: float):
+        """The record's verdict on one reply, and the reply (None if dropped)."""
         try:
             message = self.checker.check(role, raw)
         except ProtocolError as exc:
-            return self.ledger.drop(role, exc.kind, str(exc))
-        verdict = self.ledger.judge(role, message, t_arrival, running=self.state != "waiting")
-        if verdict in ("rx", "late"):
-            self._note_round_trip(role, message.step, t_arrival)
+            return self.ledger.drop(role, exc.kind, str(exc)), None
+        running = self.state != "waiting"
+        if role == "culture" and message.partial:
+            verdict = self.ledger.judge_part(role, message, running=running)
+        else:
+            verdict = self.ledger.judge(role, message, t_arrival, running=running)
+            if verdict in ("rx", "late"):
+                self._note_round_trip(role, message.step, t_arrival)
+        if verdict in ("rx", "late", "part"):
             self.view.took(message)
-        return verdict
+        return verdict, message
 
     def _on_liveliness(self, key: str, present: bool) -> None:
         parsed = self.keys.parse_alive(key)

@@ -23,7 +23,10 @@ from typing import Any, ClassVar
 import msgpack
 import numpy as np
 
-SCHEMA_VERSION = 3
+SCHEMA_VERSION = 4
+# Versions read as this one: a version-3 message is a version-4 message (v4 only added the
+# optional ``SpikeBatch.partial``), so runs recorded under v3 stay readable.
+READ_VERSIONS = (3, 4)
 ROLES = ("body", "culture")
 MAX_MESSAGE_BYTES = 64 * 1024 * 1024
 SMALL_ARRAY = 64
@@ -531,8 +534,8 @@ class Message:
         fields through the constructor's quick checks. Anything else takes the full
         path, through the constructor, which names what is wrong."""
         version = data.get("v")
-        if type(version) is not int or version != SCHEMA_VERSION:  # True and 2.0 are not 2
-            raise ProtocolError("version", f"v must be {SCHEMA_VERSION}, got {version!r}")
+        if type(version) is not int or version not in READ_VERSIONS:  # True, 2.0 are not 2
+            raise ProtocolError("version", f"v must be one of {READ_VERSIONS}, got {version!r}")
         if not data.keys() <= cls._KNOWN:
             unknown = sorted(set(data) - cls._KNOWN)
             raise ProtocolError("unknown", f"{cls.__name__} has no field(s) {unknown}")
@@ -761,6 +764,10 @@ class SpikeBatch(Message):
     A device may also carry spikes of earlier windows that reached it after it had answered
     them (``late_channel``, ``late_t_ms``: their true times, ms from ``t0_s``, so negative;
     contract v3): kept as data, never used by the loop's decoding.
+
+    A device may stream a window's spikes as they come (contract v4): *parts*
+    (``partial=True``) with the spikes read so far, then the window's batch with the rest.
+    The step's spikes are all of them (:func:`merge_parts`); a part carries no late spikes.
     """
 
     step: int
@@ -771,6 +778,7 @@ class SpikeBatch(Message):
     t_ms: np.ndarray = field(default_factory=_empty("<f4"))
     late_channel: np.ndarray | None = None
     late_t_ms: np.ndarray | None = None
+    partial: bool | None = None  # True: a part, more of this window to come; else None
 
     SCHEMA = {
         "step": _STEP,
@@ -781,6 +789,7 @@ class SpikeBatch(Message):
         "t_ms": Array("<f4", group="spike", min=0.0),
         "late_channel": Array("<u4", group="late", optional=True),
         "late_t_ms": Array("<f4", group="late", max=0.0, optional=True),
+        "partial": Scalar(bool, optional=True),
     }
 
     @property
@@ -790,6 +799,10 @@ class SpikeBatch(Message):
     def _check(self):
         if self.t1_s < self.t0_s:
             raise ProtocolError("inconsistent", f"t1_s {self.t1_s} precedes t0_s {self.t0_s}")
+        if self.partial is not None and (not self.partial or self.late_channel is not None):
+            raise ProtocolError(
+                "inconsistent", "partial is true or absent, and a part carries no late spikes"
+            )
         t_ms = self.t_ms
         if t_ms.size:
             if t_ms.size <= SMALL_ARRAY:  # values are finite here: sorted() is a full order
@@ -806,6 +819,18 @@ class SpikeBatch(Message):
                 raise ProtocolError(
                     "range", f"t_ms {t_ms[-1]} lies beyond the {window_ms} ms window"
                 )
+
+
+def merge_parts(parts: list[SpikeBatch], batch: SpikeBatch) -> SpikeBatch:
+    """A window's spikes in one batch: its streamed ``parts`` and its final ``batch``
+    (which keeps its late spikes), in time order."""
+    if not parts:
+        return batch
+    every = [*parts, batch]
+    t_ms = np.concatenate([b.t_ms for b in every])
+    order = np.argsort(t_ms, kind="stable")
+    channel = np.concatenate([b.channel for b in every])[order]
+    return dataclasses.replace(batch, channel=channel, t_ms=t_ms[order])
 
 
 @dataclass(frozen=True, eq=False)

@@ -9,7 +9,8 @@ first a header map, then one list per message or event::
 
 where direction is ``tx`` (sent), ``rx`` (received and used by the loop),
 ``late`` (valid, but arrived after its deadline: real data the loop did not
-use), ``drop`` (received and dropped: malformed, stale, duplicate, future,
+use), ``part`` (a part of a step's spikes that a device streamed before its batch: the
+loop uses it with that batch), ``drop`` (received and dropped: malformed, stale, duplicate, future,
 foreign) or ``final`` (the body's answer to the hub's final stop, after the run's last
 step: the proof the stop was applied, not the run's data).
 
@@ -61,9 +62,9 @@ FORMAT = "neuvision-record"
 FORMAT_VERSION = 2
 READABLE_VERSIONS = (1, 2)
 # "final": the body's answer to the hub's final stop, after the run's last step
-DIRECTIONS = ("tx", "rx", "late", "drop", "ev", "final")
+DIRECTIONS = ("tx", "rx", "late", "part", "drop", "ev", "final")
 # What the analysis reads as the culture's and body's real output.
-DATA_DIRECTIONS = ("rx", "late")
+DATA_DIRECTIONS = ("rx", "late", "part")
 WRITE_BUFFER_BYTES = 1 << 20
 HELD_FRAMES = 1024  # frames held at most before they are written
 # Dropped payloads: the first bytes kept, and what all drops stored may take per run

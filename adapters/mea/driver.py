@@ -9,6 +9,7 @@ two drivers implement it: :class:`~adapters.mea.rhx.RhxDriver` (Intan RHX over T
 from __future__ import annotations
 
 from collections import Counter
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Protocol
 
@@ -84,6 +85,9 @@ class MeaDriver(Protocol):
         Set (by the driver's reader, or by the endpoint) when the instrument failed.
     stimulates : bool
         False for a record-only instrument: the endpoint then refuses every pulse.
+    on_spikes : callable or None
+        Called (from the driver's reader) each time spikes were read: the endpoint
+        streams them (:meth:`take_spikes`).
     """
 
     layout: ElectrodeLayout
@@ -91,6 +95,7 @@ class MeaDriver(Protocol):
     clock: ClockMap
     fault: DeviceFault | None
     stimulates: bool
+    on_spikes: Callable[[], None] | None
 
     def open(self) -> None:
         """Connect, make nothing deliverable, start reading spikes."""

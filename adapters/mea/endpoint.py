@@ -13,9 +13,15 @@ margin and a little (``configs/hybrid_mea.toml``). A spike that reaches the endp
 its window was answered goes into the next batch at its true time (``late_channel``,
 ``late_t_ms``), counted as late data, never dropped.
 
+Spikes are also streamed as they come (contract v4): every ``stream_spikes_ms`` at most,
+the spikes read since are sent as a *part* of their window (``SpikeBatch(partial=True)``),
+so the hub, its record and its observers have each spike within about that long of the
+instrument's report, not a period later; the window's batch after its end holds the rest.
+
 Parameters (``[culture.params]``): ``driver`` (``"rhx"`` or ``"lsl"``), ``layout_file``
 (CSV ``name,x_um,y_um``; default the MCS 60-electrode layout on Intan ports A and B),
-``reply_margin_ms`` (2), ``[culture.params.safety]``
+``reply_margin_ms`` (2), ``stream_spikes_ms`` (1; 0: no parts, one batch per window),
+``[culture.params.safety]``
 (:class:`~adapters.mea.safety.PulseLimits`); for ``rhx``: ``host`` (``127.0.0.1``),
 ``command_port`` (5000), ``spike_port`` (5002); for ``lsl`` (:mod:`adapters.mea.lsl`):
 ``spike_stream`` (""), ``spike_type`` (``"Spikes"``), ``spike_source_id`` (""),
@@ -53,7 +59,7 @@ LOCKSTEP_REFUSAL = (
     "a culture on an MEA is a real device: it lives in real time and cannot wait for a "
     'lockstep loop; set loop.mode = "realtime"'
 )
-PARAMS = {"driver", "layout_file", "reply_margin_ms", "safety"}  # whichever the driver
+PARAMS = {"driver", "layout_file", "reply_margin_ms", "stream_spikes_ms", "safety"}  # any driver
 DRIVER_PARAMS = {
     "rhx": {"host", "command_port", "spike_port"},
     "lsl": {"spike_stream", "spike_type", "spike_source_id", "stim_outlet", "resolve_timeout_s",
@@ -61,8 +67,9 @@ DRIVER_PARAMS = {
 }  # fmt: skip
 CLOCK_SAMPLE_S = 0.5  # the instrument's clock is sampled this often during a run
 # Two threads, each with a heap of what falls due: one talks to the instrument (pulses, the
-# clock), one answers windows, so that a slow instrument command never delays a reply.
-LANES = {"fire": "device", "clock": "device", "reply": "replies"}
+# clock), one answers windows and streams their parts, so that a slow instrument command
+# never delays a reply.
+LANES = {"fire": "device", "clock": "device", "reply": "replies", "part": "replies"}
 
 
 class MeaEndpoint(Endpoint):
@@ -77,24 +84,32 @@ class MeaEndpoint(Endpoint):
     id : str
     reply_margin_ms : float
         How long after a window's end its spikes are answered.
+    stream_spikes_ms : float
+        Spikes go to the hub as parts of their window at most this often, as they come;
+        0: only in the window's batch.
     """
 
     role, kind = "culture", "mea"
 
     def __init__(self, driver: MeaDriver, limits: PulseLimits, id: str = "0", *,
-                 reply_margin_ms: float = 2.0):  # fmt: skip
+                 reply_margin_ms: float = 2.0, stream_spikes_ms: float = 1.0):  # fmt: skip
         super().__init__(id)
         self.driver, self.limits = driver, limits
         self.gate = SafetyGate(limits)
         self.reply_margin_s = reply_margin_ms / 1e3
+        self.stream_s = stream_spikes_ms / 1e3
         self.late_spikes = 0
+        self.parts_sent = 0
         self.trigger_lag_ms: deque[float] = deque(maxlen=100_000)  # due → trigger sent
         self.spike_wait_ms: deque[float] = deque(maxlen=100_000)  # spike read → batch sent
         self._opened = False
         self._origin = math.inf  # run time 0 on time.monotonic()'s clock
-        self._answered_until_s = -math.inf  # run time up to which windows were answered
-        self._carry: list[tuple[np.ndarray, np.ndarray]] = []  # spikes of windows to come
-        self._late: list[tuple[np.ndarray, np.ndarray]] = []
+        # spikes taken from the driver and not yet sent: channel, run time (s), arrival
+        self._carry: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+        self._spikes = threading.Lock()  # one taker of spikes at a time (parts, answers)
+        self._unanswered: dict[int, StepWindow] = {}  # stepped windows, by step
+        self._next_part = -math.inf  # local time before which no part goes
+        self._part_due = False  # a part is scheduled
         # per lane, a heap of (local time, seq, kind, payload)
         self._due: dict[str, list] = {lane: [] for lane in dict.fromkeys(LANES.values())}
         self._seq = 0
@@ -128,6 +143,8 @@ class MeaEndpoint(Endpoint):
             "driver": driver,
             "reply_margin_ms": check_value("culture.params.reply_margin_ms", float,
                                            params.get("reply_margin_ms", 2.0), ge=0),
+            "stream_spikes_ms": check_value("culture.params.stream_spikes_ms", float,
+                                            params.get("stream_spikes_ms", 1.0), ge=0),
             "layout_file": params.get("layout_file"),
             "safety": params.get("safety", {}),
         }  # fmt: skip
@@ -187,12 +204,17 @@ class MeaEndpoint(Endpoint):
         else:
             driver = RhxDriver(layout, p["host"], p["command_port"], p["spike_port"])
         limits = PulseLimits.from_params(p["safety"])
-        return cls(driver, limits, section.id, reply_margin_ms=p["reply_margin_ms"])
+        return cls(
+            driver, limits, section.id,
+            reply_margin_ms=p["reply_margin_ms"], stream_spikes_ms=p["stream_spikes_ms"],
+        )  # fmt: skip
 
     # ------------------------------------------------------------ the endpoint
 
     def warm_up(self) -> None:
         if not self._opened:
+            if self.stream_s > 0:
+                self.driver.on_spikes = self._spikes_came
             self.driver.open()
             self._opened = True
             for lane in self._due:
@@ -226,6 +248,7 @@ class MeaEndpoint(Endpoint):
             "pulses_admitted": self.gate.admitted,
             "pulses_refused": dict(self.gate.refused),
             "late_spikes": self.late_spikes,
+            "spike_parts_sent": self.parts_sent,
         }
         for name, data in (("stim_to_trigger_ms", self.trigger_lag_ms),
                            ("spike_to_batch_ms", self.spike_wait_ms)):  # fmt: skip
@@ -244,11 +267,12 @@ class MeaEndpoint(Endpoint):
             self.driver.start()
         except DeviceFault as exc:
             raise RunRefused(f"the instrument did not start: {exc}") from None
-        self.driver.take_spikes()  # what came before the run is not the run's
+        with self._spikes:
+            self.driver.take_spikes()  # what came before the run is not the run's
+            self._carry = []
         with self._timing:
             self._origin = math.inf
-            self._answered_until_s = -math.inf
-            self._carry, self._late = [], []
+            self._unanswered, self._next_part, self._part_due = {}, -math.inf, False
             self._due, self._due_now = {lane: [] for lane in self._due}, []
             self.gate = SafetyGate(self.limits)
             self._schedule(time.monotonic() + CLOCK_SAMPLE_S, "clock", None)
@@ -275,6 +299,7 @@ class MeaEndpoint(Endpoint):
                 else:
                     self._schedule(due, "fire", (pulses, due))
             self._schedule(self._origin + window.t1_s + self.reply_margin_s, "reply", window)
+            self._unanswered[window.step] = window
         return None
 
     def handle(self, payload, attachment=None):
@@ -366,6 +391,9 @@ class MeaEndpoint(Endpoint):
                 if self.driver.fault is not None:
                     return
                 continue
+            if kind == "part":
+                self._stream()
+                continue
             try:
                 if kind == "reply":
                     # after a delivery under way: the instrument's answer to it would
@@ -382,33 +410,100 @@ class MeaEndpoint(Endpoint):
                 self._failed(exc)
                 return
 
-    def _answer(self, window: StepWindow) -> None:
-        """The window's spikes (instrument time → run time), late ones at their true time."""
-        run = self.run
-        if run is None or run.run != window.run:  # the run ended meanwhile: nothing owed
-            return
+    def _taken(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The spikes not yet sent, those just read included: channel, run time (s),
+        arrival (local). Called holding ``_spikes``."""
         channel, inst_s, arrived = self.driver.take_spikes()
         if channel.size:
             run_s = self.driver.clock.to_local(inst_s) - self._origin
             self._carry.append((channel, run_s, arrived))
-        if self._carry:
-            channel, run_s, arrived = (np.concatenate(p) for p in zip(*self._carry, strict=True))
-        else:
-            channel, run_s, arrived = np.zeros(0, np.uint32), np.zeros(0), np.zeros(0)
-        mine = (run_s >= window.t0_s) & (run_s < window.t1_s)
-        early = run_s < window.t0_s  # a window already answered: late data
-        later = ~mine & ~early
-        self._carry = [(channel[later], run_s[later], arrived[later])] if later.any() else []
-        if mine.any():  # how long the window's spikes waited in the endpoint
-            self.spike_wait_ms.extend(((time.monotonic() - arrived[mine]) * 1e3).tolist())
-        order = np.argsort(run_s[mine], kind="stable")
-        late_c, late_t = channel[early], run_s[early]
-        self.late_spikes += int(late_c.size)
-        batch = SpikeBatch(
-            **window.stamp,
-            channel=channel[mine][order],
-            t_ms=np.clip((run_s[mine][order] - window.t0_s) * 1e3, 0.0, None),
-            late_channel=late_c if late_c.size else None,
-            late_t_ms=np.minimum((late_t - window.t0_s) * 1e3, 0.0) if late_c.size else None,
-        )
-        self.reply(batch)
+        if not self._carry:
+            return np.zeros(0, np.uint32), np.zeros(0), np.zeros(0)
+        if len(self._carry) > 1:
+            self._carry = [tuple(np.concatenate(p) for p in zip(*self._carry, strict=True))]
+        return self._carry[0]
+
+    def _waited(self, arrived: np.ndarray) -> None:
+        """How long these spikes waited in the endpoint, from their read to now."""
+        self.spike_wait_ms.extend(((time.monotonic() - arrived) * 1e3).tolist())
+
+    def _spikes_came(self) -> None:
+        """The driver read spikes (its reader's thread): a part now, or once
+        ``stream_spikes_ms`` has passed since the last one."""
+        now = time.monotonic()
+        with self._timing:
+            if self._part_due or self.run is None:
+                return
+            if now < self._next_part:
+                self._part_due = True
+                self._schedule(self._next_part, "part", None)
+                return
+        try:
+            self._stream()
+        except Exception as exc:  # a bug; the reader must not die of it in silence
+            log.exception("streaming spikes failed")
+            self._failed(DeviceFault(f"streaming spikes failed: {exc!r}"))
+
+    def _stream(self) -> None:
+        """The spikes read so far that fall in a window not yet answered, each window's as
+        a part of it; the others wait (a window to come, or late data for the next
+        batch)."""
+        with self._spikes:
+            with self._timing:
+                self._part_due = False
+                self._next_part = time.monotonic() + self.stream_s
+                windows = list(self._unanswered.values())
+            run = self.run
+            if run is None or not windows:  # before a step, run time is not yet known
+                return
+            channel, run_s, arrived = self._taken()
+            sent = np.zeros(channel.size, bool)
+            for window in windows:
+                mine = (run_s >= window.t0_s) & (run_s < window.t1_s)
+                if window.run != run.run or not mine.any():
+                    continue
+                order = np.argsort(run_s[mine], kind="stable")
+                part = SpikeBatch(
+                    **window.stamp,
+                    channel=channel[mine][order],
+                    t_ms=np.clip((run_s[mine][order] - window.t0_s) * 1e3, 0.0, None),
+                    partial=True,
+                )
+                try:
+                    self.reply(part)
+                except TypeError:  # the run ended meanwhile: nothing owed
+                    return
+                self.parts_sent += 1
+                self._waited(arrived[mine])
+                sent |= mine
+            if sent.any():
+                keep = ~sent
+                self._carry = [(channel[keep], run_s[keep], arrived[keep])]
+
+    def _answer(self, window: StepWindow) -> None:
+        """The window's spikes (instrument time → run time) not sent in parts, and late
+        ones at their true time."""
+        with self._spikes:
+            with self._timing:
+                self._unanswered.pop(window.step, None)
+            run = self.run
+            if run is None or run.run != window.run:  # the run ended meanwhile: nothing owed
+                return
+            channel, run_s, arrived = self._taken()
+            mine = (run_s >= window.t0_s) & (run_s < window.t1_s)
+            early = run_s < window.t0_s  # a window already answered: late data
+            later = ~mine & ~early
+            self._carry = [(channel[later], run_s[later], arrived[later])] if later.any() else []
+            if mine.any():
+                self._waited(arrived[mine])
+            order = np.argsort(run_s[mine], kind="stable")
+            late_c, late_t = channel[early], run_s[early]
+            self.late_spikes += int(late_c.size)
+            batch = SpikeBatch(
+                **window.stamp,
+                channel=channel[mine][order],
+                t_ms=np.clip((run_s[mine][order] - window.t0_s) * 1e3, 0.0, None),
+                late_channel=late_c if late_c.size else None,
+                late_t_ms=np.minimum((late_t - window.t0_s) * 1e3, 0.0) if late_c.size else None,
+            )
+            self.reply(batch)

@@ -37,6 +37,7 @@ import logging
 import threading
 import time
 from collections import Counter
+from collections.abc import Callable
 
 import numpy as np
 import pylsl
@@ -134,6 +135,7 @@ class LslDriver:
         self._by_name = True
         self._spikes: list[tuple[int, float, float]] = []  # channel, instrument s, arrival
         self._spikes_lock = threading.Lock()
+        self.on_spikes: Callable[[], None] | None = None  # called after each read of spikes
         self._stop = threading.Event()
         self._reader: threading.Thread | None = None
         self._unheard_logged = False
@@ -279,6 +281,8 @@ class LslDriver:
                     got.append((channel, t, now))
             with self._spikes_lock:
                 self._spikes.extend(got)
+            if got and self.on_spikes is not None:
+                self.on_spikes()
 
     def _channel(self, value) -> int | None:
         if self._by_name:

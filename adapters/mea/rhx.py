@@ -24,6 +24,7 @@ import struct
 import threading
 import time
 from collections import Counter
+from collections.abc import Callable
 
 import numpy as np
 
@@ -138,6 +139,7 @@ class RhxDriver:
         self._spikes: list[tuple[np.ndarray, np.ndarray, float]] = []  # per read: channel,
         # timestamp, local arrival
         self._spikes_lock = threading.Lock()
+        self.on_spikes: Callable[[], None] | None = None  # called after each read of spikes
         self._held: dict[str, str] = {}  # parameter → the value the instrument confirmed
         self._enabled: set[int] = set()  # channels confirmed stimenabled true
         self._stop = threading.Event()
@@ -357,6 +359,8 @@ class RhxDriver:
             self.counts["unknown_channel"] += int(known.size - known.sum())
             with self._spikes_lock:
                 self._spikes.append((channel[known], records["timestamp"][known], now))
+            if self.on_spikes is not None:
+                self.on_spikes()
 
     def _name_channel(self, name: bytes) -> int:
         """A record's channel name → the layout's channel (-1: not in the layout)."""

@@ -356,3 +356,39 @@ def test_a_pause_or_an_input_timeout_stops_stimulation_but_not_the_recording(emu
         assert hub.end().ok
         wait_for(lambda: hub.hooks.calls["end_run"] >= 1, 5.0)
         assert emu.values["runmode"] == "stop"
+
+
+@pytest.mark.parametrize("stream_spikes_ms", [1.0, 0.0])
+def test_a_windows_spikes_go_out_as_they_come_in_parts_then_the_rest(emulators, stream_spikes_ms):
+    """Contract v4: while a window lasts, its spikes go to the hub in parts (each before
+    the window's batch, which holds the rest); with ``stream_spikes_ms = 0``, all in the
+    batch after the window."""
+    from hub.protocol import SpikeBatch, merge_parts
+
+    emu, period_s = emulators(), 0.5  # the emulated culture fires >100 spikes/s
+
+    def make() -> MeaEndpoint:
+        return MeaEndpoint(driver_for(emu), PulseLimits(), reply_margin_ms=1.0,
+                           stream_spikes_ms=stream_spikes_ms)  # fmt: skip
+
+    with conformance.served(make) as hub:
+        assert hub.start(mode="realtime", period_ms=period_s * 1e3).ok
+        hub.send(hub.valid_input(0))
+        sent = time.monotonic()
+        came: list[tuple[float, SpikeBatch]] = []  # (arrival, output) up to the batch
+        while not came or came[-1][1].partial:
+            payload, attachment = hub.outputs.get(timeout=5.0)
+            whole = hub.inbox.feed(payload, attachment)
+            if whole is not None:
+                came.append((time.monotonic(), SpikeBatch.decode(whole)))
+        counters = hub.counters()["device"]
+    *parts, (_, batch) = came
+    during = [part for t, part in parts if t < sent + period_s]
+    if stream_spikes_ms:
+        assert sum(part.channel.size for part in during) > 10
+        assert counters["spike_parts_sent"] == len(parts)
+    else:
+        assert not parts and counters["spike_parts_sent"] == 0
+    assert all(part.step == batch.step == 0 for _, part in parts)
+    spikes = merge_parts([part for _, part in parts], batch)
+    assert spikes.channel.size > 10 and 0 <= spikes.t_ms.min() <= spikes.t_ms.max() < 500

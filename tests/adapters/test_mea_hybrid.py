@@ -11,7 +11,7 @@ import pytest
 
 from hub.bus import free_tcp_port
 from hub.protocol import SpikeBatch
-from hub.record import read_run
+from hub.record import DATA_DIRECTIONS, read_run
 from tests.harness import wait_for
 
 pytestmark = pytest.mark.bus
@@ -53,7 +53,19 @@ def test_a_short_hybrid_run_with_the_emulated_instrument(tmp_path, bus_overrides
     (run_dir,) = tmp_path.iterdir()
     rec = read_run(run_dir)
     batches = rec.decoded(SpikeBatch, "rx")
-    assert len(batches) == 300 and sum(b.channel.size for b in batches) > 100
+    assert [b.step for b in batches] == list(range(300))
+    # most spikes went as parts, as they came; every part's step was answered after it
+    parts = rec.decoded(SpikeBatch, "part")
+    assert len(parts) > 10 and all(p.partial for p in parts)
+    every = rec.decoded(SpikeBatch, *DATA_DIRECTIONS)
+    n_late = sum(b.late_channel.size for b in every if b.late_channel is not None)
+    channel, _ = rec.spikes()
+    assert channel.size == sum(b.channel.size for b in every) + n_late > 100
+    order = [(f.direction, SpikeBatch.decode(f.payload).step) for f in rec.frames
+             if f.direction in ("rx", "part") and f.key.endswith("/spikes")]  # fmt: skip
+    for i, (direction, step) in enumerate(order):
+        if direction == "part":
+            assert ("rx", step) in order[i + 1 :], f"a part of step {step} after its batch"
     device = rec.manifest["endpoints"]["culture"]["device"]
     assert device["pulses_admitted"] > 0 and device["pulses_refused"] == {}
     assert abs(device["clock_drift_ppm"]) < 1000
@@ -143,8 +155,7 @@ def test_a_short_run_with_both_devices_emulated(tmp_path, bus_overrides):
     rec = read_run(run_dir)
     assert rec.manifest["outcome"] == "completed" and rec.manifest["steps"] == 60
     assert len(rec.decoded(SensorReading, "rx")) >= 55
-    batches = rec.decoded(SpikeBatch, "rx")
-    assert len(batches) >= 55 and sum(b.channel.size for b in batches) > 100
+    assert len(rec.decoded(SpikeBatch, "rx")) >= 55 and rec.spikes()[0].size > 100
     endpoints = rec.manifest["endpoints"]
     assert endpoints["culture"]["device"]["pulses_admitted"] > 0
     assert endpoints["body"]["kind"] == "khepera"

@@ -89,3 +89,39 @@ def test_the_answer_to_the_final_stop_is_kept_apart_from_the_run():
     ledger.final_step = 8
     assert ledger.judge("body", _reply("body", 8), 0.0, running=False) == "final"
     assert 8 in ledger.pending["body"] and not ledger.dropped
+
+
+# ---------------------------------------------------------------- parts (contract v4)
+
+
+def _part(k: int, channel: int, t_ms: float) -> SpikeBatch:
+    w = StepWindow.of("run", k, PERIOD_S)
+    return SpikeBatch(**w.stamp, channel=[channel], t_ms=[t_ms], partial=True)
+
+
+def test_a_steps_reply_taken_is_its_parts_and_its_batch():
+    ledger, _ = _ledger_at_step(5)
+    _await_both(ledger, 5, deadline=100.0)
+    assert ledger.judge_part("culture", _part(5, 7, 0.5), running=True) == "part"
+    assert ledger.judge_part("culture", _part(5, 8, 2.0), running=True) == "part"
+    assert ledger.waiting(99.0) == ["body", "culture"]  # parts are not the reply
+    assert ledger.judge("culture", _reply("culture", 5), 99.0, running=True) == "rx"
+    taken = ledger.pending["culture"][5]
+    assert taken.channel.tolist() == [7, 3, 8] and taken.t_ms.tolist() == [0.5, 1.0, 2.0]
+    assert not ledger.parts["culture"]
+
+
+def test_a_part_after_its_steps_reply_is_dropped_and_one_of_a_missed_step_is_late_data():
+    ledger, _ = _ledger_at_step(5)
+    _await_both(ledger, 5, deadline=100.0)
+    ledger.judge_part("culture", _part(5, 7, 0.5), running=True)
+    assert ledger.settle() is True  # step 5 missed: its parts will never be taken
+    assert not ledger.parts["culture"]
+    assert ledger.judge_part("culture", _part(5, 8, 2.0), running=True) == "late"
+    assert ledger.late["culture"] == 0  # data, not a late reply
+    ledger.sent("culture", 6)
+    assert ledger.judge("culture", _reply("culture", 6), 101.0, running=True) == "rx"
+    assert ledger.judge_part("culture", _part(6, 8, 2.0), running=True) == "drop"
+    assert ledger.judge_part("culture", _part(9, 8, 2.0), running=True) == "drop"
+    assert ledger.judge_part("culture", _part(6, 8, 2.0), running=False) == "drop"
+    assert ledger.dropped["culture"] == {"duplicate": 1, "future": 1, "early": 1}

@@ -31,6 +31,7 @@ from hub.protocol import (
     StepWindow,
     Stimulation,
     decode_run_request,
+    merge_parts,
 )
 
 RUN = "0" * 32
@@ -561,13 +562,45 @@ def test_a_message_that_fails_to_encode_leaves_the_next_one_whole():
 # --------------------------------------------------------------------------- contract v2
 
 
-@pytest.mark.parametrize("version", [True, 3.0, 1, 2, 4, "3"])
-def test_the_version_must_be_exactly_the_integer_3(version):
+@pytest.mark.parametrize("version", [True, 3.0, 4.0, 1, 2, 5, "4"])
+def test_the_version_must_be_exactly_the_integer_3_or_4(version):
     data = MotorCommand.stop(W(1)).to_dict()
     data["v"] = version
     with pytest.raises(ProtocolError) as err:
         MotorCommand.from_dict(data)
     assert err.value.kind == "version"
+
+
+def test_a_version_3_message_reads_as_version_4():
+    """v4 only added a field: runs recorded under v3 stay readable."""
+    data = MotorCommand.stop(W(1)).to_dict()
+    assert data["v"] == SCHEMA_VERSION == 4
+    data["v"] = 3
+    assert MotorCommand.from_dict(data) == MotorCommand.stop(W(1))
+
+
+# --------------------------------------------------------------------------- contract v4
+
+
+def test_a_part_of_a_steps_spikes_says_so_and_carries_no_late_spikes():
+    part = SpikeBatch(**W(2).stamp, channel=[3], t_ms=[1.0], partial=True)
+    assert SpikeBatch.decode(part.encode()).partial is True
+    assert "partial" not in SpikeBatch(**W(2).stamp).to_dict()  # a whole batch: absent
+    for bad in ({"partial": False}, {"partial": True, "late_channel": [1], "late_t_ms": [-1.0]}):
+        with pytest.raises(ProtocolError) as err:
+            SpikeBatch(**W(2).stamp, **bad)
+        assert err.value.kind == "inconsistent"
+
+
+def test_a_steps_spikes_are_its_parts_and_its_batch_in_time_order():
+    first = SpikeBatch(**W(2).stamp, channel=[3, 4], t_ms=[1.0, 6.0], partial=True)
+    second = SpikeBatch(**W(2).stamp, channel=[5], t_ms=[2.0], partial=True)
+    batch = SpikeBatch(**W(2).stamp, channel=[6], t_ms=[9.0], late_channel=[7], late_t_ms=[-2.0])
+    merged = merge_parts([first, second], batch)
+    assert merged.channel.tolist() == [3, 5, 4, 6]
+    assert merged.t_ms.tolist() == [1.0, 2.0, 6.0, 9.0]
+    assert merged.partial is None and merged.late_channel.tolist() == [7]
+    assert merge_parts([], batch) is batch
 
 
 def test_a_step_window_is_the_steps_run_time():
