@@ -3,10 +3,13 @@
 A hybrid realtime run (emulated Intan RHX + simulated arena, configs/hybrid_mea.toml): how
 long a pulse waits from its due time to its trigger being sent (stim_to_trigger), how long a
 spike waits from being read off the spike port to leaving in a SpikeBatch (spike_to_batch),
-and the late steps, at a 10 ms and a 20 ms period.
+and the late steps, at a 10 ms and a 20 ms period. Spikes are streamed in parts of their
+window as they come (contract v4, ``culture.params.stream_spikes_ms``, 1 ms by default);
+``--stream-spikes-ms 0`` measures the same runs with one batch per window.
 
     python bench/mea.py                 # 20 s per period
     python bench/mea.py --seconds 60
+    python bench/mea.py --stream-spikes-ms 0
 
 The last line printed is one JSON object.
 """
@@ -27,7 +30,7 @@ from bench.host import StealMeter, child_popen, child_run, end_children_on_signa
 from hub.bus import free_tcp_port  # noqa: E402
 
 
-def hybrid(seconds: float, period_ms: float) -> dict:
+def hybrid(seconds: float, period_ms: float, stream_spikes_ms: float | None = None) -> dict:
     """One hybrid run against an emulator child; its manifest's figures."""
     ports = free_tcp_port(), free_tcp_port()
     emu = child_popen(
@@ -44,6 +47,8 @@ def hybrid(seconds: float, period_ms: float) -> dict:
                          f"culture.params.spike_port={ports[1]}", f"loop.period_ms={period_ms}",
                          f"loop.deadline_ms={period_ms * 1.8}"):  # fmt: skip
                 cmd += ["--set", item]
+            if stream_spikes_ms is not None:
+                cmd += ["--set", f"culture.params.stream_spikes_ms={stream_spikes_ms}"]
             with StealMeter() as steal:
                 done = child_run(cmd, cwd=ROOT)
             if done.returncode != 0:
@@ -61,7 +66,9 @@ def hybrid(seconds: float, period_ms: float) -> dict:
         f"{device.get('stim_to_trigger_ms_p99', float('nan')):.3f} ms ({device['pulses']} pulses)"
         f"; spike→batch p50 {device['spike_to_batch_ms_p50']:.2f} ms p99 "
         f"{device['spike_to_batch_ms_p99']:.2f} ms; late spikes {device['late_spikes']}; "
-        f"clock drift {device['clock_drift_ppm']:.1f} ppm; CPU steal {steal.share:.1%}"
+        f"{device.get('spike_parts_sent', 0) / max(t['steps'], 1):.2f} parts a step; hub CPU "
+        f"{t['hub_cpu_s'] / max(t['steps'], 1) * 1e6:.0f} µs a step; clock drift "
+        f"{device['clock_drift_ppm']:.1f} ppm; CPU steal {steal.share:.1%}"
     )
     return {"timing": t, "device": device, "steal": steal.share}
 
@@ -69,17 +76,27 @@ def hybrid(seconds: float, period_ms: float) -> dict:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--seconds", type=float, default=20.0, help="length of each run (s)")
+    parser.add_argument(
+        "--stream-spikes-ms", type=float, default=None,
+        help="culture.params.stream_spikes_ms for the runs (default: the config's; 0: no parts)",
+    )  # fmt: skip
     args = parser.parse_args()
     end_children_on_signal()
     out = {}
     for period_ms in (10.0, 20.0):
-        r = hybrid(args.seconds, period_ms)
+        r = hybrid(args.seconds, period_ms, args.stream_spikes_ms)
         tag = f"rt{period_ms:g}"
         d = r["device"]
         out[f"{tag}_stim_to_trigger_ms_p99"] = round(d.get("stim_to_trigger_ms_p99", -1), 3)
         out[f"{tag}_spike_to_batch_ms_p99"] = round(d["spike_to_batch_ms_p99"], 3)
         out[f"{tag}_hybrid_late_steps"] = r["timing"]["late_steps"]
         out[f"{tag}_steal_share"] = round(r["steal"], 4)
+        out[f"{tag}_spike_parts_per_step"] = round(
+            d.get("spike_parts_sent", 0) / max(r["timing"]["steps"], 1), 3
+        )
+        out[f"{tag}_hub_cpu_us_per_step"] = round(
+            r["timing"]["hub_cpu_s"] / max(r["timing"]["steps"], 1) * 1e6, 1
+        )
     # the issue's keys: the 10 ms run
     out["stim_to_trigger_ms_p99"] = out["rt10_stim_to_trigger_ms_p99"]
     out["spike_to_batch_ms_p99"] = out["rt10_spike_to_batch_ms_p99"]
