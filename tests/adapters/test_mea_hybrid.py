@@ -66,6 +66,9 @@ def test_a_short_hybrid_run_with_the_emulated_instrument(tmp_path, bus_overrides
     for i, (direction, step) in enumerate(order):
         if direction == "part":
             assert ("rx", step) in order[i + 1 :], f"a part of step {step} after its batch"
+    counts = rec.manifest["counts"]  # the burst observer had every step, parts merged
+    assert counts["online_analysis"] == "complete" and counts["online_steps_missing"] == 0
+    assert counts["dropped"] == {}
     device = rec.manifest["endpoints"]["culture"]["device"]
     assert device["pulses_admitted"] > 0 and device["pulses_refused"] == {}
     assert abs(device["clock_drift_ppm"]) < 1000
