@@ -123,7 +123,6 @@ class FakeHub:
         self.run: RunStart | None = None
         self.error: BaseException | None = None
         self.status: int | None = None
-        self.parts = 0  # a culture's parts of a step's spikes taken (contract v4)
         self.thread = threading.Thread(target=self._serve, daemon=True)
         self.thread.start()
         if not self.alive.wait(REPLY_TIMEOUT_S):
@@ -255,7 +254,6 @@ class FakeHub:
             output = OUTPUT_TYPE[self.role].decode(whole)
             if getattr(output, "partial", None):
                 parts.append(output)
-                self.parts += 1
                 continue
             for part in parts:
                 check_reply(part, output.window)

@@ -462,13 +462,7 @@ class MeaEndpoint(Endpoint):
                 mine = (run_s >= window.t0_s) & (run_s < window.t1_s)
                 if window.run != run.run or not mine.any():
                     continue
-                order = np.argsort(run_s[mine], kind="stable")
-                part = SpikeBatch(
-                    **window.stamp,
-                    channel=channel[mine][order],
-                    t_ms=np.clip((run_s[mine][order] - window.t0_s) * 1e3, 0.0, None),
-                    partial=True,
-                )
+                part = SpikeBatch(**_in_window(window, channel, run_s, mine), partial=True)
                 try:
                     self.reply(part)
                 except TypeError:  # the run ended meanwhile: nothing owed
@@ -496,14 +490,21 @@ class MeaEndpoint(Endpoint):
             self._carry = [(channel[later], run_s[later], arrived[later])] if later.any() else []
             if mine.any():
                 self._waited(arrived[mine])
-            order = np.argsort(run_s[mine], kind="stable")
             late_c, late_t = channel[early], run_s[early]
             self.late_spikes += int(late_c.size)
             batch = SpikeBatch(
-                **window.stamp,
-                channel=channel[mine][order],
-                t_ms=np.clip((run_s[mine][order] - window.t0_s) * 1e3, 0.0, None),
+                **_in_window(window, channel, run_s, mine),
                 late_channel=late_c if late_c.size else None,
                 late_t_ms=np.minimum((late_t - window.t0_s) * 1e3, 0.0) if late_c.size else None,
             )
             self.reply(batch)
+
+
+def _in_window(window: StepWindow, channel: np.ndarray, run_s: np.ndarray, mine: np.ndarray):
+    """A SpikeBatch's fields for ``window`` with the spikes ``mine``, in time order."""
+    order = np.argsort(run_s[mine], kind="stable")
+    return {
+        **window.stamp,
+        "channel": channel[mine][order],
+        "t_ms": np.clip((run_s[mine][order] - window.t0_s) * 1e3, 0.0, None),
+    }
