@@ -39,6 +39,8 @@ class Ledger:
         Role → {step: reply} accepted and not yet used by the loop (with its parts merged).
     parts : dict
         Role → {step: [part, ...]} streamed before their step's reply.
+    stranded : list
+        Parts of steps that went missing: no reply will take them (for live displays).
     missed : dict
         Role → steps whose reply missed its deadline (the policy stood in for it).
     late : Counter
@@ -55,6 +57,7 @@ class Ledger:
         self.last_sent: dict[str, int] = {}
         self.pending: dict[str, dict[int, Message]] = {role: {} for role in ROLES}
         self.parts: dict[str, dict[int, list[Message]]] = {role: {} for role in ROLES}
+        self.stranded: list[Message] = []
         self.missed: dict[str, set[int]] = defaultdict(set)
         self.late: Counter[str] = Counter()
         self.dropped: dict[str, Counter[str]] = defaultdict(Counter)
@@ -121,8 +124,8 @@ class Ledger:
 
     def miss(self, role: str, step: int) -> None:
         """The reply of ``role`` for ``step`` is missing: the policy stands in for it (its
-        parts are recorded already, and no reply will take them)."""
-        self.parts[role].pop(step, None)
+        parts, recorded already, are stranded: no reply will take them)."""
+        self.stranded.extend(self.parts[role].pop(step, ()))
         self.missed[role].add(step)
         self.on_event("missed", role=role, step=step)
 

@@ -532,12 +532,15 @@ class Hub:
         running = self.state != "waiting"
         if role == "culture" and message.partial:
             verdict = self.ledger.judge_part(role, message, running=running)
-        else:
-            verdict = self.ledger.judge(role, message, t_arrival, running=running)
-            if verdict in ("rx", "late"):
-                self._note_round_trip(role, message.step, t_arrival)
-        if verdict in ("rx", "late", "part"):
-            self.view.took(message)
+            if verdict == "late":  # of a step stood in for: shown as a late reply is
+                self.view.took(message)
+            return verdict, message
+        verdict = self.ledger.judge(role, message, t_arrival, running=running)
+        if verdict in ("rx", "late"):
+            self._note_round_trip(role, message.step, t_arrival)
+            # live displays get a step's spikes whole (its parts merged): a display closes
+            # its rate bins up to the window's end when it gets them
+            self.view.took(self.ledger.pending[role].get(message.step, message))
         return verdict, message
 
     def _on_liveliness(self, key: str, present: bool) -> None:
@@ -1061,11 +1064,15 @@ class Hub:
         hz = self.cfg.loop.view_hz
         if self.link is None or not hz:
             self._next_view = math.inf
+            self.ledger.stranded.clear()
             return
         if not last and self.state == "running" and self.cfg.loop.mode == "realtime":
             if self.scheduler.start_of(self.k_done) - now < VIEW_GUARD_S:
                 return  # the tick after this step tries again
         self.view.watch(self.link.view_observed())
+        for part in self.ledger.stranded:  # of steps that went missing: shown as late
+            self.view.took(part)
+        self.ledger.stranded.clear()
         self._next_view = now + (1.0 / hz if self.view.observed else 0.25)
         view = self.view.build(self.k_done)
         if view is not None:

@@ -222,3 +222,15 @@ class TrailingCulture(EchoCulture):
 
     def describe(self):
         return dataclasses.replace(super().describe(), answers_after_window=True)
+
+
+class StreamingCulture(EchoCulture):
+    """An echo culture that streams (contract v4): a spike on channel 1 late in each window
+    goes first, as a part; the echo of the step's pulses follows in its batch."""
+
+    kind = "test_streaming_culture"
+
+    def step(self, s: Stimulation, window) -> SpikeBatch:
+        late_ms = (window.t1_s - window.t0_s) * 1e3 * 0.9
+        self.reply(SpikeBatch(**window.stamp, channel=[1], t_ms=[late_ms], partial=True))
+        return super().step(s, window)

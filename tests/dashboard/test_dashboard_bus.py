@@ -197,3 +197,57 @@ def test_views_larger_than_one_put_reach_the_observer_whole(tmp_path, bus_overri
         thread.join(timeout=60)
     assert seen["spikes"] >= 60000 and seen["dropped"] == {} and seen["stop"]["ok"]
     assert result.outcome == "stopped"
+
+
+def test_a_streamed_steps_spikes_reach_live_displays_and_the_decoder_whole(tmp_path, bus_overrides):
+    """A culture that sends each step's spikes in a part and then its batch (contract v4):
+    each view has the step's spikes merged and in time order (a display closes its rate
+    bins up to the window's end), and the decoder counts all of them."""
+    from hub import wire
+    from hub.bus import open_session
+    from hub.protocol import HubView, MotorCommand
+
+    views: list[HubView] = []
+    with harness(
+        tmp_path, bus_overrides, 'culture.kind="tests.endpoints:StreamingCulture"',
+        "experiment.duration_s=0.5",
+    ) as h:  # fmt: skip
+        inbox, done = wire.Inbox(), threading.Event()
+
+        def on_view(sample):
+            raw = inbox.feed(sample.payload.to_bytes(), sample.attachment)
+            if raw is not None:
+                views.append(HubView.decode(raw))
+
+        def display():  # a live display: on the bus once the hub is
+            session = open_session(h.cfg.bus, listener=False)
+            sub = session.declare_subscriber(h.cfg.bus.keys.hub_view, on_view)
+            done.wait(60)
+            sub.undeclare()
+            session.close()
+
+        thread = threading.Thread(target=display)
+        thread.start()
+        try:
+            result = h.run(wait_for_view_s=30)
+            wait_for(lambda: views and views[-1].step == result.steps, 5.0)
+        finally:
+            done.set()
+            thread.join(10)
+    assert result.outcome == "completed" and result.counts["dropped"] == {}
+    n = result.steps
+    assert len(h.record.decoded(SpikeBatch, "part")) == n
+    # the decoder had both: a step's spikes are its pulses' echoes and the part's one
+    per_step = dict.fromkeys(range(n), 0)
+    for batch in h.record.decoded(SpikeBatch, "rx", "part"):
+        per_step[batch.step] += batch.channel.size
+    # step k's command is decoded from step k-1's spikes (the first two start the
+    # pipeline, step n is the final stop)
+    motors = h.sent(MotorCommand)
+    decoded = {int(motors[k].left_mps): motors[k].right_mps for k in range(2, n)}
+    assert decoded == {k: float(per_step[k]) for k in range(1, n - 1)}
+    assert min(decoded.values()) == 1 and max(decoded.values()) > 1
+    channel = [c for v in views for c in v.spike_channel.tolist()]
+    assert channel.count(1) == n and len(channel) == h.record.spikes()[0].size
+    for v in views:  # each step whole: its echoes (at 0 ms) before the part's spike (9 ms)
+        assert v.spike_t_ms.tolist() == sorted(v.spike_t_ms.tolist())
