@@ -76,6 +76,7 @@ def test_a_short_hybrid_run_with_the_emulated_instrument(tmp_path, bus_overrides
     assert "trajectory.png" in summary["figures"]
 
 
+@pytest.mark.slow
 def test_the_instrument_dying_mid_run_ends_the_run_by_the_fault_policy(tmp_path, bus_overrides):
     emu, points_at = emulator()
     proc = run(tmp_path, bus_overrides, points_at, 60.0)
@@ -136,6 +137,7 @@ def test_a_20_s_hybrid_run_at_10_ms_keeps_time_but_where_the_whole_host_stalls(
     assert len(culture_alone) <= 2, (sorted(culture_alone), record.manifest["timing"])
 
 
+@pytest.mark.slow
 def test_a_short_run_with_both_devices_emulated(tmp_path, bus_overrides):
     """configs/hybrid_both.toml: the emulated Khepera (a pseudo-terminal) driven by the
     emulated Intan (its own process), both in real time."""

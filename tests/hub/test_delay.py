@@ -54,6 +54,7 @@ def test_a_realtime_run_over_5_ms_links_has_no_late_step(tmp_path):
         assert timing["round_trip_ms"][role]["median"] >= 6.0, timing["round_trip_ms"]
 
 
+@pytest.mark.slow
 def test_over_30_ms_links_late_replies_are_counted_the_policy_stands_in_and_the_run_ends(
     tmp_path,
 ):

@@ -31,6 +31,7 @@ def port_of(bus_overrides) -> str:
     return json.loads(listen.split("=", 1)[1])[0].rsplit(":", 1)[1]
 
 
+@pytest.mark.slow
 def test_endpoints_wait_for_their_hub_then_serve_run_after_run(tmp_path, bus_overrides):
     items = [*bus_overrides, *EXTERNAL]
     port = port_of(bus_overrides)

@@ -19,6 +19,7 @@ def test_a_psth_needs_stimuli_further_apart_than_its_window():
     assert "every 10 ms" in why and "300 ms" in why
 
 
+@pytest.mark.slow
 @pytest.mark.bus
 def test_a_closed_loop_run_gets_the_loop_figure_and_no_psth(tmp_path):
     run = Experiment("configs/closed_loop.toml", {"experiment.duration_s": 2.0}).run(tmp_path)

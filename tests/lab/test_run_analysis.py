@@ -124,6 +124,7 @@ def test_a_recorded_run_gives_metrics_figures_and_a_report(tmp_path):
     assert "wall_s" in html and "period_ms" in html and "handmade" in html
 
 
+@pytest.mark.slow
 def test_a_run_without_a_known_world_has_path_metrics_and_no_trajectory(tmp_path):
     run_dir = tmp_path / "run"
     run_dir.mkdir()

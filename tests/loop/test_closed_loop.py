@@ -150,6 +150,7 @@ def test_analyze_writes_metrics_figures_and_a_report_for_a_closed_loop_run(tmp_p
     assert (tmp_path / "an" / "trajectory.png").exists()
 
 
+@pytest.mark.slow
 def test_pipelined_lockstep_gives_what_a_strict_step_by_step_loop_gives(tmp_path, bus_overrides):
     # Realtime mode runs strictly one step after another; with a deadline long enough
     # that no reply is missed, its endpoints see exactly the inputs of the Jacobi scheme.
