@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import os
+import threading
 import time
 from contextlib import contextmanager
 
 import pytest
 
+from hub.bus import open_session
 from hub.config import load_config
 from hub.launch import start_local_endpoints, stop_local_endpoints
 from hub.loop import Hub
@@ -49,6 +51,29 @@ def harness(tmp_path, bus_overrides, *overrides):
         yield h
     finally:
         h.exit_codes = stop_local_endpoints(h.procs)
+
+
+@contextmanager
+def subscribed(bus, key: str, callback):
+    """A subscriber to ``key`` calling ``callback(sample)`` for the ``with`` block, from a
+    session of its own opened as soon as the hub listens (in a thread: the hub of a
+    harness starts inside the block)."""
+    done = threading.Event()
+
+    def subscriber():
+        session = open_session(bus, listener=False)
+        sub = session.declare_subscriber(key, callback)
+        done.wait(60)
+        sub.undeclare()
+        session.close()
+
+    thread = threading.Thread(target=subscriber)
+    thread.start()
+    try:
+        yield
+    finally:
+        done.set()
+        thread.join(30)
 
 
 def wait_for(condition, timeout_s=10.0):

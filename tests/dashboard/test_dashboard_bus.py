@@ -13,7 +13,7 @@ from dashboard.observer import BusObserver
 from dashboard.state import FrameState, Reader
 from hub.cli import main
 from hub.protocol import SpikeBatch
-from tests.harness import harness, wait_for
+from tests.harness import harness, subscribed, wait_for
 
 pytestmark = pytest.mark.bus
 
@@ -204,7 +204,6 @@ def test_a_streamed_steps_spikes_reach_live_displays_and_the_decoder_whole(tmp_p
     each view has the step's spikes merged and in time order (a display closes its rate
     bins up to the window's end), and the decoder counts all of them."""
     from hub import wire
-    from hub.bus import open_session
     from hub.protocol import HubView, MotorCommand
 
     views: list[HubView] = []
@@ -212,28 +211,16 @@ def test_a_streamed_steps_spikes_reach_live_displays_and_the_decoder_whole(tmp_p
         tmp_path, bus_overrides, 'culture.kind="tests.endpoints:StreamingCulture"',
         "experiment.duration_s=0.5",
     ) as h:  # fmt: skip
-        inbox, done = wire.Inbox(), threading.Event()
+        inbox = wire.Inbox()
 
-        def on_view(sample):
+        def on_view(sample):  # a live display
             raw = inbox.feed(sample.payload.to_bytes(), sample.attachment)
             if raw is not None:
                 views.append(HubView.decode(raw))
 
-        def display():  # a live display: on the bus once the hub is
-            session = open_session(h.cfg.bus, listener=False)
-            sub = session.declare_subscriber(h.cfg.bus.keys.hub_view, on_view)
-            done.wait(60)
-            sub.undeclare()
-            session.close()
-
-        thread = threading.Thread(target=display)
-        thread.start()
-        try:
+        with subscribed(h.cfg.bus, h.cfg.bus.keys.hub_view, on_view):
             result = h.run(wait_for_view_s=30)
             wait_for(lambda: views and views[-1].step == result.steps, 5.0)
-        finally:
-            done.set()
-            thread.join(10)
     assert result.outcome == "completed" and result.counts["dropped"] == {}
     n = result.steps
     assert len(h.record.decoded(SpikeBatch, "part")) == n

@@ -29,7 +29,7 @@ from hub.protocol import (
     StepWindow,
     Stimulation,
 )
-from tests.harness import harness, wait_for
+from tests.harness import harness, subscribed, wait_for
 
 pytestmark = pytest.mark.bus
 
@@ -459,26 +459,12 @@ def test_status_is_published_at_status_hz_in_lockstep_too(tmp_path, bus_override
         tmp_path, bus_overrides, "loop.status_hz=20", "experiment.duration_s=2",
         "loop.period_ms=10", "body.params.delay_ms=5",
     ) as h:  # fmt: skip
-        done = threading.Event()
 
-        def observer():  # connects once the hub listens
-            session = open_session(h.cfg.bus, listener=False)
-            keys = h.cfg.bus.keys
-            sub = session.declare_subscriber(
-                keys.hub_status,
-                lambda s: statuses.append((time.monotonic(), HubStatus.decode(payload_bytes(s)))),
-            )
-            done.wait(60)
-            sub.undeclare()
-            session.close()
+        def on_status(sample):
+            statuses.append((time.monotonic(), HubStatus.decode(payload_bytes(sample))))
 
-        thread = threading.Thread(target=observer)
-        thread.start()
-        try:
+        with subscribed(h.cfg.bus, h.cfg.bus.keys.hub_status, on_status):
             result = h.run()
-        finally:
-            done.set()
-            thread.join(timeout=30)
     assert result.outcome == "completed"
     assert result.timing["wall_s"] > 1.0  # 200 steps of a body that takes 5 ms each
     seen = [t for t, s in statuses if s.state == "running" and s.mode == "lockstep"]
