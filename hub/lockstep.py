@@ -5,15 +5,16 @@ when the culture's spikes of step k arrive, the stimulation when the body's sens
 k arrive), so neither endpoint waits for the other's round trip; every endpoint still gets
 exactly the inputs of the step-by-step scheme. Replies are taken, and the inputs that
 depend on them sent, in the Zenoh thread they arrive on, under the loop's lock (a hand-over
-to the loop's thread would put a wake-up on every step's critical path); the loop's thread
-handles the other events, stands in by policy for replies owed longer than
-``loop.reply_timeout_s`` and publishes the status. Live burst detection is not the
+to the loop's thread would put a wake-up on every step's critical path); so is a view for
+live displays, when one is due after a step. The loop's thread handles the other events,
+stands in by policy for replies owed longer than ``loop.reply_timeout_s``, publishes the
+status, and sends views only while the steps stand still. Live burst detection is not the
 loop's work: the burst observer does it, in a process of its own (hub/burst_observer.py).
 
 The scheduler keeps its own state (the steps done, whether replies are taken directly,
-when the loop last moved) and drives the hub through
-the loop's services (:class:`hub.loop.Hub`: ``send``, ``wait_event``, ``handle``, ``tick``,
-its ``ledger``, ``inputs`` and ``times``).
+when the loop last moved) and drives the hub through the loop's services
+(:class:`hub.loop.Hub`: ``send``, ``wait_event``, ``handle``, ``tick``, ``offer_view``, its
+``ledger``, ``inputs`` and ``times``).
 """
 
 from __future__ import annotations
@@ -123,6 +124,7 @@ class Lockstep:
             self.k_done = self.k = done
             if done >= n:
                 hub.inbox.put(("wake",))
+            hub.offer_view(now)
 
     def _stand_in(self, n: int) -> None:
         """No reply for ``reply_timeout_s``: the policy stands in for each reply owed (an

@@ -97,6 +97,11 @@ OBSERVER_END_TIMEOUT_S = 60.0
 # Realtime: a view for live displays is built after a step, and only this long or more before
 # the next step's start (else after a later step), so that it never delays a step.
 VIEW_GUARD_S = 1e-3
+# Lockstep: a view goes from the reply thread after a step (Lockstep._advance); the loop's
+# thread sends one only when the steps stand still this long past its time (paused, an
+# endpoint awaited). Woken at the view rate, it took the loop's lock from the replies
+# thirty times a second (docs/dashboard.md, "Measured").
+VIEW_STALL_S = 0.1
 # The longest a thread holds the interpreter while another wants it during the steps.
 # Python's default, 5 ms, would let the recorder or a status hold up a step start
 # (realtime) or keep Zenoh's callback from handing the loop a reply (both modes).
@@ -404,7 +409,7 @@ class Hub:
         now = time.monotonic()
         timeout = min(until - now, self._next_status - now, self.cfg.record.flush_s)
         if self.cfg.loop.mode == "lockstep":  # realtime: views go after steps (_publish_view)
-            timeout = min(timeout, self._next_view - now)
+            timeout = min(timeout, self._next_view + VIEW_STALL_S - now)
         t0 = time.perf_counter()
         try:
             return self.inbox.get(timeout=max(timeout, 0.0))
@@ -452,10 +457,16 @@ class Hub:
             self._publish_status()
             if self.progress:
                 self.progress(self._progress())
-        if now >= self._next_view:
+        if now >= self._next_view + (VIEW_STALL_S if self.scheduler.direct else 0.0):
             self._publish_view(now)
         if self.recorder:
             self.recorder.tick()
+
+    def offer_view(self, now: float) -> None:
+        """Publish a view for live displays if one is due (lockstep: called after a step
+        by the reply thread, under the loop's lock)."""
+        if now >= self._next_view:
+            self._publish_view(now)
 
     # ================================================================ events
 
