@@ -158,8 +158,9 @@ class Dashboard:
                     page.dropped += 1
                 else:
                     ready.append(page)
-            try:
-                frames = await asyncio.to_thread(self._build, ready)
+            try:  # in this thread: ~1 ms a frame, where a worker's hand-over and the
+                # loop's wake-up on its result cost as much CPU again (docs/dashboard.md)
+                frames = self._build(ready)
             except Exception:
                 log.exception("a frame failed")
                 frames = []
@@ -173,8 +174,8 @@ class Dashboard:
             await asyncio.sleep(max(delay, 0.0))
 
     def _build(self, pages: list[Page]) -> list[tuple[Page, list[str]]]:
-        """Tick the source, then each page's messages as JSON (in a worker thread): the
-        scene when it is new to the page, and its frame."""
+        """Tick the source, then each page's messages as JSON: the scene when it is new to
+        the page, and its frame."""
         state = self.state
         out = []
         with state.lock:
