@@ -21,6 +21,7 @@ def load(name: str):
     return module
 
 
+@pytest.mark.slow
 def test_the_papers_closed_loop_against_its_control(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     results = load("paper_closed_loop").main(seeds=1, duration_s=1.0, runs_dir=tmp_path)

@@ -30,6 +30,7 @@ def hybrid_run(tmp_path, bus_overrides, *, baud, period_ms, duration_s):
     return read_run(run_dir)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("baud, period_ms", [(115200, 10.0)])
 def test_a_short_hybrid_run_completes_with_fresh_readings(tmp_path, bus_overrides, baud, period_ms):
     record = hybrid_run(tmp_path, bus_overrides, baud=baud, period_ms=period_ms, duration_s=3.0)

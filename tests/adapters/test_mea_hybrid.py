@@ -41,6 +41,7 @@ def run(tmp_path, bus_overrides, points_at, duration_s, *more, timeout=180):
     return subprocess.Popen(args, stderr=subprocess.PIPE, text=True)
 
 
+@pytest.mark.slow
 def test_a_short_hybrid_run_with_the_emulated_instrument(tmp_path, bus_overrides):
     emu, points_at = emulator()
     try:

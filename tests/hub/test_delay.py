@@ -37,6 +37,7 @@ def test_the_link_holds_each_chunk_for_its_delay_and_keeps_order():
     server.close()
 
 
+@pytest.mark.slow
 def test_a_realtime_run_over_5_ms_links_has_no_late_step(tmp_path):
     # A round trip carries up to 2 x (5 + 2) ms of link and the culture's step besides: a
     # 30 ms period leaves it room on a loaded 2-core machine (at 20 ms a CI run saw a reply

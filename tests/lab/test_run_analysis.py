@@ -94,6 +94,7 @@ def _write_run(run_dir, n_steps=600, world="configs/worlds/paper.toml"):
     return stim_steps
 
 
+@pytest.mark.slow
 def test_a_recorded_run_gives_metrics_figures_and_a_report(tmp_path):
     run_dir = tmp_path / "run"
     run_dir.mkdir()

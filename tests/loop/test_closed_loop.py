@@ -88,6 +88,7 @@ def _contents(messages) -> list[dict]:
     return [{k: v for k, v in m.to_dict().items() if k != "run"} for m in messages]
 
 
+@pytest.mark.slow
 def test_lockstep_runs_with_the_same_seed_are_identical(tmp_path, bus_overrides):
     a, _ = _run(tmp_path / "a", "configs/closed_loop.toml", bus_overrides, "--seed", "5")
     b, _ = _run(tmp_path / "b", "configs/closed_loop.toml", bus_overrides, "--seed", "5")
