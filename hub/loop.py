@@ -409,7 +409,7 @@ class Hub:
         now = time.monotonic()
         timeout = min(until - now, self._next_status - now, self.cfg.record.flush_s)
         if self.cfg.loop.mode == "lockstep":  # realtime: views go after steps (_publish_view)
-            timeout = min(timeout, self._next_view + VIEW_STALL_S - now)
+            timeout = min(timeout, self._view_due_at() - now)
         t0 = time.perf_counter()
         try:
             return self.inbox.get(timeout=max(timeout, 0.0))
@@ -457,10 +457,15 @@ class Hub:
             self._publish_status()
             if self.progress:
                 self.progress(self._progress())
-        if now >= self._next_view + (VIEW_STALL_S if self.scheduler.direct else 0.0):
+        if now >= self._view_due_at():
             self._publish_view(now)
         if self.recorder:
             self.recorder.tick()
+
+    def _view_due_at(self) -> float:
+        """When this (the loop's) thread sends the next view: while lockstep replies are
+        taken in their own thread, only once the steps stand still (:meth:`offer_view`)."""
+        return self._next_view + (VIEW_STALL_S if self.scheduler.direct else 0.0)
 
     def offer_view(self, now: float) -> None:
         """Publish a view for live displays if one is due (lockstep: called after a step
