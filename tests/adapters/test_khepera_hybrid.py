@@ -11,6 +11,7 @@ import pytest
 from adapters.khepera.emulator import KheperaEmulator
 from hub.protocol import SensorReading
 from hub.record import read_run
+from tests.stall_witness import StallWitness
 
 pytestmark = pytest.mark.bus
 HYBRID = "configs/hybrid_khepera.toml"
@@ -47,11 +48,18 @@ def test_a_short_hybrid_run_completes_with_fresh_readings(tmp_path, bus_override
 
 @pytest.mark.slow
 @pytest.mark.parametrize("baud, period_ms", [(9600, 50.0), (115200, 10.0)])
-def test_a_20_s_hybrid_run_has_no_late_step(tmp_path, bus_overrides, baud, period_ms):
-    record = hybrid_run(tmp_path, bus_overrides, baud=baud, period_ms=period_ms, duration_s=20.0)
+def test_a_20_s_hybrid_run_has_no_late_step_but_where_the_host_stalled(
+    tmp_path, bus_overrides, baud, period_ms
+):
+    # A CI host once held a CPU long enough to make one culture reply of 2000 late; the
+    # stall witness tells such steps from the code's own (tests/stall_witness.py).
+    with StallWitness() as witness:
+        record = hybrid_run(tmp_path, bus_overrides, baud=baud, period_ms=period_ms,
+                            duration_s=20.0)  # fmt: skip
     m = record.manifest
     assert m["outcome"] == "completed" and m["steps"] == round(20_000 / period_ms)
-    assert sum(m["counts"]["late"].values()) == 0, m["counts"]
+    print(witness.summary(), "; late:", m["counts"]["late"])
+    assert witness.unexcused(record) == {}, (m["counts"], witness.summary())
     summary = json.loads((record.run_dir / "summary.json").read_text())
     assert {"trajectory.png", "raster.png"} <= set(summary["figures"])
     assert summary["behaviour"]["distance_m"] > 0.1  # the culture drove the robot
