@@ -91,10 +91,11 @@ class PageClient:
         return (self.frames - 1) / span if span > 0 else 0.0
 
 
-def dashboard_ab(seconds: float, pairs: int) -> dict:
+def dashboard_ab(seconds: float, pairs: int, sets: list[str] = ()) -> dict:
     """Lockstep without (A) and with (B) the dashboard, interleaved A B B A ...; each B run
     with a page connected. Besides the speed, the hub's CPU time per step (the lockstep
-    loop's bound on two cores) and the dashboard process's own CPU share (its log)."""
+    loop's bound on two cores) and the dashboard process's own CPU share (its log).
+    ``sets``: more ``--set KEY=VALUE`` for the B runs (``dashboard.yield_cpu=false``)."""
     x = {"A": [], "B": []}
     hub_us = {"A": [], "B": []}
     fps, dash_cpu, dash_cpu_stepping = [], [], []
@@ -106,6 +107,7 @@ def dashboard_ab(seconds: float, pairs: int) -> dict:
                 if which == "B":
                     port = free_tcp_port()
                     extra = ["--dashboard", "--set", f"dashboard.port={port}"]
+                    extra += [a for item in sets for a in ("--set", item)]
                     page = PageClient(port)
                 with tempfile.TemporaryDirectory() as tmp:
                     m, _ = run("lockstep", seconds, Path(tmp) / "runs", *extra)
@@ -180,11 +182,16 @@ def main() -> None:
     parser.add_argument(
         "--only-dashboard", action="store_true", help="only the dashboard's A/B runs"
     )
+    parser.add_argument(
+        "--dashboard-set", action="append", default=[], metavar="KEY=VALUE",
+        help="a --set for the runs with the dashboard (e.g. dashboard.yield_cpu=false)",
+    )  # fmt: skip
     args = parser.parse_args()
     end_children_on_signal()
     out = {}
     if args.only_dashboard:
-        out.update(dashboard_ab(args.seconds, args.dashboard_pairs))
+        out.update(dashboard_ab(args.seconds, args.dashboard_pairs, args.dashboard_set))
+        out["dashboard_sets"] = args.dashboard_set
         out["seconds"] = args.seconds
         print(json.dumps(out))
         return
@@ -244,7 +251,8 @@ def main() -> None:
     out["rt10_max_lateness_ms"] = round(t["lateness_ms_max"], 3)
     out["rt_scheduling"] = _scheduling(sched)
     if args.dashboard_pairs > 0:
-        out.update(dashboard_ab(args.seconds, args.dashboard_pairs))
+        out.update(dashboard_ab(args.seconds, args.dashboard_pairs, args.dashboard_set))
+        out["dashboard_sets"] = args.dashboard_set
     out["seconds"] = args.seconds
     print(json.dumps(out))
 

@@ -51,11 +51,15 @@ def run_dashboard(
         source = ReplaySource(replay, state, speed=speed)
         what = f"replay of {replay} at {speed:g}x"
     else:
+        from hub.scheduling import yield_cpu
+
         from .observer import BusObserver
 
+        # before the bus's and the server's threads start: they inherit it
+        scheduling = yield_cpu() if cfg.dashboard.yield_cpu else "normal: dashboard.yield_cpu"
         # the dashboard's own experiment file, if it was given one, stands in for the hub's
         source = BusObserver(cfg.bus, state, cfg.to_dict() if cfg.source else None)
-        what = f"live: session {cfg.bus.session!r}, hub at {source.where}"
+        what = f"live: session {cfg.bus.session!r}, hub at {source.where}; scheduling {scheduling}"
     serve(
         source,
         state,

@@ -246,6 +246,11 @@ class DashboardSection:
     # `neuvision run --dashboard` holds the run's first step until the dashboard watches
     # (it has read the run's world and subscribed), at most this long; 0: start at once.
     wait_s: float = field(default=20.0, metadata=bounds(ge=0, le=600))
+    # A live dashboard takes the CPU only when the run's processes leave it idle
+    # (SCHED_IDLE): on the run's machine it never slows the loop; on full CPUs it sends
+    # fewer frames. false: the ordinary scheduler (a busy machine of its own, far from
+    # the run).
+    yield_cpu: bool = True
 
 
 @dataclass(frozen=True)

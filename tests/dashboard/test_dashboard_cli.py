@@ -3,11 +3,14 @@
 from __future__ import annotations
 
 import json
+import os
 import re
 import signal
 import subprocess
 import sys
 import urllib.request
+
+import pytest
 
 from dashboard.server import bind
 from hub.cli import main
@@ -63,6 +66,34 @@ def test_neuvision_dashboard_serves_a_replay_until_sigterm(tmp_path):
         assert "replay of" in line
         frame = json.loads(urllib.request.urlopen(url + "frame", timeout=10).read())
         assert frame["source"]["kind"] == "replay" and frame["replay"]["speed"] == 4.0
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        rest = proc.communicate(timeout=20)[1]
+    assert proc.returncode == 0, rest
+
+
+def _policies(pid: int) -> set[int]:
+    """The scheduling policy of every thread of process ``pid``."""
+    return {os.sched_getscheduler(int(tid)) for tid in os.listdir(f"/proc/{pid}/task")}
+
+
+@pytest.mark.parametrize("yield_cpu, policy", [("true", "SCHED_IDLE"), ("false", "SCHED_OTHER")])
+def test_a_live_dashboard_takes_the_cpu_only_when_the_run_leaves_it_idle(
+    bus_overrides, yield_cpu, policy
+):
+    sets = [a for o in bus_overrides for a in ("--set", o)]
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "hub.cli", "dashboard", "--port", "0", *sets]
+        + ["--set", f"dashboard.yield_cpu={yield_cpu}"],
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        line = proc.stderr.readline()  # the first line: where, and how it is scheduled
+        url = re.search(r"dashboard at (http://\S+)", line).group(1)
+        assert ("scheduling idle" in line) == (yield_cpu == "true"), line
+        urllib.request.urlopen(url, timeout=10).read()  # serving, its threads all started
+        assert _policies(proc.pid) == {getattr(os, policy)}
     finally:
         proc.send_signal(signal.SIGTERM)
         rest = proc.communicate(timeout=20)[1]
