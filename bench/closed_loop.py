@@ -5,7 +5,9 @@
    step (measured by the endpoints themselves), and the hub's busy time (wall time minus
    the time the hub spent waiting for replies), and the CPU time per step of each
    process: on a machine with few cores, the loop is bound by their sum.
-2. A realtime run at a 10 ms period: late steps and the lateness of step starts.
+2. A realtime run at a 10 ms period: late steps and the lateness of step starts, and the
+   host's stalls seen meanwhile (``tests/stall_witness.py``): how many missed replies no
+   stall explains.
 3. The cost of the live dashboard: lockstep runs without and with ``--dashboard`` (a page
    connected by websocket, taking every frame), interleaved A/B/B/A in this session;
    ``x_realtime_lockstep_with_dashboard`` against ``x_realtime_lockstep_ab`` (medians).
@@ -36,6 +38,8 @@ sys.path.insert(0, str(ROOT))
 
 from bench.host import StealMeter, child_run, end_children_on_signal  # noqa: E402
 from hub.bus import free_tcp_port  # noqa: E402
+from hub.record import read_run  # noqa: E402
+from tests.stall_witness import StallWitness  # noqa: E402
 
 
 def run(mode: str, seconds: float, runs_dir: Path, *extra: str) -> tuple[dict, float]:
@@ -234,7 +238,10 @@ def main() -> None:
         extra = []
         if args.realtime_priority is not None:
             extra = ["--set", f"loop.realtime_priority={args.realtime_priority}"]
-        m, steal = run("realtime", args.seconds, Path(tmp) / "realtime", *extra)
+        with StallWitness() as witness:
+            m, steal = run("realtime", args.seconds, Path(tmp) / "realtime", *extra)
+        (run_dir,) = [p for p in (Path(tmp) / "realtime").iterdir() if p.is_dir()]
+        stalls = witness.figures(read_run(run_dir))
     t = m["timing"]
     sched = t["scheduling"]
     print(
@@ -242,9 +249,12 @@ def main() -> None:
         f"{t['late_steps']}, lateness median "
         f"{t['lateness_ms_median']:.3f} ms, p99 {t['lateness_ms_p99']:.3f} ms, "
         f"max {t['lateness_ms_max']:.3f} ms; missing {m['counts']['missing']}; "
-        f"CPU steal {steal:.1%}"
+        f"CPU steal {steal:.1%}; {witness.summary()}, replies missed "
+        f"{stalls['missed_replies']}, of which no stall explains "
+        f"{stalls['missed_replies_unexplained']}"
     )
     out["rt10_steal_share"] = round(steal, 4)
+    out.update({f"rt10_{k}": v for k, v in stalls.items()})
     out["rt10_late_steps"] = t["late_steps"]
     out["rt10_p99_lateness_ms"] = round(t["lateness_ms_p99"], 4)
     out["rt10_median_lateness_ms"] = round(t["lateness_ms_median"], 4)

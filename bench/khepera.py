@@ -5,7 +5,8 @@
    (the bytes of both exchanges at 11 bits a byte: 8N2); and a Khepera III's at 115200
    (its dialect: typed integers, 12 fields in ``N``; 8N1, 10 bits a byte).
 2. A hybrid realtime run (emulated Khepera + simulated culture, configs/hybrid_khepera.toml)
-   at 9600 baud and a 50 ms period: late steps, and the age of the readings the steps got.
+   at 9600 baud and a 50 ms period: late steps, and the age of the readings the steps got;
+   the host's stalls seen meanwhile (``tests/stall_witness.py``).
 
     python bench/khepera.py                # 200 cycles per baud, a 20 s hybrid run
     python bench/khepera.py --seconds 60
@@ -31,6 +32,8 @@ from adapters.khepera.link import SerialLink, byte_time_s, open_port  # noqa: E4
 from adapters.khepera.protocol import command  # noqa: E402
 from bench.host import StealMeter, child_popen, child_run, end_children_on_signal  # noqa: E402
 from devices.khepera import MODELS  # noqa: E402
+from hub.record import read_run  # noqa: E402
+from tests.stall_witness import StallWitness  # noqa: E402
 
 EMULATE = [sys.executable, "-m", "hub.cli", "emulate", "khepera"]
 
@@ -101,12 +104,13 @@ def hybrid(seconds: float, baud: int, period_ms: float) -> dict:
             cmd += ["--quiet", "--duration-s", str(seconds), "--runs-dir", tmp]
             cmd += ["--session", "bench-khepera", "--set", f'body.params.port="{path}"']
             cmd += ["--set", f"body.params.baud={baud}", "--set", f"loop.period_ms={period_ms}"]
-            with StealMeter() as steal:
+            with StealMeter() as steal, StallWitness() as witness:
                 done = child_run(cmd, cwd=ROOT)
             if done.returncode != 0:
                 raise SystemExit(f"hybrid run failed:\n{done.stderr[-2000:]}")
             (run_dir,) = Path(tmp).iterdir()
             m = json.loads((run_dir / "manifest.json").read_text())
+            stalls = witness.figures(read_run(run_dir))
     finally:
         proc.terminate()
         proc.wait(timeout=10)
@@ -117,10 +121,12 @@ def hybrid(seconds: float, baud: int, period_ms: float) -> dict:
         f"late {t['late_steps']}, lateness p99 {t['lateness_ms_p99']:.2f} ms; serial cycle "
         f"p50 {device['cycle_ms_p50']:.1f} ms; reading age p50 "
         f"{device['reading_age_ms_p50']:.1f} ms, p99 {device['reading_age_ms_p99']:.1f} ms; "
-        f"CPU steal {steal.share:.1%}"
+        f"CPU steal {steal.share:.1%}; {witness.summary()}, replies missed "
+        f"{stalls['missed_replies']}, of which no stall explains "
+        f"{stalls['missed_replies_unexplained']}"
     )
     return {"late": t["late_steps"], "age_p99_ms": device["reading_age_ms_p99"],
-            "steal": steal.share}  # fmt: skip
+            "steal": steal.share, "stalls": stalls}  # fmt: skip
 
 
 def main() -> None:
@@ -143,6 +149,7 @@ def main() -> None:
     out["reading_age_ms_p99"] = round(h["age_p99_ms"], 2)
     out["hybrid_late_steps"] = h["late"]
     out["hybrid_steal_share"] = round(h["steal"], 4)
+    out.update({f"hybrid_{k}": v for k, v in h["stalls"].items()})
     out["hybrid_s"] = args.seconds
     print(json.dumps(out))
 

@@ -3,8 +3,10 @@
 A hybrid realtime run (emulated Intan RHX + simulated arena, configs/hybrid_mea.toml): how
 long a pulse waits from its due time to its trigger being sent (stim_to_trigger), how long a
 spike waits from being read off the spike port to leaving in a SpikeBatch (spike_to_batch),
-and the late steps, at a 10 ms and a 20 ms period. Spikes are streamed in parts of their
-window as they come (contract v4, ``culture.params.stream_spikes_ms``, 1 ms by default);
+and the late steps, at a 10 ms and a 20 ms period, with the host's stalls seen meanwhile
+(``tests/stall_witness.py``: how many missed replies no stall explains). Spikes are
+streamed in parts of their window as they come (contract v4,
+``culture.params.stream_spikes_ms``, 1 ms by default);
 ``--stream-spikes-ms 0`` measures the same runs with one batch per window.
 
     python bench/mea.py                 # 20 s per period
@@ -28,6 +30,8 @@ sys.path.insert(0, str(ROOT))
 
 from bench.host import StealMeter, child_popen, child_run, end_children_on_signal  # noqa: E402
 from hub.bus import free_tcp_port  # noqa: E402
+from hub.record import read_run  # noqa: E402
+from tests.stall_witness import StallWitness  # noqa: E402
 
 
 def hybrid(seconds: float, period_ms: float, stream_spikes_ms: float | None = None) -> dict:
@@ -49,12 +53,13 @@ def hybrid(seconds: float, period_ms: float, stream_spikes_ms: float | None = No
                 cmd += ["--set", item]
             if stream_spikes_ms is not None:
                 cmd += ["--set", f"culture.params.stream_spikes_ms={stream_spikes_ms}"]
-            with StealMeter() as steal:
+            with StealMeter() as steal, StallWitness() as witness:
                 done = child_run(cmd, cwd=ROOT)
             if done.returncode != 0:
                 raise SystemExit(f"hybrid run failed:\n{done.stderr[-2000:]}")
             (run_dir,) = Path(tmp).iterdir()
             m = json.loads((run_dir / "manifest.json").read_text())
+            stalls = witness.figures(read_run(run_dir))
     finally:
         emu.terminate()
         emu.wait(timeout=10)
@@ -68,9 +73,11 @@ def hybrid(seconds: float, period_ms: float, stream_spikes_ms: float | None = No
         f"{device['spike_to_batch_ms_p99']:.2f} ms; late spikes {device['late_spikes']}; "
         f"{device.get('spike_parts_sent', 0) / max(t['steps'], 1):.2f} parts a step; hub CPU "
         f"{t['hub_cpu_s'] / max(t['steps'], 1) * 1e6:.0f} µs a step; clock drift "
-        f"{device['clock_drift_ppm']:.1f} ppm; CPU steal {steal.share:.1%}"
+        f"{device['clock_drift_ppm']:.1f} ppm; CPU steal {steal.share:.1%}; "
+        f"{witness.summary()}, replies missed {stalls['missed_replies']}, of which no stall "
+        f"explains {stalls['missed_replies_unexplained']}"
     )
-    return {"timing": t, "device": device, "steal": steal.share}
+    return {"timing": t, "device": device, "steal": steal.share, "stalls": stalls}
 
 
 def main() -> None:
@@ -91,6 +98,7 @@ def main() -> None:
         out[f"{tag}_spike_to_batch_ms_p99"] = round(d["spike_to_batch_ms_p99"], 3)
         out[f"{tag}_hybrid_late_steps"] = r["timing"]["late_steps"]
         out[f"{tag}_steal_share"] = round(r["steal"], 4)
+        out.update({f"{tag}_{k}": v for k, v in r["stalls"].items()})
         out[f"{tag}_spike_parts_per_step"] = round(
             d.get("spike_parts_sent", 0) / max(r["timing"]["steps"], 1), 3
         )

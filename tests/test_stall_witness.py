@@ -49,3 +49,12 @@ def test_a_missed_step_is_excused_by_a_stall_between_its_window_and_its_deadline
     assert witness.unexcused(record) == {"culture": [10, 50]}
     witness.stalls = [(1_080 * MS, 1_089 * MS, 1)]  # before its window: no excuse
     assert witness.unexcused(record) == {"culture": [10, 50]}
+
+
+def test_a_benchmark_reports_the_stalls_and_the_missed_replies_no_stall_explains():
+    witness = StallWitness()
+    witness.stalls = [(1_095 * MS, 1_101 * MS, 0), (2_000 * MS, 2_004 * MS, 1)]
+    figures = witness.figures(record_with_missed([10, 50]))
+    assert figures["missed_replies"] == 2 and figures["missed_replies_unexplained"] == 1
+    if witness.active:
+        assert figures["host_stalls"] == 2 and figures["host_stall_max_ms"] == 6.0
