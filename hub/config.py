@@ -246,10 +246,9 @@ class DashboardSection:
     # `neuvision run --dashboard` holds the run's first step until the dashboard watches
     # (it has read the run's world and subscribed), at most this long; 0: start at once.
     wait_s: float = field(default=20.0, metadata=bounds(ge=0, le=600))
-    # A live dashboard takes the CPU only when the run's processes leave it idle
-    # (SCHED_IDLE): on the run's machine it never slows the loop; on full CPUs it sends
-    # fewer frames. false: the ordinary scheduler (a busy machine of its own, far from
-    # the run).
+    # A live dashboard takes a CPU only when the run's processes leave one idle
+    # (SCHED_IDLE): it never takes a CPU the loop wants, and on full CPUs it sends fewer
+    # frames. false: the ordinary scheduler (a busy machine of its own, far from the run).
     yield_cpu: bool = True
 
 

@@ -119,14 +119,14 @@ def restore_threads(got: Scheduling) -> None:
 
 def yield_cpu() -> str:
     """Put every thread of this process, and the threads they start from now on, under
-        ``SCHED_IDLE``: they take a CPU only when no other process wants it, and give it up
-        the moment one does.
+    ``SCHED_IDLE``: they take a CPU only when no other process wants it, and give it up
+    the moment one does.
 
-        For a process that watches a run on the run's machine (the live dashboard): it then
-        never slows the loop, and when the CPUs are full it falls behind instead (it drops
-        frames, not steps). Call it before the process starts the threads that work (Zenoh's,
-    a server's): those started after inherit it. Returns
-        ``"idle"``, or why the process stays under the ordinary scheduler.
+    For a process that watches a run on the run's machine (the live dashboard): it then
+    does not take a CPU from the loop, and when the CPUs are full it falls behind instead
+    (it drops frames, not steps). Call it before the process starts the threads that work
+    (Zenoh's, a server's): those started later inherit it. Returns ``"idle"``, or why the
+    process stays under the ordinary scheduler.
     """
     if not hasattr(os, "SCHED_IDLE"):
         return "normal: this platform has no SCHED_IDLE"
