@@ -73,7 +73,7 @@ class StallWitness:
     ----------
     active : bool
         Whether witnesses ran (``SCHED_FIFO`` permitted); if not, :attr:`stalls` is empty
-        and :meth:`excuses` excuses nothing.
+        and :meth:`unexcused` excuses nothing.
     stalls : list of (int, int, int)
         Each stall seen: wall-clock start and end (ns, as a record's frames) and the CPU.
     """
@@ -127,9 +127,9 @@ class StallWitness:
 
         Generous on purpose: a stall of either CPU excuses a step, though the late process
         may have run on the other (a stall of 9 ms on one of two vCPUs was seen to leave a
-        realtime closed loop's steps on time). Stalls come about once in ten seconds here,
-        each excusing some 30 ms, so a step of the code's own lateness is rarely excused by
-        chance."""
+        realtime closed loop's steps on time). A realtime run here sees a few stalls in twenty
+        seconds, each excusing some 30 ms, so a step of the code's own lateness is rarely
+        excused by chance."""
         period_ns = int(record.manifest["timing"]["period_ms"] * 1e6)
         first_tx_ns = next(f.t_wall_ns for f in record.frames if f.direction == "tx")
         out: dict[str, list[int]] = {}
