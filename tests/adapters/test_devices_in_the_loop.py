@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from tests.harness import harness
+from tests.stall_witness import StallWitness
 
 DEVICE = 'body.kind="tests.endpoints:DeviceBody"'
 
@@ -45,13 +46,16 @@ def test_a_culture_answering_after_its_window_needs_a_deadline_between_one_and_t
 def test_its_reply_trails_by_a_step_and_the_loop_keeps_time(tmp_path, bus_overrides):
     from hub.protocol import MotorCommand
 
-    with harness(
+    with StallWitness() as witness, harness(
         tmp_path, bus_overrides, TRAILING, 'loop.mode="realtime"', "loop.period_ms=10",
         "loop.deadline_ms=18", "experiment.duration_s=0.5",
     ) as h:  # fmt: skip
         result = h.run()
     assert result.outcome == "completed" and result.steps == 50
-    assert result.counts["missing"] == {} and result.timing["late_steps"] == 0
+    # none late, but where the host held a CPU (tests/stall_witness.py)
+    excused = bool(witness.stalls) and witness.unexcused(h.record) == {}
+    assert result.timing["late_steps"] == 0 or excused, (result.timing, witness.summary())
+    assert result.counts["missing"] == {} or excused
     motors = h.sent(MotorCommand)
     # the motor command of step k is decoded from the spikes of step k-2: two steps of latency
     assert [motors[k].left_mps for k in range(2, 50)] == [float(k - 2) for k in range(2, 50)]
