@@ -91,6 +91,8 @@ def test_a_live_dashboard_takes_the_cpu_only_when_the_run_leaves_it_idle(
     try:
         line = proc.stderr.readline()  # the first line: where, and how it is scheduled
         url = re.search(r"dashboard at (http://\S+)", line).group(1)
+        if "SCHED_IDLE refused" in line:
+            pytest.skip(f"this machine refuses SCHED_IDLE: {line.strip()}")
         assert ("scheduling idle" in line) == (yield_cpu == "true"), line
         urllib.request.urlopen(url, timeout=10).read()  # serving, its threads all started
         assert _policies(proc.pid) == {getattr(os, policy)}
