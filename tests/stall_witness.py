@@ -142,14 +142,23 @@ class StallWitness:
                 out.setdefault(role, []).append(step)
         return out
 
+    def explains_every_miss(self, record) -> bool:
+        """Whether the host stalled during the run and every missed reply of ``record``
+        lies in a stall: a test that asks for no late step may then accept some."""
+        return bool(self.stalls) and self.unexcused(record) == {}
+
+    @property
+    def longest_ms(self) -> float:
+        """The longest stall seen (ms; 0 if none)."""
+        return max(((e - s) * 1e-6 for s, e, _ in self.stalls), default=0.0)
+
     def figures(self, record) -> dict:
         """What a realtime benchmark reports of a run's ``record``: the stalls seen during
         it, the replies it missed, and how many of those no stall explains."""
         missed = sum(1 for e in record.events if e.key == "missed")
         return {
             "host_stalls": len(self.stalls) if self.active else None,
-            "host_stall_max_ms": round(max(((e - s) * 1e-6 for s, e, _ in self.stalls),
-                                           default=0.0), 2) if self.active else None,
+            "host_stall_max_ms": round(self.longest_ms, 2) if self.active else None,
             "missed_replies": missed,
             "missed_replies_unexplained": sum(map(len, self.unexcused(record).values())),
         }  # fmt: skip
@@ -158,5 +167,4 @@ class StallWitness:
         """One line: how many stalls, and the longest."""
         if not self.active:
             return "stall witness: not run (SCHED_FIFO not permitted)"
-        longest_ms = max(((e - s) * 1e-6 for s, e, _ in self.stalls), default=0.0)
-        return f"stall witness: {len(self.stalls)} stalls, longest {longest_ms:.1f} ms"
+        return f"stall witness: {len(self.stalls)} stalls, longest {self.longest_ms:.1f} ms"

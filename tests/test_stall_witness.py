@@ -52,6 +52,11 @@ def test_a_missed_step_is_excused_by_a_stall_between_its_window_and_its_deadline
     assert witness.unexcused(record) == {"culture": [10, 50]}
     witness.stalls = [(1_080 * MS, 1_089 * MS, 1)]  # before its window: no excuse
     assert witness.unexcused(record) == {"culture": [10, 50]}
+    assert not witness.explains_every_miss(record)
+    witness.stalls = [(1_095 * MS, 1_101 * MS, 0), (1_500 * MS, 1_510 * MS, 1)]
+    assert witness.explains_every_miss(record)
+    witness.stalls = []  # no stall: nothing to explain a miss with
+    assert not witness.explains_every_miss(record_with_missed([]))
 
 
 def test_a_benchmark_reports_the_stalls_and_the_missed_replies_no_stall_explains():
