@@ -2,8 +2,13 @@
 
 from __future__ import annotations
 
+import gc
 import math
+import subprocess
+import sys
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 
 import numpy as np
 
@@ -12,7 +17,42 @@ from adapters.khepera.driver import KheperaDriver, WheelUnits
 from adapters.khepera.emulator import KheperaEmulator
 from adapters.khepera.endpoint import KheperaEndpoint
 from adapters.khepera.link import SerialLink, open_port
+from hub.launch import die_with_parent
 from tests.harness import wait_for
+
+
+@contextmanager
+def frozen_heap() -> Iterator[None]:
+    """The test session's objects left out of garbage collections meanwhile (a full one of
+    them takes ~120 ms): for a realtime run against an emulator on a thread of this
+    process, whose replies a collection would hold up."""
+    gc.freeze()
+    try:
+        yield
+    finally:
+        gc.unfreeze()
+
+
+@contextmanager
+def emulator_process(baud: int) -> Iterator[str]:
+    """``neuvision emulate khepera --baud BAUD`` in a process of its own, as a robot is a
+    device of its own; yields its device path.
+
+    For realtime runs: an emulator on a thread of the test's process would share its
+    interpreter, and a full garbage collection of the test session's objects (~230,000
+    after collection, ~120 ms) would hold its replies (a CI run's readings 131 ms old)."""
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "hub.cli", "emulate", "khepera", "--baud", str(baud)],
+        stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
+        preexec_fn=die_with_parent,
+    )  # fmt: skip
+    try:
+        path = proc.stdout.readline().strip()
+        assert path.startswith("/dev/"), f"the emulator printed {path!r}"
+        yield path
+    finally:
+        proc.terminate()
+        proc.wait(timeout=10)
 
 
 def open_link(emulator: KheperaEmulator, *, baud=9600, timeout_s=0.25, silent_s=1.0):

@@ -27,6 +27,7 @@ from hub.protocol import SensorReading
 from hub.record import read_run
 from tests.adapters.khepera_rig import (
     check_odometry_follows_an_arc,
+    frozen_heap,
     make_driver,
     make_endpoint,
     open_link,
@@ -163,7 +164,8 @@ def test_the_emulator_of_a_khepera3_needs_an_ir_table():
 @pytest.mark.bus
 @pytest.mark.slow  # the dialect is checked above; this adds a whole run (the default run's margin)
 def test_a_short_hybrid_run_with_a_khepera3(tmp_path, bus_overrides, table_file):
-    with KheperaEmulator(dialect="khepera3", ir_table=TABLE, baud=115200, stop_bits=1) as emu:
+    emulated = KheperaEmulator(dialect="khepera3", ir_table=TABLE, baud=115200, stop_bits=1)
+    with frozen_heap(), emulated as emu:
         sets = [*bus_overrides, f'body.params.port="{emu.path}"', 'body.params.dialect="khepera3"',
                 f'body.params.ir_table_file="{table_file}"', "body.params.baud=115200",
                 'body.params.world="configs/worlds/khepera3.toml"',

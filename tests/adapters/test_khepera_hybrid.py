@@ -8,9 +8,9 @@ import sys
 
 import pytest
 
-from adapters.khepera.emulator import KheperaEmulator
 from hub.protocol import SensorReading
 from hub.record import read_run
+from tests.adapters.khepera_rig import emulator_process
 from tests.stall_witness import StallWitness
 
 pytestmark = pytest.mark.bus
@@ -18,8 +18,8 @@ HYBRID = "configs/hybrid_khepera.toml"
 
 
 def hybrid_run(tmp_path, bus_overrides, *, baud, period_ms, duration_s):
-    with KheperaEmulator(baud=baud) as emulator:
-        sets = [*bus_overrides, f'body.params.port="{emulator.path}"', f"body.params.baud={baud}",
+    with emulator_process(baud) as path:
+        sets = [*bus_overrides, f'body.params.port="{path}"', f"body.params.baud={baud}",
                 f"loop.period_ms={period_ms}"]  # fmt: skip
         args = [sys.executable, "-m", "hub.cli", "run", HYBRID, "--quiet"]
         args += ["--duration-s", str(duration_s), "--runs-dir", str(tmp_path)]

@@ -136,15 +136,15 @@ def test_a_20_s_hybrid_run_at_10_ms_keeps_time_but_where_the_host_stalls(tmp_pat
 def test_a_short_run_with_both_devices_emulated(tmp_path, bus_overrides):
     """configs/hybrid_both.toml: the emulated Khepera (a pseudo-terminal) driven by the
     emulated Intan (its own process), both in real time."""
-    from adapters.khepera.emulator import KheperaEmulator
     from hub.protocol import SensorReading
+    from tests.adapters.khepera_rig import emulator_process
 
     emu, points_at = emulator()
     try:
-        with KheperaEmulator(baud=9600) as robot:
+        with emulator_process(9600) as robot_path:
             args = [sys.executable, "-m", "hub.cli", "run", "configs/hybrid_both.toml", "--quiet",
                     "--duration-s", "3.0", "--runs-dir", str(tmp_path)]  # fmt: skip
-            for item in [*bus_overrides, *points_at, f'body.params.port="{robot.path}"']:
+            for item in [*bus_overrides, *points_at, f'body.params.port="{robot_path}"']:
                 args += ["--set", item]
             done = subprocess.run(args, capture_output=True, text=True, timeout=180)
         assert done.returncode == 0, done.stderr[-2000:]
