@@ -70,7 +70,7 @@ from hub.protocol import (
     StepWindow,
 )
 from hub.realtime import Realtime
-from hub.record import Recorder, host, utc_now, versions, write_manifest
+from hub.record import Recorder, experiment_text, host, utc_now, versions, write_manifest
 from hub.replies import ReplyChecker
 from hub.report import LoopTimes, counts, steps_share
 from hub.scheduling import (
@@ -260,6 +260,7 @@ class Hub:
             "seed": cfg.experiment.seed,
             "run_id": self.run_id,
             "config_source": cfg.source,
+            "config_text": experiment_text(cfg.source),
             "config": cfg.to_dict(),
             "versions": versions(),
             "hosts": {"hub": host()},

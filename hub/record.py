@@ -110,6 +110,18 @@ def host() -> dict[str, str]:
     return {"hostname": socket.gethostname(), "platform": platform.platform()}
 
 
+def experiment_text(source: str | Path | None) -> str | None:
+    """The experiment file's text as the run starts, for the manifest (``config_text``):
+    the file may be edited or gone by the time the run is read. None without a file, or
+    if it cannot be read now (the resolved ``config`` beside it still says what ran)."""
+    if not source:
+        return None
+    try:
+        return Path(source).read_text()
+    except (OSError, UnicodeDecodeError):
+        return None
+
+
 def write_manifest(run_dir: Path, manifest: dict[str, Any]) -> None:
     """Write ``manifest.json`` atomically (a reader never sees half a file)."""
     tmp = run_dir / (MANIFEST_FILE + ".tmp")

@@ -138,10 +138,18 @@ def _culture_description(m: dict) -> str:
 
 
 def _protocol(m: dict) -> str:
-    source = m.get("config_source")
-    if source and Path(source).is_file():
-        return Path(source).read_text()
-    return json.dumps(m.get("config", {}), indent=2, default=str)
+    """The experiment file's text as it was when the run started (kept in the manifest),
+    then what ran: the config resolved (its ``extends``, ``--set`` and defaults applied,
+    the culture's and the world's contents in place). Never the file as it is now."""
+    resolved = json.dumps(m.get("config", {}), indent=2, default=str)
+    text = m.get("config_text")
+    if not text:  # a record from before the manifest kept the text
+        return f"# the config that ran, resolved (JSON)\n{resolved}\n"
+    return (
+        f"# the experiment file {m.get('config_source')}, as the run started\n{text}\n"
+        f"# the config that ran, resolved (extends, --set and defaults applied; JSON)\n"
+        f"{resolved}\n"
+    )
 
 
 def _culture(nwb, run: Run) -> None:

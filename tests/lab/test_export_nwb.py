@@ -4,11 +4,14 @@ from __future__ import annotations
 
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from neuvision import Experiment
+
+ROOT = Path(__file__).resolve().parents[2]
 
 pynwb = pytest.importorskip("pynwb")
 
@@ -50,6 +53,29 @@ def test_spikes_pulses_poses_and_commands_round_trip(exported):
         assert behaviour["sensor_ranges"].data.shape == run.sensors[1].shape
         assert f.identifier == run.manifest["run_id"]
         assert "[experiment]" in f.protocol  # the experiment file itself
+        assert '"sites_per_sensor": 4' in f.protocol  # ... and the config resolved
+
+
+def test_the_protocol_is_the_file_that_ran_not_the_file_as_it_is_now(tmp_path):
+    configs = ROOT / "configs"
+    experiment = tmp_path / "exp.toml"
+    experiment.write_text(
+        '# THE FILE THAT RAN\n[experiment]\nname = "exp"\nduration_s = 0.2\n'
+        f'[body]\nparams = {{ world = "{configs / "worlds" / "paper.toml"}" }}\n'
+        f'[culture]\nparams = {{ config = "{configs / "culture_1024.toml"}" }}\n'
+    )
+    run = Experiment(experiment).run(tmp_path / "runs")
+    experiment.write_text("# EDITED AFTER THE RUN\n")
+    path = tmp_path / "run.nwb"
+    done = subprocess.run(
+        [sys.executable, "-m", "hub.cli", "export", str(run.run_dir), "--nwb", str(path)],
+        capture_output=True, text=True, timeout=120, cwd=tmp_path,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    with pynwb.NWBHDF5IO(str(path), "r") as io:
+        protocol = io.read().protocol
+    assert "# THE FILE THAT RAN" in protocol and "EDITED" not in protocol
+    assert '"duration_s": 0.2' in protocol
 
 
 def test_nwbs_own_inspector_finds_nothing_critical(exported):
