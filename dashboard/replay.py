@@ -78,8 +78,10 @@ class ReplaySource:
             [b[k] for k in ("start_ms", "end_ms", "n_channels", "core_start_ms", "core_end_ms")]
             for b in rec.network_bursts()
         ]
-        self.bursts = sorted(sorted(bursts), key=lambda b: b[1])
-        self.burst_end_s = np.array([b[1] / 1e3 for b in self.bursts])
+        # Each is shown once its core has ended, as the live page learns of it: in a closed
+        # loop the extent of a stimulated channel's burst may last to the end of the run.
+        self.bursts = sorted(sorted(bursts), key=lambda b: b[4])
+        self.burst_shown_s = np.array([b[4] / 1e3 for b in self.bursts])
         self.noted: dict[str, list] = {"late": [], "missed": []}  # (run time, role)
         for e in events:
             if e.key in self.noted:
@@ -149,7 +151,7 @@ class ReplaySource:
         if b > a:
             state.add_pulses(self.pulse_channel[a:b], self.pulse_t_ms[a:b])
         self._spikes(t0, t1)
-        a, b = np.searchsorted(self.burst_end_s, [t0, t1], side="right")
+        a, b = np.searchsorted(self.burst_shown_s, [t0, t1], side="right")
         if b > a:
             state.add_bursts(self.bursts[a:b])
 
@@ -181,7 +183,7 @@ class ReplaySource:
         if b > a:
             state.add_pulses(self.pulse_channel[a:b], self.pulse_t_ms[a:b])
         self._spikes(t0, t1)
-        a, b = np.searchsorted(self.burst_end_s, [max(t1 - BURSTS_KEPT_S, 0), t1], side="right")
+        a, b = np.searchsorted(self.burst_shown_s, [max(t1 - BURSTS_KEPT_S, 0), t1], side="right")
         if b > a:
             state.add_bursts(self.bursts[a:b])
 

@@ -38,6 +38,9 @@ LIT_MS = 100.0  # a stimulated site stays lit this long
 TRAIL_POINTS = 5000  # trail points kept
 TRAIL_STEP_M = 0.002  # a trail point is added when the robot moved this far
 MAX_SPIKES_PER_FRAME = 20_000  # beyond: the newest only (counted in raster_capped)
+# ... but a page's first frame (a new page, a new run, a jump in a replay) gets the whole
+# raster up to this many (a 4 s raster of 1,024 channels at 60 spikes/s each)
+MAX_SPIKES_ON_RESET = 250_000
 BURSTS_SEEN_MAX = 256  # network bursts remembered as given (the hub repeats the latest)
 
 
@@ -331,7 +334,9 @@ class FrameState:
             "contact": self.contact,
             "motor": self.motor,
             "trail": streams["trail"],
-            "spikes": self._events(streams["spikes"], cap=MAX_SPIKES_PER_FRAME),
+            "spikes": self._events(
+                streams["spikes"], cap=MAX_SPIKES_ON_RESET if reset else MAX_SPIKES_PER_FRAME
+            ),
             "pulses": self._events(streams["pulses"]),
             "rates": streams["rates"],
             "ca": streams["ca"],
@@ -350,21 +355,28 @@ class FrameState:
     def _events(self, parts: list, cap: int | None = None) -> dict:
         """A stream's (times ms, channel indices) as base64 of little-endian arrays: ``n``,
         ``t0`` (ms), ``t`` (float32 ms after ``t0``) and ``i`` (uint32 channel indices in
-        the scene's order) — a few bytes a spike, and no per-spike Python."""
+        the scene's order) — a few bytes a spike, and no per-spike Python. Past ``cap``
+        only the newest go, and ``capped_before_ms`` says from when: the page shows the
+        time before as not shown, never as silence."""
         if not parts:
             return {"n": 0, "t0": 0.0, "t": "", "i": ""}
         t_ms = np.concatenate([p[0] for p in parts])
         idx = np.concatenate([p[1] for p in parts])
+        capped_before_ms = None
         if cap is not None and t_ms.size > cap:
             self.raster_capped += t_ms.size - cap
             t_ms, idx = t_ms[-cap:], idx[-cap:]
+            capped_before_ms = float(t_ms.min())
         t0 = float(np.floor(t_ms.min()))
-        return {
+        out = {
             "n": int(t_ms.size),
             "t0": t0,
             "t": _b64((t_ms - t0).astype("<f4")),
             "i": _b64(idx.astype("<u4")),
         }
+        if capped_before_ms is not None:
+            out["capped_before_ms"] = capped_before_ms
+        return out
 
     def _activity_bytes(self) -> str:
         """Each channel's recent activity, 0-255 (1 - exp(-a), a the decayed spike count),

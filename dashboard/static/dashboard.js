@@ -15,6 +15,7 @@ const nv = {
   step: -1, t_s: 0, pose: null, ranges: null, contact: false, motor: null,
   trail: [], spikes: [], pulses: [], rates: [], ca: [], bursts: [],
   activity: null, lit: [],
+  notShownBeforeMs: null,  // spikes before this run time were left out of a frame
   stats: { received: 0, drawn: 0, fps: 0, drawFps: 0, resets: 0, connected: false, serverDropped: 0, rasterSpikes: 0 },
   trace: [],   // [step, page wall ms when drawn, x, y, run time s]
   dirty: false,
@@ -75,8 +76,11 @@ function takeFrame(f) {
   while (receivedAt.length && receivedAt[0] < now - 2000) receivedAt.shift();
   if (f.reset) {
     nv.trail = []; nv.spikes = []; nv.pulses = []; nv.rates = []; nv.ca = []; nv.bursts = [];
+    nv.notShownBeforeMs = null;
     nv.stats.resets += 1;
   }
+  // more spikes than a frame carries: the older ones were left out, not silent
+  if (f.spikes.capped_before_ms !== undefined) nv.notShownBeforeMs = f.spikes.capped_before_ms;
   nv.source = f.source || {};
   nv.observer = f.observer || {};
   nv.status = f.status || {};
@@ -370,6 +374,13 @@ function drawRaster() {
   if (!cul) return;
   const n = cul.channel.length, rowH = (bottom - top) / n;
   const y = (i) => top + i * rowH;
+  if (nv.notShownBeforeMs !== null && nv.notShownBeforeMs / 1000 > t0) {
+    const e = x(nv.notShownBeforeMs / 1000);
+    ctx.fillStyle = "rgba(107, 115, 128, 0.18)";
+    ctx.fillRect(0, top, e, bottom - top);
+    ctx.fillStyle = "#6b7380"; ctx.font = `${11 * ratio}px system-ui, sans-serif`;
+    ctx.fillText("spikes not shown", 4 * ratio, top + 12 * ratio);
+  }
   shadeBursts(ctx, x, top, bottom, w, ratio);
   ctx.fillStyle = "#e0a800"; ctx.font = `${11 * ratio}px system-ui, sans-serif`;
   for (const b of nv.bursts) {

@@ -17,10 +17,14 @@ def pose(k: int) -> list[float]:
     return [0.001 * k, 0.0, 0.5]
 
 
-def write_run(run_dir, *, steps: int = N_STEPS) -> None:
+BURST = {"start_ms": 500.0, "end_ms": 560.0, "n_channels": 3, "core_start_ms": 520.0,
+         "core_end_ms": 530.0}  # fmt: skip
+
+
+def write_run(run_dir, *, steps: int = N_STEPS, bursts: tuple[dict, ...] = (BURST,)) -> None:
     """A closed loop of ``steps`` steps: a reading, a spike, a pulse and a command a step,
-    a network burst at 500-560 ms, a late body reply (step 50) and a missing culture reply
-    (step 70)."""
+    ``bursts`` (a network burst at 500-560 ms), a late body reply (step 50) and a missing
+    culture reply (step 70)."""
     run_dir.mkdir(parents=True, exist_ok=True)
     rec = Recorder(run_dir)
     body = Description(
@@ -67,15 +71,8 @@ def write_run(run_dir, *, steps: int = N_STEPS) -> None:
         if k != 70:
             spikes = SpikeBatch(**window.stamp, channel=[k % 4], t_ms=[5.0])
             rec.message("rx", "nv/s/culture/0/spikes", spikes.encode())
-    rec.event(
-        "network_burst",
-        start_ms=500.0,
-        end_ms=560.0,
-        n_channels=3,
-        core_start_ms=520.0,
-        core_end_ms=530.0,
-        at_step=60,
-    )
+    for burst in bursts:
+        rec.event("network_burst", **burst, at_step=int(burst["end_ms"] // PERIOD_MS) + 1)
     rec.event("late", role="body", step=50, at_step=52)
     rec.event("missed", role="culture", step=70)
     rec.close()

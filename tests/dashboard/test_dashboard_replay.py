@@ -10,7 +10,7 @@ import pytest
 from dashboard.replay import ReplayError, ReplaySource
 from dashboard.state import FrameState, Reader
 from hub.record import read_run, write_manifest
-from tests.dashboard.synthetic import N_STEPS, pose, write_run
+from tests.dashboard.synthetic import BURST, N_STEPS, pose, write_run
 
 
 @pytest.fixture
@@ -73,6 +73,22 @@ def test_a_jump_gives_the_state_the_history_a_page_shows_then(run_dir):
     assert frame["status"]["late"] == {"body": 1} and frame["status"]["missing"] == {"culture": 1}
     assert frame["status"]["dropped"] == {"body": 2}  # the run's, from the manifest
     assert frame["endpoints"]["body"]["counters"]["steps"] == N_STEPS
+
+
+def test_a_network_burst_shows_once_its_core_ended_though_its_extent_lasts_to_the_end(tmp_path):
+    """In a closed loop a stimulated channel's burst may hold a network burst's extent open
+    to the end of the run: the replay shows it when its core has ended, as the run's
+    detector knew it, with the extent as recorded."""
+    long = {**BURST, "end_ms": 2000.0}
+    write_run(tmp_path / "run", bursts=(long,))
+    source, state = _replay(tmp_path / "run", speed=10.0)
+    reader = Reader()
+    _advance(source, 0.052)  # to 0.52 s: the core (520-530 ms) is not over
+    assert state.frame(reader)["bursts"] == []
+    _advance(source, 0.002)  # to 0.54 s
+    assert state.frame(reader)["bursts"] == [[500.0, 2000.0, 3, 520.0, 530.0]]
+    source.command({"cmd": "seek", "t_s": 0.6})
+    assert state.frame(reader)["bursts"] == [[500.0, 2000.0, 3, 520.0, 530.0]]
 
 
 def test_the_replay_stops_at_the_end_and_plays_again_from_the_start(run_dir):

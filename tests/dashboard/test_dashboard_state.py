@@ -12,6 +12,7 @@ from dashboard.state import (
     ACTIVITY_TAU_MS,
     BIN_MS,
     LIT_MS,
+    MAX_SPIKES_PER_FRAME,
     RASTER_S,
     TRAIL_STEP_M,
     FrameState,
@@ -107,6 +108,23 @@ def test_each_page_gets_every_spike_once_and_a_new_page_all_that_is_kept():
     late = Reader()
     frame = state.frame(late)
     assert frame["reset"] and _events(frame["spikes"])[1].tolist() == [0, 2, 3]
+
+
+def test_a_frame_over_the_cap_carries_the_newest_and_says_from_when():
+    """A page that fell behind gets the newest MAX_SPIKES_PER_FRAME spikes and the time
+    before which some were left out (shown as not shown, never as silence); a page's first
+    frame, as after a jump in a replay, gets the whole raster."""
+    state = _state()
+    reader = Reader()
+    state.frame(reader)
+    n = MAX_SPIKES_PER_FRAME + 500
+    t_ms = np.linspace(0.0, 999.0, n)
+    state.add_spikes(np.full(n, 10), t_ms, 0.0, 1000.0)
+    spikes = state.frame(reader)["spikes"]
+    assert spikes["n"] == MAX_SPIKES_PER_FRAME
+    assert spikes["capped_before_ms"] == pytest.approx(t_ms[500])
+    first = state.frame(Reader())["spikes"]
+    assert first["n"] == n and "capped_before_ms" not in first
 
 
 def test_spikes_older_than_the_raster_are_let_go_and_unknown_channels_ignored():
