@@ -17,6 +17,7 @@ current folder, like any output path on a command line.
 from __future__ import annotations
 
 import dataclasses
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -76,12 +77,37 @@ def _callable(dotted: str, value: str) -> str:
     return value
 
 
+# A run folder is named <UTC time>-<experiment.name>: the name must be one safe folder-name
+# part (no separators, no "..", nothing a shell or another OS would trip on).
+NAME_CHARS = "letters, digits, '_', '-' and '.' (not first)"
+_NAME = re.compile(r"[A-Za-z0-9_-][A-Za-z0-9._-]{0,99}")
+
+
+def _name(dotted: str, value: str) -> str:
+    if not _NAME.fullmatch(value) or ".." in value:
+        raise ConfigError(
+            f"{dotted} must be 1 to 100 of {NAME_CHARS}, without '..' (it names the run "
+            f"folder), got {value!r}"
+        )
+    return value
+
+
+def _analysis(dotted: str, value: dict) -> dict:
+    from hub.analysis.metrics import AnalysisParams  # numpy and numba: only when given
+
+    try:
+        AnalysisParams.from_dict(value)
+    except ValueError as exc:  # AnalysisInputError, named analysis.<key>
+        raise ConfigError(str(exc)) from None
+    return value
+
+
 CPUS = bounds(parse=_cpus)
 
 
 @dataclass(frozen=True)
 class ExperimentSection:
-    name: str = "experiment"
+    name: str = field(default="experiment", metadata=bounds(check=_name))
     seed: int = field(default=0, metadata=bounds(ge=0))
     duration_s: float = field(default=10.0, metadata=bounds(gt=0))
     runs_dir: str = "runs"
@@ -271,6 +297,10 @@ class ExperimentConfig:
     record: RecordSection = field(default_factory=RecordSection)
     online: OnlineSection = field(default_factory=OnlineSection)
     dashboard: DashboardSection = field(default_factory=DashboardSection)
+    # Parameters of the offline analysis (`neuvision analyze`): hub.analysis AnalysisParams
+    # as a table (`bursts`, `network_bursts`, `psth_bin_ms`, ...), checked here, recorded
+    # in the manifest, and read back from it by lab.run_analysis. Absent: the paper's.
+    analysis: dict = field(default_factory=dict, metadata=bounds(check=_analysis))
     source: str = field(default="", metadata={"internal": True})
 
     def __post_init__(self) -> None:

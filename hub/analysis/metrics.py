@@ -41,6 +41,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+import settings
 from hub.analysis.bursts import BurstParams, bursting_rate_per_min, detect_bursts
 from hub.analysis.center_of_activity import Cat, cat_spread, center_of_activity_trajectories
 from hub.analysis.network_bursts import (
@@ -61,6 +62,7 @@ from hub.analysis.spikes import (
     isi_ms,
     psth,
 )
+from settings import bounds
 
 
 @dataclass(frozen=True)
@@ -92,13 +94,13 @@ class AnalysisParams:
     bursts: BurstParams = field(default_factory=BurstParams)
     network_bursts: NetworkBurstParams = field(default_factory=NetworkBurstParams)
     psth_window_ms: tuple[float, float] = (0.0, 300.0)
-    psth_bin_ms: float = 5.0
-    psth_min_latency_ms: float = 0.0
-    evoked_max_latency_ms: float = 200.0
-    cat_time_scale_ms: float = 50.0
-    cat_step_ms: float = 5.0
-    cat_n_points: int = 20
-    rate_bin_ms: float = 10.0
+    psth_bin_ms: float = field(default=5.0, metadata=bounds(gt=0))
+    psth_min_latency_ms: float = field(default=0.0, metadata=bounds(ge=0))
+    evoked_max_latency_ms: float = field(default=200.0, metadata=bounds(ge=0))
+    cat_time_scale_ms: float = field(default=50.0, metadata=bounds(gt=0))
+    cat_step_ms: float = field(default=5.0, metadata=bounds(gt=0))
+    cat_n_points: int = field(default=20, metadata=bounds(ge=2))
+    rate_bin_ms: float = field(default=10.0, metadata=bounds(gt=0))
 
     @classmethod
     def from_dict(cls, d: dict | None) -> AnalysisParams:
@@ -118,26 +120,16 @@ class AnalysisParams:
         Raises
         ------
         AnalysisInputError
-            For an unknown key (named) or a bad value.
+            Naming the key (``analysis.bursts.min_spikes must be an integer >= 2, got 1``):
+            an unknown key (with a "did you mean"), a value of the wrong type or out of its
+            limits.
         """
-        d = dict(d or {})
-        kw = {}
-        sub = {"bursts": BurstParams, "network_bursts": NetworkBurstParams}
-        names = {f.name for f in dataclasses.fields(cls)}
-        for key, value in d.items():
-            if key not in names:
-                raise AnalysisInputError(f"analysis.{key} is not a known parameter")
-            if key in sub:
-                allowed = {f.name for f in dataclasses.fields(sub[key])}
-                for k in value:
-                    if k not in allowed:
-                        raise AnalysisInputError(f"analysis.{key}.{k} is not a known parameter")
-                kw[key] = sub[key](**value)
-            elif key == "psth_window_ms":
-                kw[key] = tuple(float(v) for v in value)
-            else:
-                kw[key] = value
-        return cls(**kw)
+        try:
+            return settings.build(cls, dict(d or {}), "analysis.")
+        except settings.ConfigError as exc:  # unknown key, type, limit: named
+            raise AnalysisInputError(str(exc)) from None
+        except AnalysisInputError as exc:  # a burst definition's own check, placed under analysis
+            raise AnalysisInputError(f"analysis.{exc}") from None
 
     def to_dict(self) -> dict:
         """The parameters as nested plain dicts (what `from_dict` takes back).

@@ -233,3 +233,49 @@ def test_a_world_or_culture_table_stands_for_its_file():
         "spacing_um": 50.0,
         "inhibitory_fraction": 0.2,
     }
+
+
+# ------------------------------------------------------- [analysis] and the run folder's name
+
+
+def test_an_analysis_table_is_accepted_checked_and_recorded(tmp_path):
+    path = tmp_path / "exp.toml"
+    path.write_text("[analysis]\nbursts = { min_spikes = 4 }\npsth_bin_ms = 2.5\n")
+    cfg = load_config(path, ["analysis.network_bursts.min_fraction=0.5"])
+    recorded = cfg.to_dict()["analysis"]
+    assert recorded == {
+        "bursts": {"min_spikes": 4},
+        "psth_bin_ms": 2.5,
+        "network_bursts": {"min_fraction": 0.5},
+    }
+    assert load_config().to_dict()["analysis"] == {}  # absent: the paper's definitions
+
+
+@pytest.mark.parametrize(
+    "override, message",
+    [
+        ("analysis.bursts.min_spikes=1", "analysis.bursts.min_spikes must be an integer >= 2"),
+        ("analysis.bursts.min_spkes=4", "analysis.bursts.min_spkes is not a known key"),
+        ("analysis.bogus=1", "analysis.bogus is not a known key"),
+        ("analysis.psth_bin_ms=0", "analysis.psth_bin_ms must be > 0, got 0.0"),
+        ("analysis.network_bursts.min_fraction=2", "analysis.network_bursts.min_fraction"),
+        ("analysis=3", "analysis must be a table"),
+    ],
+)
+def test_a_bad_analysis_key_is_named(override, message):
+    with pytest.raises(ConfigError) as err:
+        load_config(None, [override])
+    assert message in str(err.value)
+
+
+@pytest.mark.parametrize("name", ["closed_loop", "run-2", "A.b_c", "_x"])
+def test_a_plain_experiment_name_is_a_folder_name(name):
+    assert load_config(None, [f'experiment.name="{name}"']).experiment.name == name
+
+
+@pytest.mark.parametrize(
+    "name", ["", "a/b", "../../escape", "..", ".hidden", "a\\\\b", "a b", "a..b", "x" * 101]
+)
+def test_a_name_that_is_not_one_safe_folder_name_is_refused(name):
+    with pytest.raises(ConfigError, match=r"^experiment\.name must be 1 to 100 of letters"):
+        load_config(None, [f'experiment.name="{name}"'])

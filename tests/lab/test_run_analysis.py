@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from hub.analysis.spikes import AnalysisInputError
+from hub.config import load_config
 from hub.protocol import Description, SensorReading, SpikeBatch, Stimulation
 from hub.record import Recorder, write_manifest
 from lab.run_analysis import analyze_run, stimulus_onsets_ms
@@ -19,9 +20,9 @@ STIM_EVERY_STEPS = 100  # one pulse a second
 EVOKED_LATENCIES_MS = np.array([55.0, 60.0, 61.0, 62.0, 63.0, 64.0, 70.0, 80.0])
 
 
-def _write_run(run_dir, n_steps=600, world="configs/worlds/paper.toml"):
+def _write_run(run_dir, n_steps=600, world="configs/worlds/paper.toml", config=None):
     """A hand-made 6 s run: culture description, stimulations, spikes, body poses."""
-    config = {"loop": {"period_ms": PERIOD_MS, "mode": "lockstep"}}
+    config = config or {"loop": {"period_ms": PERIOD_MS, "mode": "lockstep"}}
     if world is not None:
         config["body"] = {"kind": "sim_robot", "params": {"world": world}}
     manifest = {
@@ -123,6 +124,19 @@ def test_a_recorded_run_gives_metrics_figures_and_a_report(tmp_path):
     assert out["report_path"] == run_dir / "analysis" / "report.html"
     assert html.count("data:image/png;base64,") == len(names) // 2  # one image per figure
     assert "wall_s" in html and "period_ms" in html and "handmade" in html
+
+
+def test_analyze_uses_the_analysis_table_the_run_recorded(tmp_path):
+    # the evoked bursts take 10 of 20 channels: a network burst by the paper's 30 %, none
+    # when the run's experiment asked for 60 %
+    cfg = load_config(None, ["analysis.network_bursts.min_fraction=0.6"])
+    assert cfg.analysis == {"network_bursts": {"min_fraction": 0.6}}
+    for name, config in (("paper", None), ("strict", cfg.to_dict())):
+        run_dir = tmp_path / name
+        run_dir.mkdir()
+        n_stimuli = _write_run(run_dir, n_steps=300, world=None, config=config).size
+        metrics = analyze_run(run_dir)["metrics"]
+        assert metrics["n_network_bursts"] == (n_stimuli if name == "paper" else 0)
 
 
 @pytest.mark.slow
