@@ -5,7 +5,10 @@ kind of file (experiment, culture, world): the extending file is laid over its b
 tables merge key by key; arrays and values replace. One exception, for tables named
 ``params``: they belong to the ``scheme`` or ``kind`` beside them, so when the extending
 file names another ``scheme``/``kind`` its ``params`` replace the base's whole; otherwise
-they merge like any table.
+they merge like any table. A table naming another ``scheme`` and no ``params`` has none: a
+scheme's params mean nothing to another scheme (``somatotopic``'s ``sites_per_sensor`` to
+``no_stimulation``). Another ``kind`` without ``params`` keeps the base's: the kinds of one
+endpoint take the same ones (``culture.kind = "nest"`` reads ``sim_network``'s ``config``).
 
 Path-valued keys are named by the caller as dotted patterns (``fnmatch``:
 ``"*.params.world"``); each is resolved when its file is read, relative to that file's
@@ -27,8 +30,9 @@ from settings.overrides import get_dotted, parse_override, set_dotted
 
 # Larger than any settings file; a bigger one is not meant as one (and is not read whole).
 MAX_FILE_BYTES = 4 * 1024 * 1024
-# Tables whose contents belong to the scheme or kind named beside them.
-OWNED_TABLE, OWNER_KEYS = "params", ("scheme", "kind")
+# Tables whose contents belong to the scheme or kind named beside them; a scheme's are not
+# inherited by another scheme even when the extending file gives none.
+OWNED_TABLE, OWNER_KEYS, SCHEME_KEY = "params", ("scheme", "kind"), "scheme"
 
 
 def read_toml(path: str | Path, what: str = "config file") -> dict[str, Any]:
@@ -115,6 +119,8 @@ def merge(base: dict, over: dict) -> dict:
     """``over`` laid over ``base`` by the one rule of this module (see its docstring)."""
     out = dict(base)
     new_owner = any(k in over and over[k] != base.get(k) for k in OWNER_KEYS)
+    if SCHEME_KEY in over and over[SCHEME_KEY] != base.get(SCHEME_KEY):
+        out.pop(OWNED_TABLE, None)
     for key, value in over.items():
         fresh = key == OWNED_TABLE and new_owner
         if isinstance(value, dict) and isinstance(out.get(key), dict) and not fresh:

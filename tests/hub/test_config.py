@@ -157,6 +157,19 @@ def test_an_extending_file_naming_another_kind_replaces_its_params(tmp_path):
     assert load_config(tmp_path / "child.toml").body.params == {"port": 4}
 
 
+def test_an_experiment_extending_the_closed_loop_with_another_scheme_drops_its_params(tmp_path):
+    configs = Path(__file__).resolve().parents[2] / "configs"
+    blind = tmp_path / "blind.toml"
+    blind.write_text(
+        f'extends = "{configs / "closed_loop.toml"}"\n[experiment]\nname = "blind"\n'
+        '[coding]\nscheme = "hub.schemes:no_stimulation"\n'
+    )
+    cfg = load_config(blind)
+    assert cfg.coding.scheme == "hub.schemes:no_stimulation" and cfg.coding.params == {}
+    assert cfg.decoding.params["centre_tau_s"] == 5.0  # the same decoder: its params stay
+    assert cfg.culture.params == {"config": str(configs / "culture_1024.toml")}
+
+
 # ------------------------------------------------------- culture and world, from the experiment
 
 CLOSED_LOOP = Path(__file__).resolve().parents[2] / "configs" / "closed_loop.toml"

@@ -94,6 +94,21 @@ def test_one_merge_rule_tables_merge_arrays_replace_params_follow_their_owner():
     assert other["s"] == {"scheme": "m:other", "params": {"k": 1}}
 
 
+def test_another_scheme_without_params_has_none_another_kind_keeps_the_bases():
+    base = {
+        "coding": {"scheme": "m:f", "params": {"g": 1}},
+        "culture": {"kind": "sim_network", "params": {"config": "c.toml"}},
+    }
+    over = {"coding": {"scheme": "m:other"}, "culture": {"kind": "nest"}}
+    assert merge(base, over) == {
+        "coding": {"scheme": "m:other"},  # g belonged to m:f
+        "culture": {"kind": "nest", "params": {"config": "c.toml"}},  # a culture's, any kind's
+    }
+    # naming the same scheme again is no change of scheme: its params merge
+    same = merge(base, {"coding": {"scheme": "m:f", "params": {"h": 2}}})
+    assert same["coding"]["params"] == {"g": 1, "h": 2}
+
+
 def test_paths_are_relative_to_the_file_and_overrides_to_the_current_folder(tmp_path):
     (tmp_path / "a").mkdir()
     (tmp_path / "a" / "base.toml").write_text('[s]\nparams = { config = "c.toml", n = 1 }\n')
