@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from hub.protocol import Description, SensorReading, StepWindow, Stimulation
-from hub.schemes import Coder, ConfigError, SchemeContext
+from hub.schemes import Coder, ConfigError, SchemeContext, checked_by
 
 # One place for the defaults shared by the schemes.
 FULL_SCALE_UA = 100.0  # amplitude at full range (amplitude codes), and the rate code's amplitude
@@ -81,6 +81,36 @@ class CultureFrame:
         )
 
 
+def site_params(ctx: SchemeContext) -> dict:
+    """The site-placement parameters, checked without the endpoints' descriptions.
+
+    Returns ``channels`` (one list of channel ids per sensor, or None), ``radius_frac``,
+    ``per_sensor`` and ``excitatory_only``. A channel listed for two sensors is refused here;
+    the count of sensors and the culture's channels are checked by :func:`stimulation_sites`.
+    """
+    key = f"{ctx.section}.params.channels"
+    channels = None
+    if "channels" in ctx.params:
+        channels, seen = [], set()
+        for s, entry in enumerate(ctx.param("channels", None, kind=list)):
+            chans = entry if isinstance(entry, list) else [entry]
+            if not chans or not all(isinstance(c, int) and not isinstance(c, bool) for c in chans):
+                raise ConfigError(
+                    f"{key}[{s}] must be a channel id or a non-empty list of them, got {entry!r}"
+                )
+            for c in chans:
+                if c in seen:
+                    raise ConfigError(f"{key}[{s}]: channel {c} is listed for two sensors")
+                seen.add(c)
+            channels.append(chans)
+    return {
+        "channels": channels,
+        "radius_frac": ctx.param("site_radius_frac", SITE_RADIUS_FRAC, ge=0.0, le=1.0),
+        "per_sensor": ctx.param("sites_per_sensor", SITES_PER_SENSOR, kind=int, ge=1),
+        "excitatory_only": ctx.param("excitatory_only", True, kind=bool),
+    }
+
+
 def stimulation_sites(ctx: SchemeContext) -> list[np.ndarray]:
     """The channels stimulated for each sensor, in the body's sensor order.
 
@@ -90,39 +120,30 @@ def stimulation_sites(ctx: SchemeContext) -> list[np.ndarray]:
     ``site_radius_frac × radius`` from the centre (see :class:`CultureFrame`). With
     ``excitatory_only`` (default true) and a culture that reports ``cell_type``, only
     excitatory channels are candidates. A channel is never given to two sensors: each sensor,
-    in order, takes the nearest channels not already taken.
+    in order, takes the nearest channels not already taken. The parameters are checked by
+    :func:`site_params`; here, what needs the descriptions (one entry per sensor, channels
+    the culture has, enough channels for the sites).
     """
     body, culture = ctx.body, ctx.culture
     n_sensors = body.n_sensors
-    key = f"{ctx.section}.params.channels"
-    if "channels" in ctx.params:
-        listed = ctx.param("channels", None, kind=list)
+    p = site_params(ctx)
+    if p["channels"] is not None:
+        key = f"{ctx.section}.params.channels"
+        listed = p["channels"]
         if len(listed) != n_sensors:
             raise ConfigError(
                 f"{key} must list one entry per sensor ({n_sensors}), got {len(listed)}"
             )
         known = set(culture.channel.tolist())
-        sites, seen = [], set()
-        for s, entry in enumerate(listed):
-            chans = entry if isinstance(entry, list) else [entry]
-            if not chans or not all(isinstance(c, int) and not isinstance(c, bool) for c in chans):
-                raise ConfigError(
-                    f"{key}[{s}] must be a channel id or a non-empty list of them, got {entry!r}"
-                )
+        for s, chans in enumerate(listed):
             for c in chans:
                 if c not in known:
                     raise ConfigError(f"{key}[{s}]: channel {c} is not one of the culture's")
-                if c in seen:
-                    raise ConfigError(f"{key}[{s}]: channel {c} is listed for two sensors")
-                seen.add(c)
-            sites.append(np.asarray(chans, dtype=np.uint32))
-        return sites
+        return [np.asarray(chans, dtype=np.uint32) for chans in listed]
 
-    radius_frac = ctx.param("site_radius_frac", SITE_RADIUS_FRAC, ge=0.0, le=1.0)
-    per_sensor = ctx.param("sites_per_sensor", SITES_PER_SENSOR, kind=int, ge=1)
-    excitatory_only = ctx.param("excitatory_only", True, kind=bool)
+    radius_frac, per_sensor = p["radius_frac"], p["per_sensor"]
     candidates = np.ones(culture.channel.size, dtype=bool)
-    if excitatory_only and culture.cell_type is not None:
+    if p["excitatory_only"] and culture.cell_type is not None:
         candidates &= culture.cell_type == 0
     if per_sensor * n_sensors > int(candidates.sum()):
         raise ConfigError(
@@ -180,15 +201,13 @@ def _pulse_params(ctx: SchemeContext) -> tuple[float, float]:
     return width_ms, max_amplitude_ua
 
 
-def _amplitude_code(ctx: SchemeContext, *, inverse: bool) -> Coder:
+def _amplitude_params(ctx: SchemeContext) -> dict:
+    """The amplitude codes' parameters, checked without the descriptions (``gain`` None:
+    the default, from the body's range)."""
     ctx.check_params(
         _SITE_PARAMS | _PULSE_PARAMS | {"gain_ua_per_m", "min_amplitude_ua", "pulse_period_ms"}
     )
-    body = ctx.body
-    max_range_m = float(body.max_range_m)
-    if not max_range_m > 0:
-        raise ConfigError(f"the body's max_range_m must be > 0, got {max_range_m}")
-    gain = ctx.param("gain_ua_per_m", FULL_SCALE_UA / max_range_m, ge=0.0)
+    gain = ctx.param("gain_ua_per_m", None, ge=0.0)
     width_ms, max_ua = _pulse_params(ctx)
     min_ua = ctx.param("min_amplitude_ua", MIN_AMPLITUDE_UA, ge=0.0)
     if min_ua > max_ua:
@@ -196,13 +215,28 @@ def _amplitude_code(ctx: SchemeContext, *, inverse: bool) -> Coder:
             f"{ctx.section}.params.min_amplitude_ua must be <= max_amplitude_ua ({max_ua}), "
             f"got {min_ua}"
         )
-    period_ms = float(ctx.period_ms)
-    pulse_period_ms = ctx.param("pulse_period_ms", period_ms, gt=0.0)
+    pulse_period_ms = ctx.param("pulse_period_ms", float(ctx.period_ms), gt=0.0)
     if pulse_period_ms < width_ms:
         raise ConfigError(
             f"{ctx.section}.params.pulse_period_ms must be >= width_ms ({width_ms}) so that a "
             f"site's pulses do not overlap, got {pulse_period_ms}"
         )
+    site_params(ctx)
+    return dict(
+        gain=gain, width_ms=width_ms, max_ua=max_ua, min_ua=min_ua, pulse_period_ms=pulse_period_ms
+    )
+
+
+def _amplitude_code(ctx: SchemeContext, *, inverse: bool) -> Coder:
+    p = _amplitude_params(ctx)
+    body = ctx.body
+    max_range_m = float(body.max_range_m)
+    if not max_range_m > 0:
+        raise ConfigError(f"the body's max_range_m must be > 0, got {max_range_m}")
+    gain = FULL_SCALE_UA / max_range_m if p["gain"] is None else p["gain"]
+    width_ms, max_ua, min_ua = p["width_ms"], p["max_ua"], p["min_ua"]
+    period_ms = float(ctx.period_ms)
+    pulse_period_ms = p["pulse_period_ms"]
     sites = [site.tolist() for site in stimulation_sites(ctx)]
     n_sensors = body.n_sensors
     last_onset_ms = _last_onset_ms(period_ms)
@@ -236,6 +270,7 @@ def _amplitude_code(ctx: SchemeContext, *, inverse: bool) -> Coder:
     return code
 
 
+@checked_by(_amplitude_params)
 def somatotopic(ctx: SchemeContext) -> Coder:
     """The paper's coding: one site per sensor, amplitude ``A · d_s`` (farther → stronger).
 
@@ -258,6 +293,7 @@ def somatotopic(ctx: SchemeContext) -> Coder:
     return _amplitude_code(ctx, inverse=False)
 
 
+@checked_by(_amplitude_params)
 def somatotopic_inverse(ctx: SchemeContext) -> Coder:
     """Somatotopic sites, amplitude ``A · (max_range − d_s)``: nearer obstacle → stronger.
 
@@ -268,6 +304,18 @@ def somatotopic_inverse(ctx: SchemeContext) -> Coder:
     return _amplitude_code(ctx, inverse=True)
 
 
+def _rate_params(ctx: SchemeContext) -> dict:
+    """The rate code's parameters, checked without the descriptions."""
+    ctx.check_params(_SITE_PARAMS | _PULSE_PARAMS | {"min_rate_hz", "max_rate_hz", "amplitude_ua"})
+    width_ms, max_ua = _pulse_params(ctx)
+    amplitude_ua = min(ctx.param("amplitude_ua", FULL_SCALE_UA, gt=0.0), max_ua)
+    min_hz = ctx.param("min_rate_hz", MIN_RATE_HZ, ge=0.0)
+    max_hz = ctx.param("max_rate_hz", MAX_RATE_HZ, ge=min_hz, le=1000.0 / width_ms)
+    site_params(ctx)
+    return dict(width_ms=width_ms, amplitude_ua=amplitude_ua, min_hz=min_hz, max_hz=max_hz)
+
+
+@checked_by(_rate_params)
 def rate(ctx: SchemeContext) -> Coder:
     """Somatotopic sites, distance coded as pulse frequency (nearer → more pulses per second).
 
@@ -289,15 +337,13 @@ def rate(ctx: SchemeContext) -> Coder:
     width_ms, max_amplitude_ua, site_radius_frac, sites_per_sensor, excitatory_only, channels
         As in :func:`somatotopic`.
     """
-    ctx.check_params(_SITE_PARAMS | _PULSE_PARAMS | {"min_rate_hz", "max_rate_hz", "amplitude_ua"})
+    p = _rate_params(ctx)
     body = ctx.body
     max_range_m = float(body.max_range_m)
     if not max_range_m > 0:
         raise ConfigError(f"the body's max_range_m must be > 0, got {max_range_m}")
-    width_ms, max_ua = _pulse_params(ctx)
-    amplitude_ua = min(ctx.param("amplitude_ua", FULL_SCALE_UA, gt=0.0), max_ua)
-    min_hz = ctx.param("min_rate_hz", MIN_RATE_HZ, ge=0.0)
-    max_hz = ctx.param("max_rate_hz", MAX_RATE_HZ, ge=min_hz, le=1000.0 / width_ms)
+    width_ms, amplitude_ua = p["width_ms"], p["amplitude_ua"]
+    min_hz, max_hz = p["min_hz"], p["max_hz"]
     sites = [site.tolist() for site in stimulation_sites(ctx)]
     n_sensors = body.n_sensors
     period_ms = float(ctx.period_ms)

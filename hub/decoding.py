@@ -32,7 +32,7 @@ import numpy as np
 
 from hub.coding import CultureFrame
 from hub.protocol import Description, MotorCommand, SpikeBatch, StepWindow
-from hub.schemes import ConfigError, Decoder, SchemeContext
+from hub.schemes import ConfigError, Decoder, SchemeContext, checked_by
 
 WINDOW_MS = 50.0  # the paper's CA time scale
 MIN_SPEED_MPS = 0.02
@@ -138,6 +138,33 @@ def _command(
 # --------------------------------------------------------------------------- schemes
 
 
+def _coa_params(ctx: SchemeContext) -> dict:
+    """:func:`center_of_activity`'s parameters, checked without the descriptions
+    (``max_speed``, ``speed_gain`` None: the defaults, from the body)."""
+    ctx.check_params(
+        {
+            "window_ms",
+            "min_speed_mps",
+            "max_speed_mps",
+            "speed_gain_mps",
+            "turn_gain_rad_s_per_rad",
+            "dead_zone_frac",
+            "centre_tau_s",
+        }
+    )
+    min_speed = ctx.param("min_speed_mps", MIN_SPEED_MPS, ge=0.0)
+    return dict(
+        window_ms=ctx.param("window_ms", WINDOW_MS, gt=0.0),
+        min_speed=min_speed,
+        max_speed=ctx.param("max_speed_mps", None, ge=min_speed),
+        speed_gain=ctx.param("speed_gain_mps", None, ge=0.0),
+        turn_gain=ctx.param("turn_gain_rad_s_per_rad", TURN_GAIN_RAD_S_PER_RAD),
+        dead_zone=ctx.param("dead_zone_frac", DEAD_ZONE_FRAC, ge=0.0),
+        centre_tau_s=ctx.param("centre_tau_s", 0.0, ge=0.0),
+    )
+
+
+@checked_by(_coa_params)
 def center_of_activity(ctx: SchemeContext) -> Decoder:
     """The paper's decoder: the Center of Activity (CA) steers the robot.
 
@@ -175,25 +202,15 @@ def center_of_activity(ctx: SchemeContext) -> Decoder:
     centre_tau_s : float, default 0
         0: the geometric centre; > 0: the CA's running mean over about this time.
     """
-    ctx.check_params(
-        {
-            "window_ms",
-            "min_speed_mps",
-            "max_speed_mps",
-            "speed_gain_mps",
-            "turn_gain_rad_s_per_rad",
-            "dead_zone_frac",
-            "centre_tau_s",
-        }
-    )
+    p = _coa_params(ctx)
     body, culture = ctx.body, ctx.culture
-    window_ms = ctx.param("window_ms", WINDOW_MS, gt=0.0)
-    min_speed = ctx.param("min_speed_mps", MIN_SPEED_MPS, ge=0.0)
-    max_speed = ctx.param("max_speed_mps", float(body.max_wheel_mps), ge=min_speed)
-    speed_gain = ctx.param("speed_gain_mps", float(body.max_wheel_mps), ge=0.0)
-    turn_gain = ctx.param("turn_gain_rad_s_per_rad", TURN_GAIN_RAD_S_PER_RAD)
-    dead_zone = ctx.param("dead_zone_frac", DEAD_ZONE_FRAC, ge=0.0)
-    centre_tau_s = ctx.param("centre_tau_s", 0.0, ge=0.0)
+    window_ms, min_speed, turn_gain = p["window_ms"], p["min_speed"], p["turn_gain"]
+    dead_zone, centre_tau_s = p["dead_zone"], p["centre_tau_s"]
+    max_wheel = float(body.max_wheel_mps)
+    max_speed = p["max_speed"]
+    if max_speed is None:  # the body's top speed, unless that is below the minimum
+        max_speed = ctx.param("max_speed_mps", max_wheel, ge=min_speed)
+    speed_gain = max_wheel if p["speed_gain"] is None else p["speed_gain"]
     # share of the way the running centre moves toward the CA at each step (0: fixed centre)
     follow = min(1.0, ctx.period_ms / 1e3 / centre_tau_s) if centre_tau_s > 0 else 0.0
     centre = [0.0, 0.0]  # relative to the geometric centre
@@ -227,29 +244,40 @@ def center_of_activity(ctx: SchemeContext) -> Decoder:
     return decode
 
 
+def _listed_populations(ctx: SchemeContext) -> tuple[list, list] | None:
+    """``left_channels`` and ``right_channels`` (both or neither), checked without the
+    culture's description: lists of channel ids, none in both."""
+    listed = [k for k in ("left_channels", "right_channels") if k in ctx.params]
+    if not listed:
+        return None
+    if len(listed) != 2:
+        missing = {"left_channels", "right_channels"} - set(listed)
+        raise ConfigError(f"{ctx.section}.params.{missing.pop()} is needed with {listed[0]}")
+    lists = []
+    for key in ("left_channels", "right_channels"):
+        chans = ctx.param(key, None, kind=list)
+        if not chans or not all(isinstance(c, int) and not isinstance(c, bool) for c in chans):
+            raise ConfigError(f"{ctx.section}.params.{key} must be a non-empty list of channel ids")
+        lists.append(chans)
+    if set(lists[0]) & set(lists[1]):
+        raise ConfigError(f"{ctx.section}.params.left_channels and right_channels share channels")
+    return lists[0], lists[1]
+
+
 def _populations(ctx: SchemeContext) -> tuple[np.ndarray, np.ndarray]:
     """Boolean masks (over the culture's channels) of the left and right populations."""
     culture = ctx.culture
-    listed = [k for k in ("left_channels", "right_channels") if k in ctx.params]
-    if listed and len(listed) != 2:
-        missing = {"left_channels", "right_channels"} - set(listed)
-        raise ConfigError(f"{ctx.section}.params.{missing.pop()} is needed with {listed[0]}")
-    if listed:
+    listed = _listed_populations(ctx)
+    if listed is not None:
         masks = []
-        for key in ("left_channels", "right_channels"):
-            chans = ctx.param(key, None, kind=list)
-            dotted = f"{ctx.section}.params.{key}"
-            if not chans or not all(isinstance(c, int) and not isinstance(c, bool) for c in chans):
-                raise ConfigError(f"{dotted} must be a non-empty list of channel ids")
+        for key, chans in zip(("left_channels", "right_channels"), listed, strict=True):
             mask = np.isin(culture.channel, chans)
             unknown = set(chans) - set(culture.channel[mask].tolist())
             if unknown:
-                raise ConfigError(f"{dotted}: channel(s) {sorted(unknown)} not in the culture")
+                raise ConfigError(
+                    f"{ctx.section}.params.{key}: channel(s) {sorted(unknown)} not in the culture"
+                )
             masks.append(mask)
-        if (masks[0] & masks[1]).any():
-            raise ConfigError(
-                f"{ctx.section}.params.left_channels and right_channels share channels"
-            )
         return masks[0], masks[1]
     frame = CultureFrame.of(culture)
     x = culture.x_um.astype(np.float64)
@@ -259,6 +287,28 @@ def _populations(ctx: SchemeContext) -> tuple[np.ndarray, np.ndarray]:
     return left, right
 
 
+def _two_population_params(ctx: SchemeContext) -> dict:
+    """:func:`two_population`'s parameters, checked without the descriptions."""
+    ctx.check_params(
+        {
+            "window_ms",
+            "gain_mps_per_hz",
+            "baseline_mps",
+            "crossed",
+            "left_channels",
+            "right_channels",
+        }
+    )
+    _listed_populations(ctx)
+    return dict(
+        window_ms=ctx.param("window_ms", WINDOW_MS, gt=0.0),
+        gain=ctx.param("gain_mps_per_hz", RATE_GAIN_MPS_PER_HZ),
+        baseline=ctx.param("baseline_mps", BASELINE_MPS),
+        crossed=ctx.param("crossed", True, kind=bool),
+    )
+
+
+@checked_by(_two_population_params)
 def two_population(ctx: SchemeContext) -> Decoder:
     """Left and right halves of the culture drive the wheels with their firing rates.
 
@@ -285,21 +335,9 @@ def two_population(ctx: SchemeContext) -> Decoder:
     crossed : bool, default true
     left_channels, right_channels : list of int, optional
     """
-    ctx.check_params(
-        {
-            "window_ms",
-            "gain_mps_per_hz",
-            "baseline_mps",
-            "crossed",
-            "left_channels",
-            "right_channels",
-        }
-    )
+    p = _two_population_params(ctx)
     body = ctx.body
-    window_ms = ctx.param("window_ms", WINDOW_MS, gt=0.0)
-    gain = ctx.param("gain_mps_per_hz", RATE_GAIN_MPS_PER_HZ)
-    baseline = ctx.param("baseline_mps", BASELINE_MPS)
-    crossed = ctx.param("crossed", True, kind=bool)
+    window_ms, gain, baseline, crossed = p["window_ms"], p["gain"], p["baseline"], p["crossed"]
     left, right = _populations(ctx)
     # weights: 1/size of the population, so the sums are spikes per channel
     weights = np.stack([left / left.sum(), right / right.sum()], axis=1)

@@ -971,13 +971,18 @@ class Hub:
 
     def _build_schemes(self) -> None:
         cfg = self.cfg
-        self.inputs = InputPolicy(
-            cfg,
-            self.descriptions["body"],
-            self.descriptions["culture"],
-            self.run_id,
-            on_refused=lambda scheme, why: self.ledger.drop(scheme, "limit", why),
-        )
+        try:
+            self.inputs = InputPolicy(
+                cfg,
+                self.descriptions["body"],
+                self.descriptions["culture"],
+                self.run_id,
+                on_refused=lambda scheme, why: self.ledger.drop(scheme, "limit", why),
+            )
+        except ConfigError as exc:  # the params were checked before; this needs the endpoints
+            raise ConfigError(
+                f"the schemes do not fit the endpoints' descriptions: {exc}"
+            ) from None
         if cfg.online.enabled:
             for name, kind in (("burst", BurstParams), ("network", NetworkBurstParams)):
                 try:

@@ -12,7 +12,13 @@ returns the per-step callable::
 ``Stimulation.none(window)``, ``MotorCommand.stop(window)``).
 
 The factory validates ``ctx.params`` (raising :class:`~hub.config.ConfigError`
-naming ``coding.params.<key>``) and may keep state in the callable it returns
+naming ``coding.params.<key>``) and may keep state in the callable it returns.
+The checks that need no description (unknown names, values out of their limits) go in a
+function of the context that the factory calls first and names with :func:`checked_by`:
+:func:`check_scheme` runs it before the run, with no descriptions (``ctx.body`` and
+``ctx.culture`` None), so a bad parameter is a config error before anything starts; what
+needs the endpoints (more sites than channels) is checked when the factory is called,
+once they have described themselves. The factory may also keep state in the callable
 (a decoder's averaging window, say). Coders and decoders are plain functions of
 messages: they can be tested with no bus. The hub calls the coder with the
 body's reading of step k−1 to stimulate at step k, and the decoder with the
@@ -43,15 +49,18 @@ Decoder = Callable[[SpikeBatch, StepWindow], MotorCommand]
 class SchemeContext:
     """What a scheme may know: both endpoints' descriptions and its parameters."""
 
-    body: Description
-    culture: Description
+    body: Description | None  # None: checking the params before the endpoints describe
+    culture: Description | None
     params: dict = field(default_factory=dict)
     period_ms: float = 10.0
     seed: int = 0
     section: str = "coding"  # for error messages: "<section>.params.<key>"
 
     def param(self, name: str, default, *, kind=float, ge=None, gt=None, le=None):
-        """A validated parameter: ``params[name]`` or ``default``."""
+        """A validated parameter: ``params[name]`` or ``default`` (None when absent and
+        ``default`` is None: a default that needs a description)."""
+        if default is None and name not in self.params:
+            return None
         value = self.params.get(name, default)
         dotted = f"{self.section}.params.{name}"
         return check_value(dotted, kind, value, gt=gt, ge=ge, le=le)
@@ -79,13 +88,46 @@ def load_scheme(spec: str, section: str) -> Callable[[SchemeContext], Callable]:
     return factory
 
 
+def checked_by(check: Callable[[SchemeContext], object]) -> Callable:
+    """Name ``check(ctx)`` the factory's checks that need no description (the factory
+    calls it too: one place for each check)."""
+
+    def mark(factory):
+        factory.check = check
+        return factory
+
+    return mark
+
+
+def check_scheme(section: str, spec: str, params: dict, period_ms: float, seed: int = 0) -> None:
+    """Check a scheme before the run: it imports, and its params pass the factory's
+    description-free checks (:func:`checked_by`; a factory without them: only when called).
+
+    Raises
+    ------
+    ConfigError
+        Naming ``<section>.scheme`` or ``<section>.params.<key>``.
+    """
+    factory = load_scheme(spec, section)
+    check = getattr(factory, "check", None)
+    if check is not None:
+        ctx = SchemeContext(None, None, dict(params), period_ms, seed, section)
+        check(ctx)
+
+
+def _no_params(ctx: SchemeContext) -> None:
+    ctx.check_params(set())
+
+
+@checked_by(_no_params)
 def no_stimulation(ctx: SchemeContext) -> Coder:
     """Never stimulate: the blind control of the paper (spontaneous activity only)."""
-    ctx.check_params(set())
+    _no_params(ctx)
     return lambda sensors, window: Stimulation.none(window)
 
 
+@checked_by(_no_params)
 def stopped(ctx: SchemeContext) -> Decoder:
     """Always stand still, whatever the culture does."""
-    ctx.check_params(set())
+    _no_params(ctx)
     return lambda spikes, window: MotorCommand.stop(window)

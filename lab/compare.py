@@ -29,6 +29,7 @@ from matplotlib.figure import Figure
 from hub.config import load_config
 from hub.record import new_run_dir, read_run
 from lab.behaviour import world_of
+from lab.experiment import check_hub_sections
 from lab.postrun import SUMMARY_FILE
 from lab.stats import permutation_test
 from sim_robot.render import draw_world
@@ -86,6 +87,8 @@ def compare(
         ``figures`` and ``out_dir``; also written as ``compare.json``.
     """
     cfgs = [load_config(c, list(overrides)) for c in configs]
+    for cfg in cfgs:  # the schemes' params too, before the first run (hub/schemes.py)
+        check_hub_sections(cfg)
     names = [cfg.experiment.name for cfg in cfgs]
     external = [n for n, cfg in zip(names, cfgs, strict=True)
                 if any(cfg.endpoint(r).launch != "local" for r in ("body", "culture"))]  # fmt: skip

@@ -166,13 +166,16 @@ def run_experiment(
 
 def check_hub_sections(cfg: ExperimentConfig) -> None:
     """What the hub can check of its own sections before the endpoints describe
-    themselves: the schemes import, the online detectors' parameters are valid."""
+    themselves: the schemes import and their params pass the checks that need no
+    description (:func:`hub.schemes.check_scheme`), the online detectors' parameters are
+    valid. Raises :class:`ConfigError` naming the key."""
     from hub.analysis.bursts import BurstParams
     from hub.analysis.network_bursts import NetworkBurstParams
-    from hub.schemes import load_scheme
+    from hub.schemes import check_scheme
 
-    load_scheme(cfg.coding.scheme, "coding")
-    load_scheme(cfg.decoding.scheme, "decoding")
+    for name in ("coding", "decoding"):
+        section = getattr(cfg, name)
+        check_scheme(name, section.scheme, section.params, cfg.loop.period_ms, cfg.experiment.seed)
     if cfg.online.enabled:
         for name, kind in (("burst", BurstParams), ("network", NetworkBurstParams)):
             try:
