@@ -151,18 +151,21 @@ def plot_raster(
         ax.set_xlim(lo / 1000.0, hi / 1000.0 if hi > lo else lo / 1000.0 + 1.0)
         ax.set_xlabel("time (s)")
         ax.set_ylabel("channel")
-        ax.set_title(_raster_title(colors, network_bursts))
+        ax.set_title(_raster_title(colors, network_bursts, lo, hi))
 
     return _render(draw, out, figsize=(10.0, 5.0), formats=formats)
 
 
-def _raster_title(colors: np.ndarray, network_bursts: NetworkBursts | None) -> str:
+def _raster_title(
+    colors: np.ndarray, network_bursts: NetworkBursts | None, lo_ms: float, hi_ms: float
+) -> str:
     """The raster's title, naming only what it shows: an MEA's channels have no cell type,
-    and a raster without network bursts has nothing shaded."""
+    and a raster with no network burst in its span ``[lo_ms, hi_ms]`` has nothing shaded."""
     keys = []
     if (colors != OTHER_COLOR).any():
         keys.append("red excitatory, blue inhibitory")
-    if network_bursts is not None and len(network_bursts.start_ms):
+    nbs = network_bursts
+    if nbs is not None and ((nbs.start_ms <= hi_ms) & (nbs.end_ms >= lo_ms)).any():
         keys.append("shaded and ▼: network bursts, their cores darker")
     return "Raster" + (f" ({'; '.join(keys)})" if keys else "")
 
@@ -535,7 +538,14 @@ def plot_all(
     if len(nbs):
         s = nbs.start_ms[0]
         paths += plot_raster(
-            ch, t, out / "raster_nb", cell_type, nbs, s - 300.0, s + 700.0, formats
+            ch,
+            t,
+            out / "raster_nb",
+            cell_type,
+            nbs,
+            max(s - 300.0, t_start_ms),
+            s + 700.0,
+            formats,
         )
     pops = ("all", "exc", "inh") if cell_type is not None else ("all",)
     series = {
