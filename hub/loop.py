@@ -108,8 +108,17 @@ VIEW_STALL_S = 0.1
 GIL_SWITCH_S = 2e-4
 
 
+# Why a run ended before its last step, when the user asked: a signal, or ``ctl stop``.
+INTERRUPTED, STOPPED_BY_CONTROL = "interrupted", "stopped by control"
+
+
 class HubError(RuntimeError):
     """A run could not start or had to stop; the message says why."""
+
+
+class StoppedBeforeSteps(Exception):
+    """A stop asked for by the user (a signal, ``ctl stop``) before the first step: the run
+    ends as ``interrupted`` or ``stopped``, as the same stop during the steps does."""
 
 
 class EndpointDied(HubError):
@@ -245,7 +254,7 @@ class Hub:
         """The steps whose every reply is in (or stood in for)."""
         return self.scheduler.k_done
 
-    def request_stop(self, reason: str = "interrupted") -> None:
+    def request_stop(self, reason: str = INTERRUPTED) -> None:
         """Stop after the current step (thread- and signal-safe)."""
         self.inbox.put(("stop", reason))
 
@@ -295,8 +304,10 @@ class Hub:
             self._record_event("start", mode=cfg.loop.mode, n_steps=cfg.n_steps)
             self._steps()
             if self.stop_reason:
-                outcome = "interrupted" if self.stop_reason == "interrupted" else "stopped"
-                reason = self.stop_reason
+                outcome, reason = self._stopped_outcome(), self.stop_reason
+        except StoppedBeforeSteps:
+            outcome, reason = self._stopped_outcome(), self.stop_reason
+            log.info("%s before the first step", reason)
         except (HubError, ConfigError, SchemeError) as exc:
             outcome, reason = "fault", str(exc)
             log.error("%s", exc)
@@ -653,7 +664,7 @@ class Hub:
                 self.paused_s += time.monotonic() - self._pause_started
                 self.state = "running"
         elif request.cmd == "stop":
-            self.stop_reason = self.stop_reason or "stopped by control"
+            self.stop_reason = self.stop_reason or STOPPED_BY_CONTROL
         elif request.cmd == "config":
             data = self.cfg.to_dict()
         data = data if data is not None else self.status().to_dict()
@@ -720,7 +731,7 @@ class Hub:
                 )  # fmt: skip
                 next_note += 5.0
             if self.stop_reason:
-                raise HubError(f"stopped while waiting for endpoints ({self.stop_reason})")
+                self._stop_while_waiting("endpoints")
             if time.monotonic() >= deadline:
                 missing = ", ".join(f"{r}/{i}" for r, i in sorted(needed - self.alive))
                 hint = ""
@@ -750,7 +761,7 @@ class Hub:
         log.info("waiting for the dashboard to watch (at most %g s)", self.wait_for_view_s)
         while not self.link.view_observed():
             if self.stop_reason:
-                raise HubError(f"stopped while waiting for the dashboard ({self.stop_reason})")
+                self._stop_while_waiting("the dashboard")
             if time.monotonic() >= deadline:
                 log.warning(
                     "the dashboard did not watch within %g s: the run starts without it",
@@ -761,6 +772,16 @@ class Hub:
             self.next_event(min(deadline, time.monotonic() + 0.05))
         self._record_event("view_wait", watched=True, waited_s=time.monotonic() - start)
         self.view.watch(True)  # gather from the first step
+
+    def _stop_while_waiting(self, what: str) -> None:
+        """A stop while waiting: the user's (a signal, ``ctl stop``) ends the run as it
+        would during the steps; any other (a local endpoint exited) is a fault."""
+        if self.stop_reason in (INTERRUPTED, STOPPED_BY_CONTROL):
+            raise StoppedBeforeSteps(self.stop_reason)
+        raise HubError(f"stopped while waiting for {what} ({self.stop_reason})")
+
+    def _stopped_outcome(self) -> str:
+        return "interrupted" if self.stop_reason == INTERRUPTED else "stopped"
 
     def _describe_all(self, session: zenoh.Session) -> None:
         for role, i in self.ids.items():
