@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import datetime as dt
 import json
+import os
 from pathlib import Path
 
 import numpy as np
@@ -60,6 +61,11 @@ def export_nwb(run_dir: str | Path, path: str | Path) -> Path:
     except FileNotFoundError as exc:
         raise ExportError(str(exc)) from None
     m = run.manifest
+    if _holds_nothing(run):
+        raise ExportError(
+            f"{run_dir} holds no data to export: the run ended before its first step "
+            f"({m.get('outcome', 'no outcome')}: {m.get('reason') or 'no reason recorded'})"
+        )
     start = dt.datetime.fromisoformat(m["start_utc"]) if m.get("start_utc") else None
     nwb = NWBFile(
         session_description=f"NeuVision run {m.get('name')} (seed {m.get('seed')}): "
@@ -88,10 +94,26 @@ def export_nwb(run_dir: str | Path, path: str | Path) -> Path:
     _stimulation(nwb, run, TimeIntervals)
     _behaviour(nwb, run, Position, CompassDirection, TimeSeries)
     out = Path(path)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    with NWBHDF5IO(str(out), "w") as io:
-        io.write(nwb)
+    # Written beside it under another name, renamed when whole: a failure leaves no file.
+    part = out.with_name(f".{out.stem}.part{out.suffix}")
+    try:
+        with NWBHDF5IO(str(part), "w") as io:
+            io.write(nwb)
+        os.replace(part, out)
+    finally:
+        part.unlink(missing_ok=True)
     return out
+
+
+def _holds_nothing(run: Run) -> bool:
+    """The run recorded no step and no spike, pulse or pose (it ended before its first
+    step): an NWB file of it would hold metadata only."""
+    return (
+        run.steps == 0
+        and run.spikes[0].size == 0
+        and run.stimulation["t_ms"].size == 0
+        and run.trajectory[0].size == 0
+    )
 
 
 def _experiment_description(m: dict) -> str:
@@ -177,7 +199,9 @@ def _culture(nwb, run: Run) -> None:
             channel=int(c),
             cell_type=int(cell_type[i]) if cell_type is not None else -1,
         )
-    nwb.add_unit_column(name="channel", description="the channel id on the wire")
+    # The column typed even when no channel fired (an empty list has no type for HDF5).
+    empty = {"data": np.empty(0, dtype=np.int64)} if channel.size == 0 else {}
+    nwb.add_unit_column(name="channel", description="the channel id on the wire", **empty)
     index = {int(c): i for i, c in enumerate(culture.channel)}
     order = np.argsort(channel, kind="stable")
     channel, t_s = channel[order], t_ms[order] / 1e3

@@ -92,3 +92,60 @@ def test_a_folder_that_is_not_a_run_is_one_line(tmp_path):
         capture_output=True, text=True,
     )  # fmt: skip
     assert done.returncode == 3 and done.stderr.count("\n") == 1
+
+
+def _run_without_steps(run_dir, steps: int = 0):
+    """A run folder as the hub leaves it when the run ends at ``steps`` steps with no spike:
+    the culture described itself, then a fault (steps 0: before the first step)."""
+    from hub.protocol import Description, Keys
+    from hub.record import Recorder, utc_now, write_manifest
+
+    run_dir.mkdir()
+    recorder = Recorder(run_dir)
+    culture = Description(
+        role="culture",
+        id="0",
+        kind="sim_network",
+        channel=np.arange(4, dtype="<u4"),
+        x_um=np.arange(4, dtype="<f4"),
+        y_um=np.zeros(4, dtype="<f4"),
+        cell_type=np.zeros(4, dtype="u1"),
+    )
+    recorder.message("rx", Keys("default").describe("culture", "0"), culture.encode())
+    recorder.event("fault", reason="body/0 refused the run: no serial port")
+    recorder.close()
+    manifest = {"name": "t", "seed": 1, "run_id": "r1", "start_utc": utc_now(), "config": {}}
+    reason = "body/0 refused the run: no serial port"
+    write_manifest(run_dir, {**manifest, "outcome": "fault", "reason": reason, "steps": steps})
+    return run_dir
+
+
+def _export(run_dir, path):
+    return subprocess.run(
+        [sys.executable, "-m", "hub.cli", "export", str(run_dir), "--nwb", str(path)],
+        capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+
+
+def test_a_run_that_ended_before_its_first_step_is_refused_in_one_line_and_no_file_is_left(
+    tmp_path,
+):
+    run_dir = _run_without_steps(tmp_path / "run")
+    done = _export(run_dir, tmp_path / "fault.nwb")
+    assert done.returncode == 3, done.stderr
+    assert done.stderr.count("\n") == 1 and "Traceback" not in done.stderr
+    assert "holds no data to export" in done.stderr
+    assert "fault: body/0 refused the run: no serial port" in done.stderr  # why
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]  # no file, whole or partial
+
+
+def test_a_run_in_which_no_channel_fired_has_an_empty_but_typed_units_table(tmp_path):
+    run_dir = _run_without_steps(tmp_path / "run", steps=3)
+    path = tmp_path / "silent.nwb"
+    done = _export(run_dir, path)
+    assert done.returncode == 0, done.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run", "silent.nwb"]
+    with pynwb.NWBHDF5IO(str(path), "r") as io:
+        f = io.read()
+        assert len(f.units) == 0 and f.units["channel"].data.dtype.kind == "i"
+        np.testing.assert_allclose(f.electrodes["rel_x"][:], np.arange(4))
