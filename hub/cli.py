@@ -23,6 +23,7 @@ from pathlib import Path
 from hub.bus import BusError
 from hub.config import ConfigError, LoopSection, load_config
 from hub.logs import install_log_cap
+from hub.record import OutputError, make_output_folder
 from hub.scheduling import endpoint_priority
 from hub.security import PARTICIPANTS
 
@@ -353,7 +354,7 @@ def main(argv: list[str] | None = None) -> int:
     except ConfigError as exc:
         print(f"neuvision: config error: {_one_line(exc)}", file=sys.stderr)
         return EXIT_CONFIG
-    except InputError as exc:
+    except (InputError, OutputError) as exc:
         print(f"neuvision: {_one_line(exc)}", file=sys.stderr)
         return EXIT_CONFIG
     except BusError as exc:  # a port taken, a router unreachable: one line, no traceback
@@ -508,14 +509,17 @@ class ProgressBar:
 
 
 def cmd_compare(args) -> int:
-    from lab.compare import compare
+    from lab.compare import CompareError, compare
 
     overrides = list(args.set or [])
     if args.duration_s is not None:
         overrides.append(f"experiment.duration_s={args.duration_s}")
     for path in args.configs:  # every condition's file is read (and checked) before any run
         load_config(path, overrides)
-    result = compare(args.configs, args.seeds, args.out, args.jobs, overrides)
+    try:  # seeds, jobs, names and --out are checked before any run too
+        result = compare(args.configs, args.seeds, args.out, args.jobs, overrides)
+    except CompareError as exc:
+        raise InputError(str(exc)) from None
     failed = [r for r in result["runs"] if not r["ok"]]
     return EXIT_FAULT if failed else EXIT_OK
 
@@ -525,6 +529,8 @@ def cmd_analyze(args) -> int:
     from lab.run_analysis import analyze_run
 
     run_dir = _run_folder(args.run_dir)
+    if args.out is not None:
+        make_output_folder(args.out, "--out")
     try:
         metrics = analyze_run(run_dir, args.out)
     except AnalysisInputError as exc:
@@ -538,13 +544,18 @@ def cmd_reproduce(args) -> int:
     from lab.reproduce import DEFAULT_CULTURE, reproduce, reproduce_seeds
     from lab.seeds import parse_seeds
 
-    out = args.out or new_run_dir("runs", "reproduce")
-    culture = args.culture or DEFAULT_CULTURE
+    seeds = None
     if args.seeds:
         try:
             seeds = parse_seeds(args.seeds)
         except ValueError as exc:
             raise InputError(str(exc)) from None
+    culture = args.culture or DEFAULT_CULTURE
+    if args.out:
+        out = make_output_folder(args.out, "--out")
+    else:
+        out = new_run_dir("runs", "reproduce", what="runs")
+    if seeds:
         reproduce_seeds(out, seeds, quick=args.quick, jobs=args.jobs, config_path=culture)
     else:
         reproduce(out, quick=args.quick, seed=args.seed, config_path=culture)
@@ -556,6 +567,9 @@ def cmd_export(args) -> int:
     from lab.export_nwb import ExportError, export_nwb
 
     run_dir = _run_folder(args.run_dir)
+    if args.nwb.is_dir():
+        raise InputError(f"--nwb: {args.nwb} is a folder; give the file to write")
+    make_output_folder(args.nwb.parent, "--nwb")
     try:
         path = export_nwb(run_dir, args.nwb)
     except ExportError as exc:

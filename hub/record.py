@@ -79,8 +79,44 @@ def utc_now() -> str:
     return _dt.datetime.now(_dt.UTC).isoformat(timespec="milliseconds")
 
 
-def new_run_dir(runs_dir: str | Path, name: str) -> Path:
-    """Create ``runs_dir/<UTC time>-<name>[-n]`` and return it."""
+class OutputError(Exception):
+    """An output folder that cannot be made or written in: the message names the option or
+    key that gave it, the path and why (a user's input: one line, exit status 3)."""
+
+
+def make_output_folder(path: str | Path, what: str) -> Path:
+    """Make the folder ``path`` (and its parents) unless it is there; return it.
+
+    Raises
+    ------
+    OutputError
+        It cannot be made (a file in the way, a parent missing on a read-only file system)
+        or written in; ``what`` names where the path came from (``--out``,
+        ``experiment.runs_dir``).
+    """
+    path = Path(path)
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OutputError(f"{what}: cannot make folder {path}: {_why_not(path, exc)}") from None
+    if not os.access(path, os.W_OK | os.X_OK):
+        raise OutputError(f"{what}: cannot write in folder {path}: permission denied")
+    return path
+
+
+def _why_not(path: Path, exc: OSError) -> str:
+    for p in (path, *path.parents):  # the nearest thing there: a file in the way?
+        if p.exists() or p.is_symlink():
+            if not p.is_dir():
+                return f"{p} is a file, not a folder"
+            break
+    return exc.strerror or str(exc)
+
+
+def new_run_dir(runs_dir: str | Path, name: str, what: str = "experiment.runs_dir") -> Path:
+    """Create ``runs_dir/<UTC time>-<name>[-n]`` and return it (OutputError naming ``what``
+    when ``runs_dir`` cannot hold it)."""
+    make_output_folder(runs_dir, what)
     stamp = _dt.datetime.now(_dt.UTC).strftime("%Y%m%d-%H%M%S")
     base = Path(runs_dir) / f"{stamp}-{name}"
     for n in range(1000):

@@ -27,7 +27,7 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from hub.config import load_config
-from hub.record import new_run_dir, read_run
+from hub.record import make_output_folder, new_run_dir, read_run
 from lab.behaviour import world_of
 from lab.experiment import check_hub_sections
 from lab.postrun import SUMMARY_FILE
@@ -44,6 +44,10 @@ METRICS = (
     ("mean_speed_mps", "mean speed (m/s)", "{:.4f}"),
     ("coverage_fraction", "arena visited (fraction)", "{:.3f}"),
 )
+
+
+class CompareError(ValueError):
+    """A comparison that cannot be run as asked (seeds, jobs, conditions): one line."""
 
 
 @dataclass
@@ -85,11 +89,29 @@ def compare(
     dict
         ``conditions``, ``stats`` (per condition and metric: mean, s.d., n), ``runs``,
         ``figures`` and ``out_dir``; also written as ``compare.json``.
+
+    Raises
+    ------
+    CompareError
+        ``seeds`` or ``jobs`` < 1, or two conditions of the same name; before any run.
+    hub.record.OutputError
+        ``out_dir`` cannot be made; before any run.
     """
+    if seeds < 1:
+        raise CompareError(f"--seeds must be >= 1 (seeds 1..N per condition), got {seeds}")
+    if jobs is not None and jobs < 1:
+        raise CompareError(f"--jobs must be >= 1, got {jobs}")
     cfgs = [load_config(c, list(overrides)) for c in configs]
     for cfg in cfgs:  # the schemes' params too, before the first run (hub/schemes.py)
         check_hub_sections(cfg)
     names = [cfg.experiment.name for cfg in cfgs]
+    if len(set(names)) != len(names):
+        same = sorted({n for n in names if names.count(n) > 1})
+        raise CompareError(
+            f"conditions need distinct experiment.name values (each names its folder of "
+            f"runs): {', '.join(same)} is more than one condition's; give each file a name "
+            f"of its own"
+        )
     external = [n for n, cfg in zip(names, cfgs, strict=True)
                 if any(cfg.endpoint(r).launch != "local" for r in ("body", "culture"))]  # fmt: skip
     if external and (jobs or 0) != 1:
@@ -97,10 +119,10 @@ def compare(
         print(f"neuvision: {', '.join(external)} has endpoints started elsewhere, on the "
               "config's bus address: runs one at a time", file=sys.stderr)  # fmt: skip
         jobs = 1
-    if len(set(names)) != len(names):
-        raise SystemExit(f"conditions need distinct experiment.name values, got {names}")
-    out_dir = out_dir or new_run_dir("runs", "compare-" + "-vs-".join(names))
-    out_dir.mkdir(parents=True, exist_ok=True)
+    if out_dir is not None:
+        out_dir = make_output_folder(out_dir, "--out")
+    else:
+        out_dir = new_run_dir("runs", "compare-" + "-vs-".join(names), what="runs")
     queue = [
         Job(c, n, seed, out_dir / n / f"seed{seed}")
         for c, n in zip(configs, names, strict=True)

@@ -94,6 +94,7 @@ def export_nwb(run_dir: str | Path, path: str | Path) -> Path:
     _stimulation(nwb, run, TimeIntervals)
     _behaviour(nwb, run, Position, CompassDirection, TimeSeries)
     out = Path(path)
+    out.parent.mkdir(parents=True, exist_ok=True)
     # Written beside it under another name, renamed when whole: a failure leaves no file.
     part = out.with_name(f".{out.stem}.part{out.suffix}")
     try:

@@ -133,3 +133,52 @@ def test_the_installed_command_prints_no_traceback(tmp_path):
         "expected TOML"
     ]
     assert not (tmp_path / "r").exists()
+
+
+@pytest.mark.parametrize("seeds", ["0", "-2"])
+def test_compare_refuses_fewer_than_one_seed_before_running(capsys, tmp_path, no_process, seeds):
+    out = tmp_path / "out"
+    argv = ["compare", str(CLOSED_LOOP), "--seeds", seeds, "--out", str(out)]
+    assert f"--seeds must be >= 1 (seeds 1..N per condition), got {seeds}" in refused(capsys, argv)
+    assert not out.exists()
+
+
+def test_compare_refuses_two_conditions_of_the_same_name(capsys, tmp_path, no_process):
+    out = tmp_path / "out"
+    err = refused(capsys, ["compare", str(CLOSED_LOOP), str(CLOSED_LOOP), "--out", str(out)])
+    assert err.startswith("neuvision: conditions need distinct experiment.name values")
+    assert "closed_loop" in err and not out.exists()
+
+
+@pytest.fixture
+def run_folder(tmp_path) -> Path:
+    """A folder that commands take as a run (it holds a manifest)."""
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "manifest.json").write_text('{"outcome": "completed", "steps": 0}')
+    return run
+
+
+def test_an_output_folder_that_cannot_be_made_is_named_with_the_reason(
+    capsys, tmp_path, no_process, run_folder
+):
+    in_the_way = tmp_path / "file"
+    in_the_way.write_text("not a folder")
+    below = str(in_the_way / "x")
+    why = f"{in_the_way} is a file, not a folder"
+    cases = [
+        (["run", str(CLOSED_LOOP), "--runs-dir", str(in_the_way)], "experiment.runs_dir"),
+        (["run", str(CLOSED_LOOP), "--runs-dir", below], "experiment.runs_dir"),
+        (["analyze", str(run_folder), "--out", below], "--out"),
+        (["export", str(run_folder), "--nwb", below + ".nwb"], "--nwb"),
+        (["reproduce", "--quick", "--out", below], "--out"),
+        (["compare", str(CLOSED_LOOP), "--out", below], "--out"),
+    ]
+    for argv, option in cases:
+        err = refused(capsys, argv)
+        assert err.startswith(f"neuvision: {option}: cannot make folder") and why in err, err
+    assert "cannot make folder /proc/nope: No such file or directory" in refused(
+        capsys, ["run", str(CLOSED_LOOP), "--runs-dir", "/proc/nope"]
+    )
+    assert "--nwb: " in refused(capsys, ["export", str(run_folder), "--nwb", str(tmp_path)])
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["file", "run"]
