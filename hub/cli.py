@@ -587,6 +587,12 @@ def cmd_emulate(args) -> int:
     if args.device == "intan":
         from adapters.mea.emulator import DEFAULT_CULTURE, IntanEmulator, run_until_signalled
 
+        for option, port in (
+            ("--command-port", args.command_port),
+            ("--spike-port", args.spike_port),
+        ):
+            if not 1 <= port <= 65535:
+                raise InputError(f"{option} must be a TCP port, 1 to 65535, got {port}")
         try:
             emulator = IntanEmulator(
                 args.culture or DEFAULT_CULTURE,
@@ -602,6 +608,8 @@ def cmd_emulate(args) -> int:
             ) from None
         run_until_signalled(emulator)
         return EXIT_OK
+    if args.link:
+        _check_link(Path(args.link))
     if args.baud is not None and args.baud not in BAUDS:
         raise InputError(f"--baud must be one of {BAUDS}, got {args.baud}")
     model = MODELS[args.dialect]
@@ -622,6 +630,20 @@ def cmd_emulate(args) -> int:
     emulator.faults.garbage_every, emulator.faults.drop_every = args.garbage_every, args.drop_every
     run_until_signalled(emulator, link=args.link)
     return EXIT_OK
+
+
+def _check_link(link: Path) -> None:
+    """``emulate khepera --link``: InputError unless a symlink can be made there (a folder
+    that exists; nothing there but, at most, an old link, which is replaced)."""
+    if link.is_symlink():
+        return
+    if link.exists():
+        kind = "a folder" if link.is_dir() else "a file"
+        raise InputError(f"--link: {link} is {kind}, not a link; give a path with nothing there")
+    if not link.parent.is_dir():
+        raise InputError(f"--link: {link.parent} is not a folder (the link's folder must exist)")
+    if not os.access(link.parent, os.W_OK | os.X_OK):
+        raise InputError(f"--link: cannot write in {link.parent}: permission denied")
 
 
 def cmd_certs(args) -> int:

@@ -182,3 +182,27 @@ def test_an_output_folder_that_cannot_be_made_is_named_with_the_reason(
     )
     assert "--nwb: " in refused(capsys, ["export", str(run_folder), "--nwb", str(tmp_path)])
     assert sorted(p.name for p in tmp_path.iterdir()) == ["file", "run"]
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["intan", "--command-port", "70000"], "--command-port must be a TCP port, 1 to 65535"),
+        (["intan", "--spike-port", "-1"], "--spike-port must be a TCP port, 1 to 65535"),
+        (["khepera", "--link", "/nonexistent/dir/x"], "--link: /nonexistent/dir is not a folder"),
+        (["khepera", "--link", "{file}"], "--link: {file} is a file, not a link"),
+        (["khepera", "--link", "{dir}"], "--link: {dir} is a folder, not a link"),
+    ],
+)
+def test_an_emulators_bad_option_is_named_in_one_line(tmp_path, args, message):
+    file = tmp_path / "file"
+    file.write_text("not a link")
+    args = [a.format(file=file, dir=tmp_path) for a in args]
+    done = subprocess.run(
+        [sys.executable, "-m", "hub.cli", "emulate", *args],
+        capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    assert done.returncode == EXIT_CONFIG, done.stderr
+    assert done.stderr.count("\n") == 1 and "Traceback" not in done.stderr
+    assert done.stderr.startswith("neuvision: " + message.format(file=file, dir=tmp_path))
+    assert file.read_text() == "not a link"  # left as it was
