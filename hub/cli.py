@@ -442,6 +442,20 @@ def _run_folder(path) -> Path:
     return run_dir
 
 
+def _recorded_run(path, doing: str) -> Path:
+    """``path`` if it is a run folder with a record, else InputError (a run made with
+    ``record.enabled = false`` has a manifest only)."""
+    from hub.record import RECORD_FILE
+
+    run_dir = _run_folder(path)
+    if not (run_dir / RECORD_FILE).exists():
+        raise InputError(
+            f"{run_dir} holds no {RECORD_FILE} (a run made with record.enabled = false "
+            f"records its manifest only): nothing to {doing}"
+        )
+    return run_dir
+
+
 def record_summary(rec) -> dict:
     """What a record holds: outcome, timing, counts of frames per key and events."""
     per_key: dict[str, int] = {}
@@ -472,11 +486,17 @@ def record_summary(rec) -> dict:
 
 
 def _result_line(result) -> str:
+    from hub.record import RECORD_FILE
+
     t = result.timing
+    if (result.run_dir / RECORD_FILE).exists():
+        where = f"record in {result.run_dir}"
+    else:
+        where = f"nothing recorded (record.enabled = false): manifest and logs in {result.run_dir}"
     return (
         f"neuvision: {result.outcome} after {result.steps} steps, "
         f"{t.get('wall_s', 0):.1f} s wall, {t.get('x_realtime', 0):.1f}x real time, "
-        f"{t.get('late_steps', 0)} late step(s); record in {result.run_dir}"
+        f"{t.get('late_steps', 0)} late step(s); {where}"
     )
 
 
@@ -528,7 +548,7 @@ def cmd_analyze(args) -> int:
     from hub.analysis.spikes import AnalysisInputError
     from lab.run_analysis import analyze_run
 
-    run_dir = _run_folder(args.run_dir)
+    run_dir = _recorded_run(args.run_dir, "analyse")
     if args.out is not None:
         make_output_folder(args.out, "--out")
     try:
@@ -566,7 +586,7 @@ def cmd_reproduce(args) -> int:
 def cmd_export(args) -> int:
     from lab.export_nwb import ExportError, export_nwb
 
-    run_dir = _run_folder(args.run_dir)
+    run_dir = _recorded_run(args.run_dir, "export")
     if args.nwb.is_dir():
         raise InputError(f"--nwb: {args.nwb} is a folder; give the file to write")
     make_output_folder(args.nwb.parent, "--nwb")

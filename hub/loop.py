@@ -163,7 +163,8 @@ class Hub:
     cfg : ExperimentConfig
         The validated experiment.
     run_dir : Path or None
-        Where to write the record and manifest (None: record nothing).
+        Where to write the record and manifest (None: neither; with ``record.enabled``
+        false, the manifest only).
     progress : callable or None
         Called with a :class:`Progress` a few times a second.
     wait_for_view_s : float
@@ -276,8 +277,9 @@ class Hub:
             "start_utc": utc_now(),
             "outcome": "running",
         }
-        if self.run_dir and cfg.record.enabled:
-            self.recorder = Recorder(self.run_dir, flush_s=cfg.record.flush_s)
+        if self.run_dir:  # record.enabled = false: the manifest only, no messages
+            if cfg.record.enabled:
+                self.recorder = Recorder(self.run_dir, flush_s=cfg.record.flush_s)
             write_manifest(self.run_dir, manifest)
         # Started first: it builds its detector while the endpoints build their models.
         observer = self._start_observer()
@@ -330,6 +332,7 @@ class Hub:
             if self.recorder:
                 self._record_event("end", outcome=outcome, reason=reason)
                 self.recorder.close()
+            if self.run_dir:
                 manifest.update(
                     end_utc=utc_now(),
                     outcome=outcome,
