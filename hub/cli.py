@@ -167,7 +167,7 @@ def build_parser() -> argparse.ArgumentParser:
         "metrics.json, figures and report.html.",
     )
     p.add_argument("run_dir", type=Path, help="a run folder")
-    p.add_argument("--out", type=Path, help="output folder (default: the run folder)")
+    p.add_argument("--out", type=Path, help="output folder (default: RUN_DIR/analysis)")
     p = sub.add_parser(
         "export",
         help="a recorded run as an NWB file",
@@ -327,7 +327,9 @@ def _add_dashboard_commands(sub) -> None:
         help="status, pause, resume or stop a running hub",
         description="Send a command to a running hub's control key (hub/control) and print "
         "its reply as JSON: status (the hub's state and counters), pause (the loop holds, the "
-        "robot stops), resume, stop (the run ends as 'stopped'). Exit status 0 when the hub "
+        "robot stops), resume, stop (the run ends as 'stopped' after the current step); the "
+        "reply's state is the one the command leads to (paused, running, stopping). Exit "
+        "status 0 when the hub "
         "took the command, 2 when it refused it or no hub answered.",
     )
     p.add_argument("cmd", choices=("status", "pause", "resume", "stop"))

@@ -673,7 +673,10 @@ class Hub:
         data = data if data is not None else self.status().to_dict()
         if not ok:
             reason = f"cannot {request.cmd} while {self.state}"
-        self._reply(query, ControlReply(ok=ok, state=self.state, reason=reason, data=data))
+        # The state the command leads to, as pause and resume reply: a stop takes effect
+        # after the current step.
+        state = "stopping" if request.cmd == "stop" else self.state
+        self._reply(query, ControlReply(ok=ok, state=state, reason=reason, data=data))
 
     def _hold(self, hold: bool) -> None:
         """Tell each endpoint the run is paused (it makes itself safe at once: the wheels

@@ -207,3 +207,11 @@ def test_an_emulators_bad_option_is_named_in_one_line(tmp_path, args, message):
     assert done.stderr.count("\n") == 1 and "Traceback" not in done.stderr
     assert done.stderr.startswith("neuvision: " + message.format(file=file, dir=tmp_path))
     assert file.read_text() == "not a link"  # left as it was
+
+
+def test_analyze_help_names_where_it_writes_by_default():
+    from hub.cli import build_parser
+    from lab.run_analysis import ANALYSIS_DIR  # where analyze_run writes without --out
+
+    sub = build_parser()._subparsers._group_actions[0].choices["analyze"]
+    assert f"default: RUN_DIR/{ANALYSIS_DIR})" in " ".join(sub.format_help().split())
