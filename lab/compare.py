@@ -102,7 +102,8 @@ def compare(
     if jobs is not None and jobs < 1:
         raise CompareError(f"--jobs must be >= 1, got {jobs}")
     cfgs = [load_config(c, list(overrides)) for c in configs]
-    for cfg in cfgs:  # the schemes' params too, before the first run (hub/schemes.py)
+    for cfg in cfgs:  # the endpoints' and the schemes' params too, before the first run
+        cfg.resolved()
         check_hub_sections(cfg)
     names = [cfg.experiment.name for cfg in cfgs]
     if len(set(names)) != len(names):

@@ -4,7 +4,8 @@ import json
 
 import pytest
 
-from lab.compare import Job, _tabulate, format_table
+from hub.config import ConfigError
+from lab.compare import Job, _tabulate, compare, format_table
 from lab.postrun import SUMMARY_FILE
 
 
@@ -46,3 +47,24 @@ def test_a_failed_run_is_listed_with_its_reason_and_the_conditions_are_tested(tm
     assert (test["metric"], test["n_a"], test["n_b"]) == ("distance_m", 3, 2)
     assert test["p_value"] == pytest.approx(0.1)  # only the observed one of C(5, 3) = 10 splits
     assert "| distance (m) | a vs b | 3 vs 2 | 0.1000 |" in table
+
+
+@pytest.mark.parametrize(
+    "bad, message",
+    [
+        ("culture.params.noise.sd=-1", "culture.params.noise.sd must be >= 0"),
+        ("coding.params.bogus=1", "coding.params.bogus is not a parameter"),
+    ],
+)
+def test_a_bad_parameter_of_any_condition_stops_the_comparison_before_its_first_run(
+    tmp_path, bad, message
+):
+    out = tmp_path / "compare"
+    with pytest.raises(ConfigError, match=message):
+        compare(
+            ["configs/closed_loop.toml", "configs/closed_loop_blind.toml"],
+            seeds=1,
+            overrides=[bad],
+            out_dir=out,
+        )
+    assert not out.exists()
