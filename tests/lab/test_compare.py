@@ -54,6 +54,7 @@ def test_a_failed_run_is_listed_with_its_reason_and_the_conditions_are_tested(tm
     [
         ("culture.params.noise.sd=-1", "culture.params.noise.sd must be >= 0"),
         ("coding.params.bogus=1", "coding.params.bogus is not a parameter"),
+        ('culture.params.config="nowhere.toml"', "nowhere.toml not found"),
     ],
 )
 def test_a_bad_parameter_of_any_condition_stops_the_comparison_before_its_first_run(

@@ -13,12 +13,14 @@ pytestmark = [pytest.mark.bus, pytest.mark.slow]
 
 
 def test_parallel_runs_of_eight_seeds_lose_nothing_and_name_an_injected_failure(tmp_path):
-    # A third condition whose culture file is missing: each of its runs fails its check.
+    # A third condition that fails only once its run starts (a bad file stops the whole
+    # comparison before any run): more stimulation sites than the culture has channels,
+    # which the coder finds when the endpoints have described themselves.
     broken = tmp_path / "broken.toml"
     base = Path("configs/closed_loop.toml").resolve()
     broken.write_text(
         f'extends = "{base}"\n[experiment]\nname = "broken"\n'
-        '[culture]\nparams = { config = "nowhere.toml" }\n'
+        "[coding]\nparams = { sites_per_sensor = 200 }\n"
     )
     out = tmp_path / "cmp"
     cmd = [sys.executable, "-m", "hub.cli", "compare", "configs/closed_loop.toml",
@@ -31,10 +33,10 @@ def test_parallel_runs_of_eight_seeds_lose_nothing_and_name_an_injected_failure(
     assert len(runs) == 24
     failed = [r for r in runs if not r["ok"]]
     assert {r["condition"] for r in failed} == {"broken"} and len(failed) == 8
-    assert all("exit status 3" in r["reason"] and "nowhere.toml" in r["reason"] for r in failed)
+    assert all("exit status 2" in r["reason"] and "sites_per_sensor" in r["reason"] for r in failed)
     for name in ("closed_loop", "closed_loop_blind"):
         assert result["stats"][name]["distance_m"]["n"] == 8  # none of them lost
     table = (out / "compare.md").read_text()
-    assert "**Failed runs: 8**" in table and "| broken | 8 | exit status 3" in table
+    assert "**Failed runs: 8**" in table and "| broken | 8 | exit status 2" in table
     assert any(t["b"] == "closed_loop_blind" and t["n_a"] == t["n_b"] == 8
                for t in result["tests"])  # fmt: skip
