@@ -18,6 +18,7 @@ dropped, a stall. ``neuvision emulate khepera`` runs one from the command line.
 
 from __future__ import annotations
 
+import gc
 import logging
 import math
 import os
@@ -320,6 +321,10 @@ def run_until_signalled(emulator: KheperaEmulator, *, link: str | None = None, r
     where = f"{emulator.path}" + (f" (linked as {link_path})" if link_path else "")
     name = emulator.model.name
     print(f"neuvision: {name} emulator on {where}; Ctrl-C ends it", file=sys.stderr)
+    # What was built so far lives as long as the process: left out of collections, a full
+    # one stays short instead of holding a reply for tens of ms (as a robot never does).
+    gc.collect()
+    gc.freeze()
     emulator.start()
     try:
         while not stop.wait(report_s):

@@ -16,6 +16,7 @@ the command connection reset, the command port stalled, a malformed spike record
 
 from __future__ import annotations
 
+import gc
 import logging
 import socket
 import threading
@@ -348,6 +349,10 @@ def run_until_signalled(emulator: IntanEmulator, report_s: float = 5.0) -> None:
     stop = StopFlag()  # set by signal handlers
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
+    # The culture and everything built so far live as long as the process: left out of
+    # collections, a full one stays short instead of holding the instrument's replies.
+    gc.collect()
+    gc.freeze()
     emulator.start()
     # this thread too: one under the ordinary scheduler holding the interpreter would keep
     # the raised ones waiting for it (a priority inversion)

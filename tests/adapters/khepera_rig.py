@@ -40,7 +40,8 @@ def emulator_process(baud: int) -> Iterator[str]:
 
     For realtime runs: an emulator on a thread of the test's process would share its
     interpreter, and a full garbage collection of the test session's objects (~230,000
-    after collection, ~120 ms) would hold its replies (a CI run's readings 131 ms old)."""
+    after collection, ~120 ms) would hold its replies (a CI run's readings 131 ms old). The
+    emulator's process freezes its own heap before it serves, for the same reason."""
     proc = subprocess.Popen(
         [sys.executable, "-m", "hub.cli", "emulate", "khepera", "--baud", str(baud)],
         stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
