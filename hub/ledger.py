@@ -65,6 +65,7 @@ class Ledger:
         # realtime: the step each role's reply is awaited for now, and by when (monotonic)
         self._owed: dict[str, int] = {}
         self._deadlines: dict[str, float] = {}
+        self._in_late: dict[str, int] = {}  # owed replies that came after their deadline
 
     def sent(self, role: str, step: int) -> None:
         """An input of ``step`` went to ``role``: a reply for it may come."""
@@ -87,6 +88,7 @@ class Ledger:
         owed_now = step == self._owed.get(role)
         if owed_now and t_arrival > self._deadlines[role] and step not in missed:
             self.miss(role, step)  # in after its deadline, however soon the loop looked
+            self._in_late[role] = step  # ... and late (below), not missing when it settles
         if expected <= step <= self.last_sent.get(role, -1) and step not in missed:
             if step in self.pending[role]:
                 return self.drop(role, "duplicate", f"second reply for step {step}")
@@ -144,6 +146,7 @@ class Ledger:
         a negative step owes nothing yet."""
         self._owed = {role: k for role, k in steps.items() if k >= 0}
         self._deadlines = dict(deadlines)
+        self._in_late = {}
 
     def waiting(self, now: float) -> list[str]:
         """The roles whose reply is not in and whose deadline has not passed at ``now``."""
@@ -159,7 +162,12 @@ class Ledger:
     def settle(self) -> bool:
         """The deadlines are over: each reply not in is missing. True if any was missing."""
         owed, self._owed, self._deadlines = self._owed, {}, {}
+        in_late, self._in_late = self._in_late, {}
         for role, k in owed.items():
-            if k not in self.pending[role] and k not in self.missed[role]:
+            if (
+                k not in self.pending[role]
+                and k not in self.missed[role]
+                and in_late.get(role) != k
+            ):
                 self.miss(role, k)
         return any(k not in self.pending[r] for r, k in owed.items())
