@@ -46,8 +46,9 @@ def run(tmp_path, bus_overrides, points_at, duration_s, *more, timeout=180):
 def test_a_short_hybrid_run_with_the_emulated_instrument(tmp_path, bus_overrides):
     emu, points_at = emulator()
     try:
-        proc = run(tmp_path, bus_overrides, points_at, 3.0)
-        _, stderr = proc.communicate(timeout=180)
+        with StallWitness() as witness:
+            proc = run(tmp_path, bus_overrides, points_at, 3.0)
+            _, stderr = proc.communicate(timeout=180)
         assert proc.returncode == 0, stderr[-2000:]
     finally:
         emu.terminate()
@@ -55,7 +56,10 @@ def test_a_short_hybrid_run_with_the_emulated_instrument(tmp_path, bus_overrides
     (run_dir,) = tmp_path.iterdir()
     rec = read_run(run_dir)
     batches = rec.decoded(SpikeBatch, "rx")
-    assert [b.step for b in batches] == list(range(300))
+    # every step's batch in time, but where the host held a CPU (a CI run: one of 300)
+    assert witness.unexcused(rec) == {}, witness.summary()
+    missed = {e.payload["step"] for e in rec.events if e.key == "missed"}
+    assert [b.step for b in batches] == [k for k in range(300) if k not in missed]
     # most spikes went as parts, as they came; every part's step was answered after it
     parts = rec.decoded(SpikeBatch, "part")
     assert len(parts) > 10 and all(p.partial for p in parts)
@@ -68,8 +72,9 @@ def test_a_short_hybrid_run_with_the_emulated_instrument(tmp_path, bus_overrides
     for i, (direction, step) in enumerate(order):
         if direction == "part":
             assert ("rx", step) in order[i + 1 :], f"a part of step {step} after its batch"
-    counts = rec.manifest["counts"]  # the burst observer had every step, parts merged
-    assert counts["online_analysis"] == "complete" and counts["online_steps_missing"] == 0
+    counts = rec.manifest["counts"]  # the burst observer had every step taken, parts merged
+    assert counts["online_steps_missing"] == len(missed)
+    assert counts["online_analysis"] == ("incomplete" if missed else "complete")
     assert counts["dropped"] == {}
     device = rec.manifest["endpoints"]["culture"]["device"]
     assert device["pulses_admitted"] > 0 and device["pulses_refused"] == {}
