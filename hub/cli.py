@@ -536,9 +536,7 @@ def cmd_compare(args) -> int:
     overrides = list(args.set or [])
     if args.duration_s is not None:
         overrides.append(f"experiment.duration_s={args.duration_s}")
-    for path in args.configs:  # every condition's file is read (and checked) before any run
-        load_config(path, overrides)
-    try:  # seeds, jobs, names and --out are checked before any run too
+    try:  # every condition's file, params, seeds, jobs, names and --out: before any run
         result = compare(args.configs, args.seeds, args.out, args.jobs, overrides)
     except CompareError as exc:
         raise InputError(str(exc)) from None
