@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import subprocess
 import sys
 import tempfile
 import time
@@ -35,6 +34,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from bench import closed_loop  # noqa: E402
+from bench.host import end_children_on_signal  # noqa: E402
 from dashboard.observer import BusObserver  # noqa: E402
 from dashboard.scene import build_scene, world_for  # noqa: E402
 from dashboard.state import FrameState, Reader  # noqa: E402
@@ -53,10 +54,9 @@ class _Sample:
 
 
 def record_run(seconds: float, runs_dir: Path) -> Path:
-    cmd = [sys.executable, "-m", "hub.cli", "run", "configs/closed_loop.toml", "--quiet"]
-    cmd += ["--mode", "lockstep", "--duration-s", str(seconds), "--runs-dir", str(runs_dir)]
-    cmd += ["--session", "bench-dashboard"]
-    subprocess.run(cmd, cwd=ROOT, check=True, stdout=subprocess.DEVNULL)
+    """A lockstep closed-loop run of ``seconds`` (``bench/closed_loop.py``'s, whose child
+    processes end with this script); its folder."""
+    closed_loop.run("lockstep", seconds, runs_dir)
     (run_dir,) = [p for p in runs_dir.iterdir() if p.is_dir()]
     return run_dir
 
@@ -132,6 +132,7 @@ def main() -> None:
     p.add_argument("--view-hz", type=float, default=30.0, help="loop.view_hz")
     p.add_argument("--repeat", type=int, default=3, help="passes over the run (best kept)")
     args = p.parse_args()
+    end_children_on_signal()  # a run recorded here ends with this script
     with tempfile.TemporaryDirectory() as tmp:
         if args.run_dir:
             run_dir = Path(args.run_dir)
