@@ -15,9 +15,11 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import math
 import os
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 from hub.bus import BusError
@@ -36,6 +38,22 @@ log = logging.getLogger("neuvision")
 class InputError(Exception):
     """A command's input that is not there or not what it must be (a run folder, a file):
     one line on stderr and exit status 3, like a config error."""
+
+
+def _positive(kind: type) -> Callable[[str], float | int]:
+    """An argparse type: a finite number of ``kind`` greater than 0."""
+
+    def parse(text: str):
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+        if not (math.isfinite(value) and value > 0):
+            raise argparse.ArgumentTypeError(f"must be > 0, got {text}")
+        return value
+
+    parse.__name__ = kind.__name__  # what argparse names in its own messages
+    return parse
 
 
 def _overrides(args) -> list[str]:
@@ -154,7 +172,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("compare", help="run conditions over several seeds and compare them")
     p.add_argument("configs", nargs="+", help="experiment files, one per condition")
     p.add_argument("--seeds", type=int, default=8, help="seeds 1..N per condition (default 8)")
-    p.add_argument("--jobs", type=int, help="runs at a time (default: the number of cores)")
+    p.add_argument("--jobs", type=_positive(int), help="runs at a time (default: the cores)")
     p.add_argument("--out", type=Path, help="folder for the comparison (default: a new one)")
     p.add_argument("--duration-s", type=float, help="experiment.duration_s for every run")
     p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override for every run")
@@ -277,7 +295,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--seeds", help="several seeds, e.g. 1-6 or 1,3,5: a table per seed and mean ± s.d."
     )
-    p.add_argument("--jobs", type=int, default=1, help="seeds reproduced at once (--seeds)")
+    p.add_argument(
+        "--jobs", type=_positive(int), default=1, help="seeds reproduced at once (--seeds)"
+    )
     p.add_argument("--culture", type=Path, help="culture file (default configs/culture_1024.toml)")
     _add_dashboard_commands(sub)
     return parser
@@ -336,7 +356,9 @@ def _add_dashboard_commands(sub) -> None:
     _add_config_args(p, shortcuts=False)
     p.add_argument("--session", help="bus.session")
     p.add_argument("--connect", metavar="HOST[:PORT]", help="where the hub listens (bus.connect)")
-    p.add_argument("--timeout-s", type=float, default=5.0, help="how long to wait for the hub")
+    p.add_argument(
+        "--timeout-s", type=_positive(float), default=5.0, help="how long to wait for the hub"
+    )
 
 
 def main(argv: list[str] | None = None) -> int:

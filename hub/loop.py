@@ -1094,6 +1094,8 @@ class Hub:
                     [round(v, 3) for v in u] for u in (self.online.under_way if self.online else ())
                 ],
                 "round_trip_ms": dict(self._last_round_trip_ms),
+                # a stop asked for (or decided) takes effect after the current step
+                "stop_reason": self.stop_reason or "",
                 # for observers (the dashboard, docs/dashboard.md)
                 "run": self.run_id,
                 "period_ms": float(self.cfg.loop.period_ms),

@@ -207,6 +207,8 @@ def main(argv: list[str] | None = None) -> dict:
     )
     ap.add_argument("--jobs", type=int, default=1, help="seeds simulated at once (--seeds)")
     args = ap.parse_args(argv)
+    if args.jobs < 1:
+        ap.error(f"--jobs must be >= 1, got {args.jobs}")
     cfg = load_config(args.config, args.set)  # the one loader: errors name the key
     if args.seeds:
         rows = statistics_over_seeds(

@@ -22,6 +22,7 @@ No NWB extension is needed: everything is a core type.
 
 from __future__ import annotations
 
+import contextlib
 import datetime as dt
 import json
 import os
@@ -44,7 +45,8 @@ def export_nwb(run_dir: str | Path, path: str | Path) -> Path:
     Raises
     ------
     ExportError
-        pynwb is not installed, or ``run_dir`` is not a run folder.
+        pynwb is not installed, ``run_dir`` is not a run folder, or ``path`` cannot be
+        written (a folder or a device is there, the file system refuses it).
     """
     try:
         from pynwb import NWBHDF5IO, NWBFile, TimeSeries
@@ -94,15 +96,21 @@ def export_nwb(run_dir: str | Path, path: str | Path) -> Path:
     _stimulation(nwb, run, TimeIntervals)
     _behaviour(nwb, run, Position, CompassDirection, TimeSeries)
     out = Path(path)
-    out.parent.mkdir(parents=True, exist_ok=True)
+    if out.exists() and not out.is_file():  # a folder, a device: never replaced by the file
+        raise ExportError(f"{out} is there and is not a file: give the NWB file to write")
     # Written beside it under another name, renamed when whole: a failure leaves no file.
     part = out.with_name(f".{out.stem}.part{out.suffix}")
     try:
+        out.parent.mkdir(parents=True, exist_ok=True)
         with NWBHDF5IO(str(part), "w") as io:
             io.write(nwb)
         os.replace(part, out)
+    except OSError as exc:  # h5py's carry errno but a long message of their own
+        why = os.strerror(exc.errno) if exc.errno else str(exc)
+        raise ExportError(f"cannot write {out}: {why}") from None
     finally:
-        part.unlink(missing_ok=True)
+        with contextlib.suppress(OSError):  # (a name too long for the part file, too)
+            part.unlink(missing_ok=True)
     return out
 
 

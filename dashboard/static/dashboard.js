@@ -187,7 +187,10 @@ function drawHeader() {
     badge.textContent = `replay · ${src.run_dir}`;
     badge.className = "badge replay";
   }
-  $("state").textContent = st.state || (src.kind === "live" ? "waiting for the hub" : "—");
+  // a stop takes effect after the current step: the hub says why meanwhile
+  const stopping = !!(st.extra && st.extra.stop_reason) && st.state !== "stopped";
+  $("state").textContent = stopping ? `stopping (${st.extra.stop_reason})`
+    : st.state || (src.kind === "live" ? "waiting for the hub" : "—");
   $("step").textContent = nv.step >= 0 ? nv.step : "—";
   const n = (st.extra && st.extra.n_steps) || (nv.scene && nv.scene.n_steps);
   $("n-steps").textContent = n ? ` / ${n}` : "";
@@ -197,9 +200,9 @@ function drawHeader() {
   $("replay-controls").hidden = !replay;
   if (live) {
     const may = src.controls !== false;  // an observer's certificate: read-only
-    $("btn-pause").disabled = !may || st.state !== "running";
-    $("btn-resume").disabled = !may || st.state !== "paused";
-    $("btn-stop").disabled = !may || !["running", "paused", "waiting"].includes(st.state);
+    $("btn-pause").disabled = !may || stopping || st.state !== "running";
+    $("btn-resume").disabled = !may || stopping || st.state !== "paused";
+    $("btn-stop").disabled = !may || stopping || !["running", "paused", "waiting"].includes(st.state);
     $("live-controls").title = may ? "" : "read-only: this dashboard has an observer's certificate";
   }
   if (replay && nv.replay) {

@@ -215,3 +215,21 @@ def test_analyze_help_names_where_it_writes_by_default():
 
     sub = build_parser()._subparsers._group_actions[0].choices["analyze"]
     assert f"default: RUN_DIR/{ANALYSIS_DIR})" in " ".join(sub.format_help().split())
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["reproduce", "--seeds", "1-2", "--jobs", "0"], "argument --jobs: must be > 0, got 0"),
+        (["compare", str(CLOSED_LOOP), "--jobs", "-1"], "argument --jobs: must be > 0, got -1"),
+        (["ctl", "status", "--timeout-s", "-1"], "argument --timeout-s: must be > 0, got -1"),
+        (["ctl", "status", "--timeout-s", "nan"], "argument --timeout-s: must be > 0, got nan"),
+    ],
+)
+def test_a_count_or_a_wait_that_is_not_positive_is_a_usage_error(
+    capsys, tmp_path, no_process, argv, message
+):
+    with pytest.raises(SystemExit) as exit:
+        main(argv)
+    assert exit.value.code == 2  # argparse's usage error, before anything runs
+    assert message in capsys.readouterr().err

@@ -434,6 +434,8 @@ def test_pause_resume_stop_and_config_over_the_control_key(tmp_path, bus_overrid
     assert out["resume"].ok and out["resume"].state == "running"
     assert out["config"].data["loop"]["mode"] == "realtime"
     assert out["stop"].ok and out["stop"].state == "stopping"  # as pause and resume: the next
+    assert out["stop"].data["extra"]["stop_reason"] == "stopped by control"  # and why
+    assert out["resume"].data["extra"]["stop_reason"] == ""
     assert result.outcome == "stopped" and 30 < result.steps < 10_000
     assert any(s.alive == ["body/0", "culture/0", "hub/0"] for s in statuses)
     assert [e.payload["cmd"] for e in h.record.events if e.key == "control"] == [

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+import stat
 import subprocess
 import sys
 from pathlib import Path
@@ -149,3 +151,23 @@ def test_a_run_in_which_no_channel_fired_has_an_empty_but_typed_units_table(tmp_
         f = io.read()
         assert len(f.units) == 0 and f.units["channel"].data.dtype.kind == "i"
         np.testing.assert_allclose(f.electrodes["rel_x"][:], np.arange(4))
+
+
+def test_a_path_that_is_not_a_file_is_refused_and_left_as_it_is(tmp_path):
+    run_dir = _run_without_steps(tmp_path / "run", steps=3)
+    fifo = tmp_path / "pipe.nwb"  # what /dev/full or a named pipe would be
+    os.mkfifo(fifo)
+    done = _export(run_dir, fifo)
+    assert done.returncode == 3 and done.stderr.count("\n") == 1, done.stderr
+    assert "is not a file" in done.stderr
+    assert stat.S_ISFIFO(fifo.stat().st_mode)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["pipe.nwb", "run"]
+
+
+def test_a_file_the_file_system_refuses_is_one_line_and_leaves_nothing(tmp_path):
+    run_dir = _run_without_steps(tmp_path / "run", steps=3)
+    too_long = tmp_path / ("n" * 250 + ".nwb")  # the file system's limit is 255 bytes
+    done = _export(run_dir, too_long)
+    assert done.returncode == 3 and done.stderr.count("\n") == 1, done.stderr
+    assert "cannot write" in done.stderr and "Traceback" not in done.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]
