@@ -390,6 +390,15 @@ def _one_line(exc: BaseException) -> str:
     return " ".join(str(exc).split())
 
 
+def _emit(text: str) -> None:
+    """Print a command's result on stdout; a reader that left (``| head``) is no error."""
+    try:
+        print(text, flush=True)
+    except BrokenPipeError:
+        # Python's own flush at exit would fail again: stdout goes nowhere from here.
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+
+
 # --------------------------------------------------------------------------- commands
 
 
@@ -446,7 +455,7 @@ def cmd_record_info(args) -> int:
     except (OSError, ValueError) as exc:
         log.debug("reading %s", run_dir, exc_info=True)
         raise InputError(f"cannot read the run in {run_dir}: {exc}") from None
-    print(json.dumps(record_summary(rec), indent=2))
+    _emit(json.dumps(record_summary(rec), indent=2))
     return EXIT_OK
 
 
@@ -577,7 +586,7 @@ def cmd_analyze(args) -> int:
         metrics = analyze_run(run_dir, args.out)
     except AnalysisInputError as exc:
         raise InputError(f"cannot analyse {run_dir}: {exc}") from None
-    print(json.dumps(metrics, indent=2, default=str))
+    _emit(json.dumps(metrics, indent=2, default=str))
     return EXIT_OK
 
 
@@ -706,7 +715,7 @@ def cmd_certs(args) -> int:
     except ValueError as exc:
         raise InputError(f"--roles / --hub-hosts: {exc}") from None
     for path in written:
-        print(path)
+        _emit(str(path))
     print(f"neuvision: {len(written)} files in {args.dir}", file=sys.stderr)
     return EXIT_OK
 
@@ -750,7 +759,7 @@ def cmd_ctl(args) -> int:
               file=sys.stderr)  # fmt: skip
         return EXIT_FAULT
     out = {"ok": reply.ok, "state": reply.state, "reason": reply.reason, "data": reply.data}
-    print(json.dumps(out, indent=2, default=str))
+    _emit(json.dumps(out, indent=2, default=str))
     return EXIT_OK if reply.ok else EXIT_FAULT
 
 

@@ -11,10 +11,11 @@ scheme's output over the endpoint's limits is refused whole (never clipped) and 
 
 from __future__ import annotations
 
+import logging
 from collections import Counter
 from collections.abc import Callable
 
-from hub.config import ExperimentConfig
+from hub.config import ConfigError, ExperimentConfig
 from hub.limits import StimulationLimits, motor_violation
 from hub.protocol import (
     Description,
@@ -26,9 +27,21 @@ from hub.protocol import (
 )
 from hub.schemes import SchemeContext, load_scheme
 
+log = logging.getLogger(__name__)
+
 
 class SchemeError(RuntimeError):
-    """A coding or decoding scheme returned something other than the input asked for."""
+    """A coding or decoding scheme raised, or returned something other than the input
+    asked for: the run ends as a fault (the scheme's traceback in the log)."""
+
+
+def _raised(section: str, spec: str, when: str, exc: Exception) -> SchemeError:
+    """The error of a scheme that raised ``exc``, its traceback logged."""
+    log.error("%s.scheme %s raised %s", section, spec, when, exc_info=exc)
+    return SchemeError(
+        f"{section}.scheme {spec} raised {when}: {type(exc).__name__}: {exc} "
+        "(its traceback is logged)"
+    )
 
 
 class InputPolicy:
@@ -62,12 +75,18 @@ class InputPolicy:
         common = dict(
             body=body, culture=culture, period_ms=cfg.loop.period_ms, seed=cfg.experiment.seed
         )
-        self.coder = load_scheme(cfg.coding.scheme, "coding")(
-            SchemeContext(params=cfg.coding.params, section="coding", **common)
-        )
-        self.decoder = load_scheme(cfg.decoding.scheme, "decoding")(
-            SchemeContext(params=cfg.decoding.params, section="decoding", **common)
-        )
+        built = {}
+        for section in ("coding", "decoding"):
+            spec, params = getattr(cfg, section).scheme, getattr(cfg, section).params
+            factory = load_scheme(spec, section)
+            try:
+                built[section] = factory(SchemeContext(params=params, section=section, **common))
+            except ConfigError:  # a parameter that does not fit the descriptions
+                raise
+            except Exception as exc:
+                raise _raised(section, spec, "when built", exc) from None
+        self.coder, self.decoder = built["coding"], built["decoding"]
+        self.specs = {"coding": cfg.coding.scheme, "decoding": cfg.decoding.scheme}
         self.policy = cfg.policy
         self.body = body
         self.run = run
@@ -88,7 +107,11 @@ class InputPolicy:
         if k == 0:
             return MotorCommand.stop(window)
         if spikes is not None:
-            motor = _checked(self.decoder(spikes, window), MotorCommand, window)
+            try:
+                motor = self.decoder(spikes, window)
+            except Exception as exc:
+                raise _raised("decoding", self.specs["decoding"], f"at step {k}", exc) from None
+            motor = _checked(motor, MotorCommand, window)
             why = motor_violation(motor, self.body)
             if why is None:
                 self.last_motor = motor
@@ -117,7 +140,11 @@ class InputPolicy:
             self.last_sensors = sensors
         elif self.policy.missing_sensors == "zero_stim" or self.last_sensors is None:
             return Stimulation.none(window)
-        stim = _checked(self.coder(self.last_sensors, window), Stimulation, window)
+        try:
+            stim = self.coder(self.last_sensors, window)
+        except Exception as exc:
+            raise _raised("coding", self.specs["coding"], f"at step {k}", exc) from None
+        stim = _checked(stim, Stimulation, window)
         why = self.stim_limits.violation(stim)
         if why is not None:  # refused, never clipped: no stimulation this step
             self._refuse("coding", f"step {k}: {why}")

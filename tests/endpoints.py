@@ -234,3 +234,20 @@ class StreamingCulture(EchoCulture):
         late_ms = (window.t1_s - window.t0_s) * 1e3 * 0.9
         self.reply(SpikeBatch(**window.stamp, channel=[1], t_ms=[late_ms], partial=True))
         return super().step(s, window)
+
+
+def build_fails(ctx):
+    """A factory with a bug of its own: it reads a parameter it never got."""
+    return ctx.params["gain"]
+
+
+def decode_fails_at_3(ctx):
+    """Decoder with a bug: it raises at step 3."""
+    ctx.check_params(set())
+
+    def decoder(spikes, window):
+        if window.step == 3:
+            raise ZeroDivisionError("division by zero")
+        return MotorCommand.stop(window)
+
+    return decoder

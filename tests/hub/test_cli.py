@@ -1,6 +1,7 @@
 """The command line: any bad input is one line on stderr and exit status 3, before a run
 folder or a process exists."""
 
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -233,3 +234,18 @@ def test_a_count_or_a_wait_that_is_not_positive_is_a_usage_error(
         main(argv)
     assert exit.value.code == 2  # argparse's usage error, before anything runs
     assert message in capsys.readouterr().err
+
+
+def test_a_reader_that_leaves_early_is_no_error(tmp_path):
+    """``neuvision certs DIR | head -1``: the paths go to a pipe whose reader is gone."""
+    read_end, write_end = os.pipe()
+    os.close(read_end)  # gone before anything is written: every write fails (EPIPE)
+    try:
+        done = subprocess.run(
+            [sys.executable, "-m", "hub.cli", "certs", str(tmp_path / "certs")],
+            stdout=write_end, stderr=subprocess.PIPE, text=True, timeout=60,
+        )  # fmt: skip
+    finally:
+        os.close(write_end)
+    assert done.returncode == 0 and "Traceback" not in done.stderr, done.stderr
+    assert any((tmp_path / "certs").iterdir())  # the work was done all the same

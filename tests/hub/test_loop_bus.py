@@ -167,17 +167,27 @@ def test_in_lockstep_a_reply_owed_past_the_reply_timeout_is_replaced_by_the_poli
     assert sorted(h.received(SpikeBatch)) == list(range(30))
 
 
+@pytest.mark.parametrize(
+    "scheme, reason, last_stimulation",
+    [
+        ('coding.scheme="tests.endpoints:code_wrong_step_at_20"', "a Stimulation for step 20", 19),
+        (
+            'decoding.scheme="tests.endpoints:decode_fails_at_3"',
+            "decoding.scheme tests.endpoints:decode_fails_at_3 raised at step 3: ZeroDivisionError",
+            None,
+        ),
+    ],
+)
 def test_a_scheme_that_fails_ends_the_run_as_a_fault_with_the_robot_stopped(
-    tmp_path, bus_overrides
+    tmp_path, bus_overrides, scheme, reason, last_stimulation
 ):
-    with harness(
-        tmp_path, bus_overrides, 'coding.scheme="tests.endpoints:code_wrong_step_at_20"'
-    ) as h:
+    with harness(tmp_path, bus_overrides, scheme) as h:
         result = h.run()
     assert result.outcome == "fault"
-    assert "expected a Stimulation for step 20" in result.reason
+    assert reason in result.reason
     assert h.record.manifest["outcome"] == "fault"
-    assert max(h.sent(Stimulation)) == 19  # the bad stimulation never left
+    if last_stimulation is not None:
+        assert max(h.sent(Stimulation)) == last_stimulation  # the bad one never left
     last_motor = h.record.decoded(MotorCommand, "tx")[-1]
     assert last_motor.left_mps == last_motor.right_mps == 0
     assert h.exit_codes == {"body": 0, "culture": 0}

@@ -95,3 +95,20 @@ def test_a_scheme_that_answers_for_another_step_is_an_error():
     p.stim_for(19, sensors(18))
     with pytest.raises(SchemeError, match="for step 20"):
         p.stim_for(20, sensors(19))
+
+
+def test_a_scheme_that_raises_when_built_is_named_with_what_it_raised(caplog):
+    with pytest.raises(SchemeError) as error:
+        policy('coding.scheme="tests.endpoints:build_fails"')
+    assert str(error.value) == (
+        "coding.scheme tests.endpoints:build_fails raised when built: KeyError: 'gain' "
+        "(its traceback is logged)"
+    )
+    assert 'ctx.params["gain"]' in caplog.text  # the scheme's own line, for its author
+
+
+def test_a_scheme_that_raises_at_a_step_is_named_with_the_step():
+    p = policy('decoding.scheme="tests.endpoints:decode_fails_at_3"')
+    p.motor_for(2, spikes(1))
+    with pytest.raises(SchemeError, match=r"decoding.scheme \S+ raised at step 3: ZeroDivision"):
+        p.motor_for(3, spikes(2))
