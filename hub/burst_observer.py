@@ -7,7 +7,8 @@ SpikeBatches it took, as the culture sent them (``ObservedSpikes``: what came in
 in realtime, in 50 ms in lockstep, one put for many steps); the observer
 feeds them to :class:`~hub.live.LiveBursts` and publishes a
 :class:`~hub.protocol.BurstReport` when a network burst completes, when one starts or
-stops being under way, and every ``REPORT_EVERY_MS`` of run time besides. The hub
+stops being under way, and every ``REPORT_EVERY_MS`` of run time besides (those with no
+news at most every ``REPORT_GAP_S`` of wall time). The hub
 records each network burst reported (a ``network_burst`` event) and counts them in its
 status and the run's manifest; live displays may read the reports too.
 
@@ -61,8 +62,11 @@ from hub.stopping import StopFlag
 log = logging.getLogger(__name__)
 
 NAME = "bursts"  # the observer's name in its keys (observer/bursts/...)
-# A report goes out at least this often in run time (the counts in the hub's status).
+# A report goes out at least this often in run time (the counts in the hub's status), and
+# such a report with no news no sooner than REPORT_GAP_S of wall time after the last: a
+# lockstep run covers seconds of run time a second, and each report wakes the hub's loop.
 REPORT_EVERY_MS = 1000.0
+REPORT_GAP_S = 0.25
 TAKE_AT_ONCE = 64  # messages of spikes analysed in one feed, at most
 WAKE_S = 0.1  # the longest the observer sleeps (to see that the spikes of a run's end came)
 ANALYSIS_NICE = 19  # the analysing thread's nice value
@@ -214,18 +218,22 @@ class BurstObserver:
     def _publish(self, run: _Run, done: list, *, final: bool = False, missing: int = 0):
         """Report the network bursts ``done`` (the final report: all of the run's), if
         there is news: a network burst complete, one under way or no longer, or
-        REPORT_EVERY_MS since the last report."""
+        REPORT_EVERY_MS of run time and REPORT_GAP_S of wall time since the last report."""
         run.found.extend(done)
         onset_ms = None if final else run.live.under_way()
         until_ms = run.live.until_ms
-        news = done or onset_ms != run.onset_ms or until_ms >= run.reported_ms + REPORT_EVERY_MS
-        if not (news or final):
+        news = done or onset_ms != run.onset_ms
+        due = (
+            until_ms >= run.reported_ms + REPORT_EVERY_MS
+            and time.monotonic() >= run.reported_at + REPORT_GAP_S
+        )
+        if not (news or due or final):
             return None
         report = run.report(run.found if final else done, onset_ms, final=final, missing=missing)
         if final:
             return dataclasses.replace(report, cpu_s=time.process_time() - run.cpu_at_start)
         run.outbox.put(report.encode())
-        run.onset_ms, run.reported_ms = onset_ms, until_ms
+        run.onset_ms, run.reported_ms, run.reported_at = onset_ms, until_ms, time.monotonic()
         return report
 
     # ---------------------------------------------------------------- the run's end
@@ -273,6 +281,7 @@ class _Run:
     dropped: int = 0
     onset_ms: float | None = None  # the network burst under way in the last report
     reported_ms: float = 0.0  # run time of the last report
+    reported_at: float = 0.0  # and when it went (time.monotonic())
     cpu_at_start: float = field(default_factory=time.process_time)
     lost: int = 0  # steps skipped in what came (a message the link dropped)
     last_came: float = field(default_factory=time.monotonic)  # when the last spikes came

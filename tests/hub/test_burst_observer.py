@@ -5,15 +5,24 @@ import json
 import queue
 import signal
 import threading
+import time
 
 import pytest
 
 from hub import wire
-from hub.burst_observer import NAME, BurstObserver, OnlineTally
+from hub.burst_observer import NAME, REPORT_GAP_S, BurstObserver, OnlineTally
 from hub.bus import open_session
 from hub.config import load_config
 from hub.launch import start_burst_observer
-from hub.protocol import BurstReport, ObservedSpikes, ObserverEnd, ObserverStart, RunReply
+from hub.protocol import (
+    BurstReport,
+    ObservedSpikes,
+    ObserverEnd,
+    ObserverStart,
+    RunReply,
+    SpikeBatch,
+    StepWindow,
+)
 from tests.harness import harness, wait_for
 from tests.hub.test_live import CHANNELS, PLANTED, _batches
 from tests.windows import RUN
@@ -114,6 +123,32 @@ def test_steps_whose_spikes_never_come_are_counted_missing(observed, monkeypatch
     )
     final = BurstReport.decode(raw)
     assert final.final and final.missing_steps == 3 + 40 and final.network_bursts == 1
+
+
+def test_reports_without_news_go_at_most_every_quarter_second_of_wall_time(observed):
+    """A lockstep run covers many seconds of run time a second: the counts' report (every
+    second of run time) must not wake the hub for each."""
+    hub, keys = observed
+    key = wire.new_key()
+    reports: queue.SimpleQueue = queue.SimpleQueue()
+    declared = [  # noqa: F841
+        hub.declare_subscriber(keys.observer_reports(NAME), lambda s: reports.put(time.monotonic()))
+    ]
+    assert _start(hub, keys, key).ok
+    forward = _forwarder(hub, keys, key)
+    silent = [SpikeBatch(**StepWindow.of(RUN, k, 1.0).stamp) for k in range(60)]  # 1 s steps
+    started = time.monotonic()
+    for batch in silent:  # a minute of run time, each second its own message
+        forward(batch)
+    (raw,) = wire.get(
+        hub, keys.observer_run(NAME), ObserverEnd(run=RUN, steps=60).encode(), timeout_s=10
+    )
+    elapsed_s = time.monotonic() - started
+    assert BurstReport.decode(raw).missing_steps == 0  # every second of it was analysed
+    times = []
+    while not reports.empty():
+        times.append(reports.get())
+    assert 1 <= len(times) <= 1 + elapsed_s / REPORT_GAP_S, (len(times), elapsed_s)
 
 
 def _manifest(run_dir):
