@@ -95,7 +95,7 @@ class MeaEndpoint(Endpoint):
                  reply_margin_ms: float = 2.0, stream_spikes_ms: float = 1.0):  # fmt: skip
         super().__init__(id)
         self.driver, self.limits = driver, limits
-        self.gate = SafetyGate(limits)
+        self.gate = SafetyGate(limits, driver.layout.n)
         self.reply_margin_s = reply_margin_ms / 1e3
         self.stream_s = stream_spikes_ms / 1e3
         self.late_spikes = 0
@@ -274,7 +274,7 @@ class MeaEndpoint(Endpoint):
             self._origin = math.inf
             self._unanswered, self._next_part, self._part_due = {}, -math.inf, False
             self._due, self._due_now = {lane: [] for lane in self._due}, []
-            self.gate = SafetyGate(self.limits)
+            self.gate = SafetyGate(self.limits, self.driver.layout.n)
             self._schedule(time.monotonic() + CLOCK_SAMPLE_S, "clock", None)
 
     def step(self, stim: Stimulation, window: StepWindow) -> None:
@@ -355,6 +355,14 @@ class MeaEndpoint(Endpoint):
         self.driver.fault = exc
         self.request_stop()
 
+    def serve(self, *args, **kwargs) -> int:
+        """:meth:`Endpoint.serve`; an instrument that failed ends it with that fault raised
+        (``neuvision endpoint``: the fault named, exit status 2), not as a clean stop."""
+        status = super().serve(*args, **kwargs)
+        if self.driver.fault is not None:
+            raise self.driver.fault
+        return status
+
     def close(self) -> None:
         with self._timing:
             self._closing = True
@@ -374,6 +382,16 @@ class MeaEndpoint(Endpoint):
             self._wake[lane].notify()
 
     def _work(self, lane: str) -> None:
+        """:meth:`_serve_lane`; anything else it raises (a bug) ends the endpoint as a fault,
+        named: a worker that died alone left the endpoint serving with no pulse fired and
+        no clock sampled again."""
+        try:
+            self._serve_lane(lane)
+        except Exception as exc:
+            log.exception("the %s worker failed", lane)
+            self._failed(DeviceFault(f"the endpoint's {lane} worker failed: {exc!r}"))
+
+    def _serve_lane(self, lane: str) -> None:
         """What falls due in ``lane``: fire pulses at their onsets and sample the clock
         ("device"), or answer windows once they have passed ("replies")."""
         while True:

@@ -247,7 +247,10 @@ class RhxDriver:
 
     def sample_clock(self) -> None:
         """One (local, instrument) pair: ``get currenttimestamp`` at the middle of its round
-        trip."""
+        trip. Raises the spike reader's fault, if it found the spike port lost (the run
+        must not go on without its spikes)."""
+        if self.fault is not None:
+            raise self.fault
         t0 = time.monotonic()
         samples = int(self.get("currenttimestamp"))
         t1 = time.monotonic()

@@ -7,7 +7,10 @@ simulated culture's pulse, with no net charge. It is then checked against the li
 that breaks any of them is **refused** (logged with its reason, counted by reason), never
 clipped to fit:
 
-- amplitude ≤ ``max_amplitude_ua``; each phase ≤ ``max_phase_us`` and ≥ ``min_phase_us``;
+- the electrode is one of the layout's (``channel``);
+- 0 ≤ amplitude ≤ ``max_amplitude_ua`` (the amplitude is the pulse's size: its polarity is
+  ``polarity``, so a negative one is refused, not taken past the charge check);
+- each phase ≤ ``max_phase_us`` and ≥ ``min_phase_us``;
 - charge per phase ``A · W/2`` ≤ the electrode's safe charge: ``max_charge_density_mc_per_cm2``
   (23 mC/cm² for titanium nitride) × its area (``electrode_diameter_um``: 30 µm → 163 nC);
 - pulses per electrode ≤ ``max_pulse_hz`` over the last second, and all electrodes together ≤
@@ -90,10 +93,15 @@ class BiphasicPulse:
 
 
 class SafetyGate:
-    """Checks pulses against :class:`PulseLimits`, counting refusals by reason."""
+    """Checks pulses against :class:`PulseLimits`, counting refusals by reason.
 
-    def __init__(self, limits: PulseLimits):
+    ``n_channels``: the layout's electrodes (channels ``0..n_channels-1``); a pulse on any
+    other is refused (``channel``). None: not checked.
+    """
+
+    def __init__(self, limits: PulseLimits, n_channels: int | None = None):
         self.limits = limits
+        self.n_channels = n_channels
         self.refused: Counter[str] = Counter()
         self.admitted = 0
         self._per_channel: dict[int, deque[float]] = {}
@@ -105,7 +113,15 @@ class SafetyGate:
         phase_us = width_ms * 1e3 / 2
         charge_nc = amplitude_ua * phase_us * 1e-3
         reason = None
-        if amplitude_ua > lim.max_amplitude_ua:
+        if self.n_channels is not None and not 0 <= channel < self.n_channels:
+            reason = (
+                "channel",
+                f"channel {channel}: the layout has channels 0..{self.n_channels - 1}",
+            )
+        elif not amplitude_ua >= 0:
+            reason = ("amplitude", f"{amplitude_ua:g} µA < 0: the amplitude is the pulse's size "
+                      "(its polarity is safety.polarity)")  # fmt: skip
+        elif amplitude_ua > lim.max_amplitude_ua:
             reason = (
                 "amplitude",
                 f"{amplitude_ua:g} µA > max_amplitude_ua {lim.max_amplitude_ua:g}",

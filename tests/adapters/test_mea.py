@@ -392,3 +392,106 @@ def test_a_windows_spikes_go_out_as_they_come_in_parts_then_the_rest(emulators, 
     assert all(part.step == batch.step == 0 for _, part in parts)
     spikes = merge_parts([part for _, part in parts], batch)
     assert spikes.channel.size > 10 and 0 <= spikes.t_ms.min() <= spikes.t_ms.max() < 500
+
+
+def test_a_negative_amplitude_is_refused_not_taken_past_the_charge_limit():
+    """An MEA pulse's amplitude is its size (the polarity is ``safety.polarity``): a
+    negative one is refused, not let past the amplitude and charge checks (-100 µA for
+    300 µs is 30 nC, over a 10 µm electrode's 18 nC) and written to the instrument."""
+    gate = SafetyGate(PulseLimits(electrode_diameter_um=10.0))
+    assert gate.admit(2, -100.0, 0.6, 0.0).startswith("amplitude")
+    assert gate.admit(2, -1.0, 0.4, 0.0).startswith("amplitude")
+    assert gate.refused == {"amplitude": 2} and gate.admitted == 0
+
+
+def test_a_pulse_on_an_electrode_the_layout_lacks_is_refused_and_counted(emulators):
+    """A channel beyond the layout is refused by reason (``channel``), never sent, and the
+    endpoint serves on: before, one due at once ended the endpoint with an IndexError, and
+    one due later killed the thread that fires pulses and samples the clock, silently."""
+    from hub.protocol import Stimulation
+
+    emu = emulators()
+    with conformance.served(lambda: endpoint_for(emu)) as hub:
+        # 100 ms steps: a pulse 50 ms into a step is due after its input came
+        assert hub.start(mode="realtime", period_ms=100.0).ok
+        n = hub.description.channel.size
+        for step, (channel, onset_ms) in enumerate([(n, 0.0), (n + 500, 50.0)]):
+            bad = Stimulation(**hub.window(step).stamp, channel=[channel], amplitude_ua=[10.0],
+                              width_ms=[0.4], onset_ms=[onset_ms])  # fmt: skip
+            hub.send(bad)
+            assert hub.reply().step == step
+        # a later pulse at a later onset is still fired: the firing thread lives on
+        good = Stimulation(**hub.window(2).stamp, channel=[3], amplitude_ua=[10.0],
+                           width_ms=[0.4], onset_ms=[50.0])  # fmt: skip
+        hub.send(good)
+        assert hub.reply().step == 2
+        wait_for(lambda: len(emu.triggers) == 1, 5.0)
+        assert emu.triggers[0][1] == [3]
+        counters = hub.counters()
+        assert counters["device"]["pulses_refused"] == {"channel": 2}
+        assert counters["device"]["pulses_admitted"] == 1
+        assert hub.error is None
+
+
+def test_the_instrument_gone_mid_run_ends_the_endpoint_with_its_fault(emulators):
+    """The RHX software gone mid-run ends the endpoint with the fault raised, as a
+    :class:`DeviceFault` (``neuvision endpoint``: exit status 2, the fault named), not as a
+    clean stop (it returned 0: a script or a supervisor saw a run that went well)."""
+    from hub.endpoint import DeviceFault
+
+    emu = emulators()
+    with conformance.served(lambda: endpoint_for(emu)) as hub:
+        assert hub.start(mode="realtime").ok
+        hub.step(0)
+        emu.stop()
+        hub.thread.join(10.0)
+        assert not hub.thread.is_alive(), "the endpoint kept serving a lost instrument"
+        assert isinstance(hub.error, DeviceFault) and "RHX" in str(hub.error)
+        assert hub.status is None
+        hub.error = None  # the fault expected, seen
+
+
+def test_the_spike_port_alone_lost_mid_run_ends_the_endpoint(emulators):
+    """The spike stream lost while the command port still answers: before, the reader
+    noted the fault and the run went on with no spike ever again, its pulses dropped
+    unsaid."""
+    import socket
+
+    from hub.endpoint import DeviceFault
+
+    emu = emulators()
+    with conformance.served(lambda: endpoint_for(emu)) as hub:
+        assert hub.start(mode="realtime").ok
+        hub.step(0)
+        for conn in list(emu._spike_clients):
+            conn.shutdown(socket.SHUT_RDWR)
+        hub.thread.join(10.0)
+        assert not hub.thread.is_alive(), "the endpoint kept serving without its spikes"
+        assert isinstance(hub.error, DeviceFault) and "spike port" in str(hub.error)
+        hub.error = None  # the fault expected, seen
+
+
+def test_a_worker_that_fails_ends_the_endpoint_as_a_fault(emulators, monkeypatch):
+    """Anything a pulse's delivery raises beyond the instrument's own faults (a bug) ends
+    the endpoint, named; before, it ended the thread that fires pulses and samples the
+    clock, and the endpoint served on with neither."""
+    from hub.endpoint import DeviceFault
+    from hub.protocol import Stimulation
+
+    emu = emulators()
+    endpoint = endpoint_for(emu)
+
+    def broken(pulses):
+        raise RuntimeError("a bug in deliver")
+
+    with conformance.served(lambda: endpoint) as hub:
+        monkeypatch.setattr(endpoint.driver, "deliver", broken)
+        assert hub.start(mode="realtime", period_ms=100.0).ok
+        later = Stimulation(**hub.window(0).stamp, channel=[3], amplitude_ua=[10.0],
+                            width_ms=[0.4], onset_ms=[50.0])  # fmt: skip
+        hub.send(later)
+        hub.thread.join(10.0)
+        assert not hub.thread.is_alive(), "the endpoint served on without its worker"
+        assert isinstance(hub.error, DeviceFault) and "a bug in deliver" in str(hub.error)
+        assert not endpoint.driver.enabled
+        hub.error = None  # the fault expected, seen
