@@ -248,6 +248,9 @@ def test_the_spike_stream_lost_mid_run_ends_the_endpoint(source):
         assert "lost" in str(endpoint.driver.fault)
         hub.thread.join(10.0)
         assert not hub.thread.is_alive(), "the endpoint kept serving a lost instrument"
+        # ended by the fault, raised (``neuvision endpoint``: exit status 2), not a clean stop
+        assert hub.error is endpoint.driver.fault
+        hub.error = None  # the fault expected, seen
 
 
 # ---------------------------------------------------------------- settings
