@@ -148,6 +148,7 @@ class KheperaEndpoint(Endpoint):
         link = SerialLink(
             port, timeout_s=p["timeout_s"], silent_s=p["silent_s"], dialect=p["dialect"]
         )
+        link.guard_motors()  # the motors stopped even if this process is killed outright
         driver = KheperaDriver(
             link,
             units=WheelUnits.of(model),

@@ -88,6 +88,33 @@ def test_the_hub_killed_mid_run_leaves_the_robot_stopped_within_the_watchdog(
         end(hub, body)
 
 
+def test_the_adapter_killed_outright_leaves_the_robot_stopped(emulator, bus_overrides, tmp_path):
+    """SIGKILL to the adapter (or the OOM killer, or a crash in C): no code of its own runs,
+    and a Khepera's protocol has no watchdog of its own — the robot drove on at its last
+    speed. The adapter's stop guard, a process that holds the port with it, sends the stop
+    when the adapter's process ends without releasing it, and then ends itself."""
+    args = sets(bus_overrides, emulator.path, 'body.launch="external"')
+    body = neuvision("endpoint", "body", HYBRID, *args, stderr=subprocess.PIPE, text=True)
+    hub = neuvision(
+        "run", HYBRID, "--quiet", "--duration-s", "60", "--runs-dir", str(tmp_path), *args,
+        stderr=subprocess.DEVNULL,
+    )  # fmt: skip
+    try:
+        wait_for(lambda: moving(emulator), 60.0)
+        guards = children(body.pid)
+        assert len(guards) == 1  # the stop guard
+        body.kill()
+        killed = time.monotonic()
+        wait_for(lambda: not moving(emulator), 5.0)
+        t_stop, line = motor_commands(emulator)[-1]
+        assert line == b"D,0,0"
+        assert t_stop - killed <= 0.5
+        wait_for(lambda: gone(guards[0]), 5.0)  # it ends once the stop is sent
+        assert "stop guard" in body.stderr.read()  # it says what it did
+    finally:
+        end(hub, body)
+
+
 def test_sigterm_to_the_adapter_stops_the_motors_before_it_exits(emulator, bus_overrides, tmp_path):
     args = sets(bus_overrides, emulator.path, 'body.launch="external"')
     body = neuvision("endpoint", "body", HYBRID, *args, stderr=subprocess.DEVNULL)
@@ -98,8 +125,10 @@ def test_sigterm_to_the_adapter_stops_the_motors_before_it_exits(emulator, bus_o
     try:
         wait_for(lambda: moving(emulator), 60.0)
         n_before = len(emulator.commands)
+        guards = children(body.pid)
         body.send_signal(signal.SIGTERM)
         assert body.wait(timeout=10) == 0
+        wait_for(lambda: all(gone(g) for g in guards), 5.0)  # released: no guard left
         after = [line for _, line in list(emulator.commands)[n_before:] if line.startswith(b"D")]
         assert after and after[-1] == b"D,0,0" and not moving(emulator)
         assert hub.wait(timeout=30) == 2  # the hub ends the run: its body went away
