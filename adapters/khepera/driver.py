@@ -108,6 +108,9 @@ class KheperaDriver:
         self._sent: tuple[int, int] | None = None
         self._commanded_at = time.monotonic()
         self._lock = threading.Lock()
+        # held from a speed's choice to its write: a stop waits for a write under way, so
+        # that no speed read before the stop reaches the robot after it
+        self._motor = threading.Lock()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
 
@@ -175,9 +178,10 @@ class KheperaDriver:
         """
         with self._lock:
             self._target = (0, 0)
-        self.link.transact("D", 0, 0)
-        with self._lock:
-            self._sent = (0, 0)
+        with self._motor:  # after a speed write under way, never before it
+            self.link.transact("D", 0, 0)
+            with self._lock:
+                self._sent = (0, 0)
 
     def latest(self) -> Reading | None:
         """The freshest reading (None before the first)."""
@@ -202,17 +206,18 @@ class KheperaDriver:
 
     def _cycle(self) -> None:
         t0 = time.monotonic()
-        with self._lock:
-            target = self._target
-            if target != (0, 0) and t0 - self._commanded_at > self.watchdog_s:
-                target = self._target = (0, 0)
-                self.counts["watchdog_stops"] += 1
-                log.warning("no motor command for %.2f s: motors stopped", self.watchdog_s)
-            send = target != self._sent
-        if send:
-            self.link.transact("D", *target)
+        with self._motor:
             with self._lock:
-                self._sent = target
+                target = self._target
+                if target != (0, 0) and t0 - self._commanded_at > self.watchdog_s:
+                    target = self._target = (0, 0)
+                    self.counts["watchdog_stops"] += 1
+                    log.warning("no motor command for %.2f s: motors stopped", self.watchdog_s)
+                send = target != self._sent
+            if send:
+                self.link.transact("D", *target)
+                with self._lock:
+                    self._sent = target
         proximity = self.link.transact("N")
         t_read = time.monotonic()
         counters = self.link.transact(COUNTER_COMMANDS[self.link.dialect][1]).fields

@@ -168,3 +168,40 @@ def test_the_stop_guard_stops_the_motors_only_when_its_adapter_is_gone(emulator)
     assert motor_commands(emulator)[-1][1] == b"D,0,0"
     dying.guard._pipe = -1
     dying.close()
+
+
+def test_a_stop_is_not_undone_by_a_speed_the_serial_thread_was_about_to_send(emulator):
+    """``stop_motors`` while the serial thread had read a speed and not yet sent it: the stop
+    went first and the speed after it, so the robot drove again after the stop had
+    returned (until the next cycle). The speed under way now goes first, then the stop."""
+    import threading
+
+    driver = make_driver(emulator, watchdog_s=5.0)
+    driver.connect()
+    about_to_send, go = threading.Event(), threading.Event()
+    transact = driver.link.transact
+
+    def held(letter, *values):  # the serial thread's speed write, held at the link's door
+        if letter == "D" and values != (0, 0) and threading.current_thread() is driver._thread:
+            about_to_send.set()
+            go.wait(5.0)
+        return transact(letter, *values)
+
+    driver.link.transact = held
+    try:
+        n = len(motor_commands(emulator))
+        driver.command(0.1, 0.1)
+        assert about_to_send.wait(5.0)
+        stopper = threading.Thread(target=driver.stop_motors)
+        stopper.start()
+        stopper.join(0.5)  # done here only if the stop overtook the speed under way
+        go.set()
+        stopper.join(5.0)
+        cycles = len(driver.cycles_s)
+        wait_for(lambda: len(driver.cycles_s) >= cycles + 2, 5.0)  # two cycles since
+        sent = [line for _, line in motor_commands(emulator)[n:]]
+        assert sent == [b"D,12,12", b"D,0,0"], sent  # 0.1 m/s: 12 units of 8 mm/s
+        assert emulator.speed_units == (0, 0)
+    finally:
+        go.set()
+        driver.close()
