@@ -106,8 +106,21 @@ def _add_config_args(p: argparse.ArgumentParser, *, shortcuts: bool = True) -> N
         p.add_argument("--session", help="bus.session")
 
 
+class _Parser(argparse.ArgumentParser):
+    """An option refused is bad input: one line and exit status 3, as every other (argparse
+    printed its usage and exited 2, the status of a fault)."""
+
+    def error(self, message: str):
+        command = self.prog.removeprefix("neuvision").strip()
+        where = f"{command}: " if command else ""
+        self.exit(
+            EXIT_CONFIG,
+            f"neuvision: {where}{' '.join(message.split())} ({self.prog} --help)\n",
+        )
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="neuvision",
         description="Closed-loop experiments between a spiking culture (simulated, or a real "
         "one on an MEA) and a robot (simulated, or a real Khepera), looped by a hub over Zenoh. "
@@ -663,6 +676,10 @@ def cmd_emulate(args) -> int:
         _check_link(Path(args.link))
     if args.baud is not None and args.baud not in BAUDS:
         raise InputError(f"--baud must be one of {BAUDS}, got {args.baud}")
+    for option, every in (("--garbage-every", args.garbage_every),
+                          ("--drop-every", args.drop_every)):  # fmt: skip
+        if every < 0:
+            raise InputError(f"{option} must be >= 0, got {every} (0: never)")
     model = MODELS[args.dialect]
     if model.ir_table is None and args.ir_table is None:
         raise InputError(

@@ -194,6 +194,13 @@ def test_an_output_folder_that_cannot_be_made_is_named_with_the_reason(
         (["khepera", "--link", "/nonexistent/dir/x"], "--link: /nonexistent/dir is not a folder"),
         (["khepera", "--link", "{file}"], "--link: {file} is a file, not a link"),
         (["khepera", "--link", "{dir}"], "--link: {dir} is a folder, not a link"),
+        # a negative count fired on every reply (n % -1 == 0)
+        (["khepera", "--garbage-every", "-1"], "--garbage-every must be >= 0, got -1"),
+        (["khepera", "--drop-every", "-2"], "--drop-every must be >= 0, got -2"),
+        # argparse's own refusals: exit status 2 (a fault's) and a usage block, before
+        (["khepera", "--dialect", "khepera4"], "emulate: argument --dialect: invalid choice"),
+        (["khepera", "--baud", "fast"], "emulate: argument --baud: invalid int value"),
+        (["khepera", "--bawd", "9600"], "unrecognized arguments: --bawd 9600"),
     ],
 )
 def test_an_emulators_bad_option_is_named_in_one_line(tmp_path, args, message):
