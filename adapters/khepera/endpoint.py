@@ -12,8 +12,9 @@ model), ``baud`` (9600, 19200, 38400, 57600, 115200; default 9600 for a Khepera 
 for a Khepera III), ``stop_bits`` (1 or 2; default 2 for a Khepera II, 1 for a Khepera III),
 ``timeout_s`` (one reply; default 0.25), ``silent_s`` (no valid reply for this long is a
 fault; default 1.0), ``watchdog_s`` (no motor command for this long stops the motors; default
-0.5), ``ir_table_file`` (a lab's calibration, CSV ``distance_m,value``; default the published
-Khepera II table; required for a Khepera III, which has none published), ``start_pose``
+0.5; at least two loop periods), ``ir_table_file`` (a lab's calibration, CSV
+``distance_m,value``; default the published Khepera II table; required for a Khepera III,
+which has none published), ``start_pose``
 (``[x_m, y_m, heading_deg]`` odometry starts from; default ``[0, 0, 0]``), ``world`` (a world
 file drawing the lab's arena: used only by the run's summary, for the trajectory figure and
 the arena metrics).
@@ -104,7 +105,9 @@ class KheperaEndpoint(Endpoint):
         out = {**DEFAULTS, **params}
         out["port"] = check_value("body.params.port", str, out["port"])
         if out["dialect"] not in DIALECTS:
-            raise ConfigError(f"body.params.dialect must be one of {DIALECTS}")
+            raise ConfigError(
+                f"body.params.dialect must be one of {DIALECTS}, got {out['dialect']!r}"
+            )
         model = khepera.MODELS[out["dialect"]]
         out["baud"] = model.baud if out["baud"] is None else out["baud"]
         out["stop_bits"] = model.stop_bits if out["stop_bits"] is None else out["stop_bits"]
@@ -115,6 +118,14 @@ class KheperaEndpoint(Endpoint):
             raise ConfigError(f"body.params.stop_bits must be 1 or 2, got {out['stop_bits']!r}")
         for key in ("timeout_s", "silent_s", "watchdog_s"):
             out[key] = check_value(f"body.params.{key}", float, out[key], gt=0)
+        # The watchdog is also the endpoint's input timeout: under two periods, the motors
+        # stopped between steps and the robot made safe at nearly every step.
+        least_s = 2 * cfg.loop.period_ms / 1e3
+        if out["watchdog_s"] < least_s:
+            raise ConfigError(
+                f"body.params.watchdog_s {out['watchdog_s']:g} s is under two loop periods "
+                f"({least_s:g} s): the motors would stop between steps"
+            )
         pose = out["start_pose"]
         if not (isinstance(pose, list) and len(pose) == 3):
             raise ConfigError("body.params.start_pose must be [x_m, y_m, heading_deg]")

@@ -62,6 +62,14 @@ def test_a_lockstep_run_with_a_khepera_is_refused_before_it_starts():
         ("body.params.baud=9601", "body.params.baud must be one of"),
         ("body.params.stop_bits=3", "body.params.stop_bits"),
         ("body.params.watchdog_s=0", "body.params.watchdog_s"),
+        # under two of the loop's 50 ms periods: stopped between steps, and its input
+        # timeout (the same) made safe at nearly every step
+        (
+            "body.params.watchdog_s=0.08",
+            r"body.params.watchdog_s 0.08 s is under two loop "
+            r"periods \(0.1 s\)",
+        ),  # fmt: skip
+        ('body.params.dialect="khepera4"', r"dialect must be one of .*, got 'khepera4'"),
         ("body.params.start_pose=[0, 0]", "body.params.start_pose"),
         ('body.params.ir_table_file="nowhere.csv"', "body.params.ir_table_file"),
         ("body.params.speed=3", r"unknown key\(s\) \['speed'\]"),
