@@ -10,15 +10,13 @@ command sent again); it is never parsed as data. A link with no valid reply for
 from __future__ import annotations
 
 import logging
-import os
-import subprocess
-import sys
 import threading
 import time
 from collections import Counter
 
 import serial
 
+from adapters.guard import StopGuard
 from adapters.khepera.protocol import Reply, ReplyError, command, parse_reply
 from hub.endpoint import DeviceFault
 
@@ -26,86 +24,6 @@ log = logging.getLogger(__name__)
 
 #: the bauds a Khepera II's jumpers select
 BAUDS = (9600, 19200, 38400, 57600, 115200)
-
-
-#: The stop guard's program (run as ``python -I -S -c``, so that it starts in tens of ms):
-#: argv[1] the port's file descriptor, argv[2] the read end of the adapter's pipe, argv[3]
-#: the stop command (hex), argv[4] the port's name. It waits for the adapter's process to
-#: release it (a byte) or to end without doing so (the pipe at its end: SIGKILL, a crash);
-#: then, and only then, it sends the stop — after a line end, which ends any command the
-#: adapter was cut off in — and ends itself.
-_GUARD = r"""
-import os, select, signal, sys, termios, time
-signal.signal(signal.SIGINT, signal.SIG_IGN)
-port, pipe, stop, name = int(sys.argv[1]), int(sys.argv[2]), bytes.fromhex(sys.argv[3]), sys.argv[4]
-try:
-    released = os.read(pipe, 1) == b"r"
-except OSError:
-    released = False
-if not released:
-    data, deadline = b"\r" + stop, time.monotonic() + 1.0
-    try:
-        while data and time.monotonic() < deadline:
-            select.select([], [port], [], 0.1)
-            try:
-                data = data[os.write(port, data):]
-            except BlockingIOError:
-                pass
-        termios.tcdrain(port)  # on the wire before the port closes
-        done = "sent" if not data else "not sent in 1 s"
-    except (OSError, termios.error) as exc:
-        done = f"could not be sent ({exc})"
-    print(f"neuvision: khepera stop guard: the adapter ended without stopping the motors; "
-          f"{stop.strip().decode()} {done} on {name}", file=sys.stderr, flush=True)
-"""
-
-
-class StopGuard:
-    """A process that stops the motors when the adapter's process dies without doing so.
-
-    A Khepera's serial protocol has no watchdog: a robot keeps its last wheel speeds until
-    told otherwise. The driver's watchdog and the endpoint's stops run in the adapter's
-    process, so a SIGKILL, the OOM killer or a crash in native code would leave the robot
-    driving. The guard, started once the port is open, shares the port's open file with
-    the adapter (the line's settings stay as the adapter set them) and a pipe from it: when
-    the adapter's process ends without :meth:`release` — whatever ends it — the pipe
-    reaches its end and the guard writes ``D,0,0`` (the dialect's) to the port, says so on
-    its standard error (the body's log) and ends. It runs in a session of its own, so that
-    a signal to the adapter's process group does not take it too. It cannot help when the
-    adapter's process is frozen (``SIGSTOP``) or the host itself stops: a robot has no
-    stop of its own for that (docs/khepera.md).
-    """
-
-    def __init__(self, port: serial.Serial, stop: bytes):
-        read_end, self._pipe = os.pipe()
-        try:
-            self.process = subprocess.Popen(
-                [sys.executable, "-I", "-S", "-c", _GUARD, str(port.fd), str(read_end),
-                 stop.hex(), str(port.port)],
-                pass_fds=(port.fd, read_end), stdin=subprocess.DEVNULL,
-                start_new_session=True,
-            )  # fmt: skip
-        except BaseException:
-            os.close(self._pipe)
-            raise
-        finally:
-            os.close(read_end)
-
-    def release(self) -> None:
-        """The adapter stopped the motors itself and is letting the port go: the guard ends
-        without writing."""
-        if self._pipe < 0:
-            return
-        try:
-            os.write(self._pipe, b"r")
-        except OSError:
-            pass
-        os.close(self._pipe)
-        self._pipe = -1
-        try:
-            self.process.wait(timeout=2.0)
-        except subprocess.TimeoutExpired:
-            log.warning("the khepera stop guard (pid %d) did not end", self.process.pid)
 
 
 class LinkFault(DeviceFault):
@@ -231,10 +149,15 @@ class SerialLink:
         log.warning("serial link %s: %s", self.name, exc)
 
     def guard_motors(self) -> None:
-        """Start a :class:`StopGuard` on this port: the motors stopped if the process dies
-        without closing the link. Released by :meth:`close`."""
+        """Start a :class:`~adapters.guard.StopGuard` on this port: the motors stopped if
+        this process dies without closing the link (a Khepera has no watchdog of its own).
+        Released by :meth:`close`."""
         if self.guard is None:
-            self.guard = StopGuard(self.port, command("D", 0, 0, dialect=self.dialect))
+            stop = command("D", 0, 0, dialect=self.dialect)
+            self.guard = StopGuard(
+                self.port.fd, b"\r" + stop, f"the khepera on {self.name}",
+                f"{stop.strip().decode()} on {self.name}",
+            )  # fmt: skip
 
     def close(self) -> None:
         """Release the port (and its stop guard: the caller stopped the motors, or could

@@ -148,8 +148,6 @@ def test_the_stop_guard_stops_the_motors_only_when_its_adapter_is_gone(emulator)
     nothing; with its pipe at an end unreleased (the adapter's process gone) it sends the
     stop — after a line end, so that a command the adapter was cut off in does not swallow
     it — and ends."""
-    import os
-
     released = open_link(emulator)
     released.guard_motors()
     released.transact("D", 3, 3)
@@ -162,11 +160,10 @@ def test_the_stop_guard_stops_the_motors_only_when_its_adapter_is_gone(emulator)
     dying.guard_motors()
     dying.transact("D", 4, 4)
     dying.port.write(b"D,5")  # cut off mid-command
-    os.close(dying.guard._pipe)  # as the process's end closes it: no release
+    dying.guard.abandon()  # as the process's end closes it: no release
     assert dying.guard.process.wait(timeout=5) == 0
     wait_for(lambda: emulator.speed_units == (0, 0), 2.0)
     assert motor_commands(emulator)[-1][1] == b"D,0,0"
-    dying.guard._pipe = -1
     dying.close()
 
 
