@@ -28,6 +28,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from adapters.guard import StopGuard
 from adapters.mea.driver import ClockMap
 from adapters.mea.layout import ElectrodeLayout
 from adapters.mea.safety import BiphasicPulse
@@ -144,6 +145,7 @@ class RhxDriver:
         self._enabled: set[int] = set()  # channels confirmed stimenabled true
         self._stop = threading.Event()
         self._reader: threading.Thread | None = None
+        self.guard: StopGuard | None = None
 
     # ------------------------------------------------------------ commands
 
@@ -224,6 +226,7 @@ class RhxDriver:
         """Connect, stop the run mode, enable spike output and biphasic stimulation set-up
         on every electrode, and start reading spikes."""
         self._cmd = self._connect(self.command_port)
+        self._guard()
         self.sample_rate_hz = float(self.get("sampleratehertz"))
         self.set("runmode", "stop")
         for name in self.layout.names:
@@ -235,6 +238,23 @@ class RhxDriver:
         self._spk.settimeout(0.2)
         self._reader = threading.Thread(target=self._read_spikes, name="rhx-spikes", daemon=True)
         self._reader.start()
+
+    def _guard(self) -> None:
+        """A :class:`~adapters.guard.StopGuard` on the command port: if this process ends
+        without :meth:`close` (SIGKILL, the OOM killer), every electrode is disabled and
+        uploaded and run mode stopped, as :meth:`finish` would (after a line end, which
+        ends any command this process was cut off in)."""
+        names = self.layout.names
+        stop = ";".join(
+            [f"set {n}.stimenabled false" for n in names]
+            + [f"execute uploadstimparameters {n}" for n in names]
+            + ["set runmode stop"]
+        )
+        where = f"{self.host}:{self.command_port}"
+        self.guard = StopGuard(
+            self._cmd.fileno(), f"\n{stop}\n".encode("ascii"), f"the RHX at {where}",
+            "every electrode disabled and uploaded, run mode stop,",
+        )  # fmt: skip
 
     def start(self) -> None:
         """Run mode on; the clock mapped afresh; each pulse parameter written afresh at its
@@ -281,6 +301,8 @@ class RhxDriver:
                 self.finish()
         except DeviceFault as exc:
             log.warning("RHX at close: %s", exc)
+        if self.guard is not None:
+            self.guard.release()
         for sock in (self._cmd, self._spk):
             if sock is not None:
                 sock.close()

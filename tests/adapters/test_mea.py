@@ -495,3 +495,34 @@ def test_a_worker_that_fails_ends_the_endpoint_as_a_fault(emulators, monkeypatch
         assert isinstance(hub.error, DeviceFault) and "a bug in deliver" in str(hub.error)
         assert not endpoint.driver.enabled
         hub.error = None  # the fault expected, seen
+
+
+def test_the_stop_guard_disables_every_electrode_when_the_adapter_is_gone(emulator, capfd):
+    """The adapter's process ended without making the instrument safe (SIGKILL, the OOM
+    killer): the RHS kept its last pulse's electrodes enabled, on the trigger key, in run
+    mode. The stop guard, which shares the command port, disables and uploads every
+    electrode and stops run mode; released by a clean close, it writes nothing."""
+    driver = driver_for(emulator)
+    driver.open()
+    driver.start()
+    driver.deliver([BiphasicPulse(3, 20.0, 100.0, True), BiphasicPulse(7, 20.0, 100.0, True)])
+    names = [emulator.layout.names[c] for c in (3, 7)]
+    wait_for(lambda: len(emulator.triggers) == 1, 5.0)  # the uploads came before it
+    assert all(emulator.uploaded[n]["stimenabled"] == "true" for n in names)
+    assert driver.guard is not None and driver.guard.process.poll() is None
+    driver.guard.abandon()  # as the process's end closes its pipe: no release
+    assert driver.guard.process.wait(timeout=5) == 0
+    assert "stop guard: the adapter of the RHX at 127.0.0.1" in capfd.readouterr().err
+    wait_for(lambda: emulator.values["runmode"] == "stop", 5.0)
+    for name in emulator.layout.names:
+        assert emulator.values[f"{name}.stimenabled"] == "false"
+        assert emulator.uploaded[name].get("stimenabled", "false") == "false", name
+    driver.close()
+
+    released = driver_for(emulator)
+    released.open()
+    released.start()
+    guard = released.guard.process
+    released.close()  # disables what it enabled, stops run mode, then releases the guard
+    assert guard.wait(timeout=5) == 0
+    assert "stop guard" not in capfd.readouterr().err  # it wrote nothing

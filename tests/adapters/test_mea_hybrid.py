@@ -164,3 +164,45 @@ def test_a_short_run_with_both_devices_emulated(tmp_path, bus_overrides):
     endpoints = rec.manifest["endpoints"]
     assert endpoints["culture"]["device"]["pulses_admitted"] > 0
     assert endpoints["body"]["kind"] == "khepera"
+
+
+def test_the_adapter_killed_outright_leaves_no_electrode_enabled(tmp_path, bus_overrides):
+    """SIGKILL to the MEA adapter mid-run: none of its own stops runs, and the RHS kept its
+    last pulses' electrodes enabled on the trigger key, in run mode (seen on the emulator).
+    Its stop guard disables and uploads every electrode and stops run mode."""
+    import signal
+    import time
+
+    from adapters.mea.emulator import IntanEmulator
+
+    with IntanEmulator(seed=1) as emu:
+        points_at = [f"culture.params.command_port={emu.command_port}",
+                     f"culture.params.spike_port={emu.spike_port}"]  # fmt: skip
+        sets = []
+        for item in [*bus_overrides, *points_at, 'culture.launch="external"']:
+            sets += ["--set", item]
+        culture = subprocess.Popen(
+            [sys.executable, "-m", "hub.cli", "endpoint", "culture", HYBRID, *sets],
+            stderr=subprocess.PIPE, text=True,
+        )  # fmt: skip
+        hub = run(tmp_path, bus_overrides, [*points_at, 'culture.launch="external"'], 60.0)
+        try:
+            wait_for(lambda: len(emu.triggers) >= 3, 60.0)
+            assert any(p.get("stimenabled") == "true" for p in emu.uploaded.values())
+            culture.send_signal(signal.SIGKILL)
+            killed = time.monotonic()
+
+            def safe() -> bool:
+                return emu.values["runmode"] == "stop" and all(
+                    p.get("stimenabled", "false") == "false" for p in emu.uploaded.values()
+                )
+
+            wait_for(safe, 5.0)
+            assert time.monotonic() - killed < 1.0
+            assert culture.wait(timeout=10) == -signal.SIGKILL
+            assert "stop guard" in culture.stderr.read()
+        finally:
+            for p in (hub, culture):
+                if p.poll() is None:
+                    p.kill()
+                p.wait(timeout=10)
