@@ -234,13 +234,14 @@ def test_analyze_help_names_where_it_writes_by_default():
         (["ctl", "status", "--timeout-s", "nan"], "argument --timeout-s: must be > 0, got nan"),
     ],
 )
-def test_a_count_or_a_wait_that_is_not_positive_is_a_usage_error(
+def test_a_count_or_a_wait_that_is_not_positive_is_refused_in_one_line(
     capsys, tmp_path, no_process, argv, message
 ):
     with pytest.raises(SystemExit) as exit:
         main(argv)
-    assert exit.value.code == 2  # argparse's usage error, before anything runs
-    assert message in capsys.readouterr().err
+    assert exit.value.code == EXIT_CONFIG  # before anything runs
+    err = capsys.readouterr().err
+    assert message in err and len(err.strip().splitlines()) == 1, err
 
 
 def test_a_reader_that_leaves_early_is_no_error(tmp_path):
