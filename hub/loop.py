@@ -43,7 +43,7 @@ from hub.analysis.bursts import BurstParams
 from hub.analysis.network_bursts import NetworkBurstParams
 from hub.burst_observer import NAME as OBSERVER
 from hub.burst_observer import OnlineTally
-from hub.bus import open_session, payload_bytes
+from hub.bus import BusError, open_session, payload_bytes
 from hub.config import ConfigError, ExperimentConfig
 from hub.launch import LocalProcess, start_burst_observer, stop_local_endpoints
 from hub.ledger import Ledger
@@ -289,10 +289,22 @@ class Hub:
             log.warning("loop.cpus not applied: %s", self.placement.reason)
         try:
             session = open_session(cfg.bus, listener=True)
-        except BaseException:
+        except BaseException as exc:
             restore_placement(self.placement)
             if observer is not None:
                 stop_local_endpoints([observer])
+            # the run folder exists: close it as a fault that says why (an address taken),
+            # not "running" for ever
+            reason = str(exc) if isinstance(exc, BusError) else f"hub crashed: {exc!r}"
+            if isinstance(exc, KeyboardInterrupt):
+                reason = INTERRUPTED
+            outcome = "interrupted" if reason == INTERRUPTED else "fault"
+            if self.recorder:
+                self._record_event("end", outcome=outcome, reason=reason)
+                self.recorder.close()
+            if self.run_dir:
+                manifest.update(end_utc=utc_now(), outcome=outcome, reason=reason, steps=0)
+                write_manifest(self.run_dir, manifest)
             raise
         outcome, reason = "completed", ""
         try:
