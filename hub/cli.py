@@ -417,13 +417,15 @@ def _emit(text: str) -> None:
 
 def cmd_endpoint(args) -> int:
     from hub.endpoint import DeviceFault
-    from hub.launch import make_endpoint
+    from hub.launch import make_endpoint, settings_digest
 
     cfg = load_config(args.config, _overrides(args))
     priority = endpoint_priority(cfg.loop.mode, cfg.loop.realtime_priority)
     cpus = cfg.endpoint(args.role).cpus
     try:
         endpoint = make_endpoint(cfg, args.role)
+        # its hub refuses it if it serves other settings than the hub's experiment
+        endpoint.settings_digest = settings_digest(cfg, args.role)
         return endpoint.serve(cfg.bus, realtime_priority=priority, cpus=cpus, once=args.once)
     except DeviceFault as exc:
         print(f"neuvision: {args.role} device fault: {_one_line(exc)}", file=sys.stderr)

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import ctypes
 import dataclasses
+import hashlib
 import importlib
 import json
 import os
@@ -108,6 +109,26 @@ def resolve_endpoints(cfg: ExperimentConfig, local_only: bool = False) -> Experi
         params = check_endpoint(cls, section, cfg)
         sections[role] = dataclasses.replace(section, params=params)
     return dataclasses.replace(cfg, **sections)
+
+
+def settings_digest(cfg: ExperimentConfig, role: str) -> str | None:
+    """SHA-256 (hex) of ``role``'s kind and params as its kind resolves them: what an
+    endpoint serves, compared by the hub with its own (an endpoint started with another
+    experiment file, other ``--set`` items or another seed is refused before the run).
+    Resolving is idempotent, so a hub's resolved config gives the digest of the files it was
+    made from. None when the kind does not load here or its params do not check."""
+    section = cfg.endpoint(role)
+    try:
+        params = check_endpoint(endpoint_class(role, section.kind), section, cfg)
+    except ConfigError:
+        return None
+    text = json.dumps(
+        {"kind": section.kind, "params": params},
+        sort_keys=True,
+        separators=(",", ":"),
+        default=repr,
+    )
+    return hashlib.sha256(text.encode()).hexdigest()
 
 
 def make_endpoint(cfg: ExperimentConfig, role: str) -> Endpoint:

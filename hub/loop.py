@@ -45,7 +45,7 @@ from hub.burst_observer import NAME as OBSERVER
 from hub.burst_observer import OnlineTally
 from hub.bus import BusError, open_session, payload_bytes
 from hub.config import ConfigError, ExperimentConfig
-from hub.launch import LocalProcess, start_burst_observer, stop_local_endpoints
+from hub.launch import LocalProcess, settings_digest, start_burst_observer, stop_local_endpoints
 from hub.ledger import Ledger
 from hub.link import HubLink
 from hub.lockstep import Lockstep
@@ -242,6 +242,7 @@ class Hub:
         # hub itself did not run (frozen, starved): (when it ended, how long it was).
         self._last_wake = time.monotonic()
         self._stall: tuple[float, float] = (-math.inf, 0.0)
+        self._digests: dict[str, str | None] = {}  # _settings_digest's, by role
 
     # ================================================================ public
 
@@ -822,6 +823,14 @@ class Hub:
         if desc is None or desc.role != role or desc.id != i:
             raise HubError(f"{role}/{i} did not describe itself on {key}")
         counters = desc.counters or {}
+        theirs, ours = counters.get("settings_digest"), self._settings_digest(role)
+        if isinstance(theirs, str) and ours is not None and theirs != ours:
+            raise HubError(
+                f"{role}/{i} serves other settings than this hub's experiment ({role}.kind and "
+                f"{role}.params as resolved, the seed included, differ: its {theirs[:12]}, "
+                f"the hub's {ours[:12]}): start it with the hub's experiment file and the "
+                f"same --set items"
+            )
         their_time = counters.get("unix_time_s")
         self.participants[role] = {
             "host": counters.get("host", {}),
@@ -830,9 +839,17 @@ class Hub:
             if isinstance(their_time, float)
             else None,
             "describe_round_trip_ms": (t1 - t0) * 1e3,
+            "settings_digest": theirs if isinstance(theirs, str) else None,
         }
         self._take_description(desc)
         self._record_event("described", role=role, id=i, kind=desc.kind)
+
+    def _settings_digest(self, role: str) -> str | None:
+        """The digest of this hub's ``role`` settings (:func:`hub.launch.settings_digest`),
+        worked out once; None when its kind does not load here."""
+        if role not in self._digests:
+            self._digests[role] = settings_digest(self.cfg, role)
+        return self._digests[role]
 
     def _announce_run(self, session: zenoh.Session) -> None:
         """Give each endpoint the run: its id, timing and that endpoint's key (contract v2)."""

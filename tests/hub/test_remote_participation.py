@@ -4,6 +4,7 @@ real Zenoh on loopback (scouting off, a random session)."""
 
 from __future__ import annotations
 
+import json
 import socket
 import subprocess
 import sys
@@ -11,7 +12,7 @@ import sys
 import pytest
 
 from hub.record import read_run
-from tests.hub.test_deployment import CONFIG, EXTERNAL, port_of, sets
+from tests.hub.test_deployment import CONFIG, EXTERNAL, neuvision, port_of, sets
 
 pytestmark = pytest.mark.bus
 
@@ -36,3 +37,68 @@ def test_a_hub_whose_address_is_taken_closes_its_run_folder_as_a_fault(tmp_path,
     assert m["outcome"] == "fault"
     assert m["reason"].startswith(f"cannot listen on tcp/127.0.0.1:{port}")
     assert m["steps"] == 0 and m["end_utc"]
+
+
+def _serve(role: str, items: list[str], log) -> subprocess.Popen:
+    return neuvision("endpoint", role, CONFIG, "--once", *sets(items), stderr=log)
+
+
+@pytest.mark.parametrize(
+    "other",
+    [
+        ["body.params.arena.radius_m=2.0", "body.params.obstacles=[]"],  # another world
+        ["experiment.seed=7"],  # the culture and the arena seeded otherwise
+    ],
+    ids=["world", "seed"],
+)
+def test_an_endpoint_started_with_other_settings_than_its_hub_is_refused(
+    tmp_path, bus_overrides, other
+):
+    """The same experiment file on every machine is what docs/remote.md asks for; an
+    endpoint that serves other settings (another world, another seed) must not run under a
+    manifest that records the hub's."""
+    log = open(tmp_path / "body.log", "w")
+    body = _serve("body", [*bus_overrides, *other], log)
+    culture = _serve("culture", bus_overrides, subprocess.DEVNULL)
+    try:
+        done = subprocess.run(
+            [sys.executable, "-m", "hub.cli", "hub", CONFIG, "--quiet", "--duration-s", "0.2",
+             "--runs-dir", str(tmp_path / "runs"), *sets([*bus_overrides, *EXTERNAL])],
+            capture_output=True, text=True, timeout=120,
+        )  # fmt: skip
+        assert done.returncode == 2, done.stderr[-2000:]
+        last = done.stderr.strip().splitlines()[-1]
+        assert last.startswith("neuvision: run failed: body/0 serves other settings than")
+        assert "body.kind and body.params" in last
+        (run_dir,) = (tmp_path / "runs").iterdir()
+        m = read_run(run_dir).manifest
+        assert m["outcome"] == "fault" and m["steps"] == 0
+        assert "body/0 serves other settings" in m["reason"]
+    finally:
+        for p in (body, culture):
+            p.terminate()
+            p.wait(timeout=20)
+        log.close()
+
+
+def test_endpoints_with_the_hubs_settings_record_them(tmp_path, bus_overrides):
+    """The same file and the same --set items on both sides: the run goes, and the manifest
+    records each endpoint's settings digest, equal to the hub's."""
+    endpoints = [_serve(role, bus_overrides, subprocess.DEVNULL) for role in ("body", "culture")]
+    try:
+        done = subprocess.run(
+            [sys.executable, "-m", "hub.cli", "hub", CONFIG, "--quiet", "--duration-s", "0.2",
+             "--runs-dir", str(tmp_path), *sets([*bus_overrides, *EXTERNAL])],
+            capture_output=True, text=True, timeout=120,
+        )  # fmt: skip
+        assert done.returncode == 0, done.stderr[-2000:]
+        assert [p.wait(timeout=20) for p in endpoints] == [0, 0]
+    finally:
+        for p in endpoints:
+            if p.poll() is None:
+                p.kill()
+    (run_dir,) = tmp_path.iterdir()
+    m = json.loads((run_dir / "manifest.json").read_text())
+    for role in ("body", "culture"):
+        digest = m["endpoints"][role]["settings_digest"]
+        assert isinstance(digest, str) and len(digest) == 64
