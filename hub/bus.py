@@ -108,14 +108,20 @@ CONNECT_TRY_S = 2.0
 
 
 def open_session(
-    bus: BusSection, *, listener: bool, role: str | None = None, on_wait=None
+    bus: BusSection,
+    *,
+    listener: bool,
+    role: str | None = None,
+    on_wait=None,
+    timeout_name: str = "bus.connect_timeout_s",
 ) -> zenoh.Session:
     """Open a Zenoh session for one participant (caller must close it).
 
     An endpoint (``listener`` False) whose hub is not up yet keeps trying for
     ``bus.connect_timeout_s``, calling ``on_wait(where, waited_s)`` before each new try
     (to tell the user where it is trying). ``role`` picks the participant's certificate
-    or password when ``bus.security`` is on.
+    or password when ``bus.security`` is on. ``timeout_name`` is what the message calls the
+    wait (a command's own option, where it sets it).
 
     Raises
     ------
@@ -146,7 +152,7 @@ def open_session(
                 )
                 raise BusError(
                     f"cannot reach the hub at {where} within {bus.connect_timeout_s:g} s "
-                    f"(bus.connect_timeout_s){refused}: {_first_line(exc)}"
+                    f"({timeout_name}){refused}: {_first_line(exc)}"
                 ) from None
             if on_wait is not None:
                 on_wait(where, time.monotonic() - start)

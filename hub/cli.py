@@ -771,7 +771,7 @@ def cmd_ctl(args) -> int:
     from hub.ctl import ctl
 
     cfg = load_config(args.config, _overrides(args))
-    reply = ctl(cfg.bus, args.cmd, timeout_s=args.timeout_s)
+    reply = ctl(cfg.bus, args.cmd, timeout_s=args.timeout_s, timeout_name="--timeout-s")
     if reply is None:
         where = ", ".join(cfg.bus.connect or cfg.bus.listen)
         print(f"neuvision: no hub answered on session {cfg.bus.session!r} at {where}",

@@ -45,10 +45,13 @@ def request(session, keys: Keys, cmd: str, *, timeout_s: float = 5.0) -> Control
     return None
 
 
-def ctl(bus: BusSection, cmd: str, *, timeout_s: float = 5.0) -> ControlReply | None:
+def ctl(
+    bus: BusSection, cmd: str, *, timeout_s: float = 5.0, timeout_name: str = "timeout_s"
+) -> ControlReply | None:
     """:func:`request` over a session of its own, opened as a client of the hub's router
     (trying to reach it for at most ``timeout_s``) and closed after. With ``bus.security``
-    on it takes part as an ``operator`` (the role that may send controls).
+    on it takes part as an ``operator`` (the role that may send controls). ``timeout_name``
+    names the wait in the message of a hub not reached.
 
     Raises
     ------
@@ -56,7 +59,7 @@ def ctl(bus: BusSection, cmd: str, *, timeout_s: float = 5.0) -> ControlReply | 
         The hub's router was not reached.
     """
     bus = dataclasses.replace(bus, connect_timeout_s=timeout_s)
-    session = open_session(bus, listener=False, role="operator")
+    session = open_session(bus, listener=False, role="operator", timeout_name=timeout_name)
     try:
         return request(session, bus.keys, cmd, timeout_s=timeout_s)
     finally:

@@ -157,6 +157,8 @@ def test_neuvision_ctl_says_when_no_hub_answers(capsys):
     assert code == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert err[-1].startswith("neuvision: cannot reach the hub at tcp/127.0.0.1:")
+    # the wait is ctl's own option, not the config key (setting that changes nothing)
+    assert "within 1 s (--timeout-s)" in err[-1] and "connect_timeout_s" not in err[-1]
 
 
 def test_views_larger_than_one_put_reach_the_observer_whole(tmp_path, bus_overrides):
