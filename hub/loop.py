@@ -813,6 +813,7 @@ class Hub:
         t0 = time.time()
         replies = self.link.query(key, timeout_s=5.0)
         t1 = time.time()
+        described = []
         for raw in replies:
             if self.recorder:
                 self.recorder.message("rx", key, raw)
@@ -820,6 +821,9 @@ class Hub:
                 desc = Description.decode(raw)
             except ProtocolError as exc:
                 raise HubError(f"{role}/{i} sent an invalid description: {exc}") from None
+            described.append(desc)
+        if len(described) > 1:
+            raise self._several(role, i, [d.counters for d in described])
         if desc is None or desc.role != role or desc.id != i:
             raise HubError(f"{role}/{i} did not describe itself on {key}")
         counters = desc.counters or {}
@@ -843,6 +847,20 @@ class Hub:
         }
         self._take_description(desc)
         self._record_event("described", role=role, id=i, kind=desc.kind)
+
+    def _several(self, role: str, i: str, counters: list) -> HubError:
+        """More than one endpoint answers as ``role/i`` (one left running elsewhere): each
+        would take the run and step, and the hub take whichever reply came first."""
+        where = []
+        for c in counters:
+            host = (c or {}).get("host") or {}
+            if host.get("pid") is not None:
+                where.append(f"{host.get('hostname', '?')} pid {host['pid']}")
+        named = f" ({', '.join(where)})" if where else ""
+        return HubError(
+            f"{len(counters)} endpoints answer as {role}/{i} on session "
+            f"{self.cfg.bus.session!r}{named}: stop all but one"
+        )
 
     def _settings_digest(self, role: str) -> str | None:
         """The digest of this hub's ``role`` settings (:func:`hub.launch.settings_digest`),
@@ -880,6 +898,8 @@ class Hub:
                 continue
         if not answers:
             raise HubError(f"{role}/{i} did not answer the run's announcement")
+        if len(answers) > 1:  # another one came up since the description
+            raise self._several(role, i, [None] * len(answers))
         refusals = [a.reason for a in answers if not a.ok or a.run != self.run_id]
         if refusals:
             raise HubError(f"{role}/{i} refused the run: {refusals[0]}")

@@ -12,6 +12,7 @@ import sys
 import pytest
 
 from hub.record import read_run
+from tests.harness import wait_for
 from tests.hub.test_deployment import CONFIG, EXTERNAL, neuvision, port_of, sets
 
 pytestmark = pytest.mark.bus
@@ -102,3 +103,36 @@ def test_endpoints_with_the_hubs_settings_record_them(tmp_path, bus_overrides):
     for role in ("body", "culture"):
         digest = m["endpoints"][role]["settings_digest"]
         assert isinstance(digest, str) and len(digest) == 64
+
+
+def test_two_endpoints_answering_as_one_role_are_refused(tmp_path, bus_overrides):
+    """A body left running in another terminal and a new one started: both took the run and
+    stepped, and the hub took whichever reply came first each step (the other dropped as
+    stale), under a manifest naming one of them. Now the run is refused, naming both."""
+    hub = neuvision(
+        "hub", CONFIG, "--quiet", "--duration-s", "0.2", "--runs-dir", str(tmp_path / "runs"),
+        *sets([*bus_overrides, *EXTERNAL]), stderr=subprocess.PIPE,
+    )  # fmt: skip
+    logs = [open(tmp_path / f"body{n}.log", "w") for n in range(2)]
+    bodies = [_serve("body", bus_overrides, log) for log in logs]
+    culture = None
+    try:
+        for n in range(2):  # both on the bus before the culture, so before the hub describes
+            wait_for(lambda n=n: "ready on session" in (tmp_path / f"body{n}.log").read_text(), 60)
+        culture = _serve("culture", bus_overrides, subprocess.DEVNULL)
+        _, err = hub.communicate(timeout=120)
+        assert hub.returncode == 2, err[-2000:]
+        last = err.strip().splitlines()[-1]
+        assert "2 endpoints answer as body/0" in last, last
+        for p in bodies:
+            assert f"pid {p.pid}" in last
+        (run_dir,) = (tmp_path / "runs").iterdir()
+        m = read_run(run_dir).manifest
+        assert m["outcome"] == "fault" and m["steps"] == 0
+    finally:
+        for p in (hub, *bodies, culture):
+            if p is not None and p.poll() is None:
+                p.terminate()
+                p.wait(timeout=20)
+        for log in logs:
+            log.close()
