@@ -397,6 +397,12 @@ def main(argv: list[str] | None = None) -> int:
     except BusError as exc:  # a port taken, a router unreachable: one line, no traceback
         print(f"neuvision: {_one_line(exc)}", file=sys.stderr)
         return EXIT_FAULT
+    except KeyboardInterrupt:
+        # Ctrl-C before a command's own handler is in place (its imports, an endpoint
+        # building its model): one line. An endpoint asked to stop exits 0, as it does once
+        # serving (docs/contract.md); any other command 130.
+        print("neuvision: interrupted", file=sys.stderr)
+        return EXIT_OK if args.command in ("endpoint", "observe") else EXIT_INTERRUPTED
 
 
 def _one_line(exc: BaseException) -> str:

@@ -75,6 +75,19 @@ class EchoBody(Endpoint):
         )
 
 
+class SlowToBuildBody(EchoBody):
+    """An echo body whose building takes as long as a big model's: it writes
+    ``params.built_file`` when it starts building, then builds for ``params.build_s``."""
+
+    @classmethod
+    def from_config(cls, section, cfg):
+        params = dict(section.params)
+        with open(params.pop("built_file"), "w") as f:
+            f.write("building")
+        time.sleep(params.pop("build_s", 60.0))
+        return cls(section.id, **params)
+
+
 class DeviceBody(EchoBody):
     """An echo body that describes itself as a real device with an 80 ms I/O cycle."""
 

@@ -5,6 +5,7 @@ real Zenoh on loopback (scouting off, a random session)."""
 from __future__ import annotations
 
 import json
+import signal
 import socket
 import subprocess
 import sys
@@ -136,3 +137,25 @@ def test_two_endpoints_answering_as_one_role_are_refused(tmp_path, bus_overrides
                 p.wait(timeout=20)
         for log in logs:
             log.close()
+
+
+def test_ctrl_c_while_an_endpoint_builds_its_model_is_one_line(tmp_path, bus_overrides):
+    """Ctrl-C before the endpoint serves (its model or device being built, which takes
+    seconds for a large culture): one line and a clean exit, not a traceback."""
+    built = tmp_path / "building"
+    items = [
+        *bus_overrides,
+        'body.kind="tests.endpoints:SlowToBuildBody"',
+        f"body.params={{built_file={json.dumps(str(built))}, build_s=60.0}}",
+    ]
+    p = neuvision("endpoint", "body", CONFIG, *sets(items), stderr=subprocess.PIPE)
+    try:
+        wait_for(built.exists, 60)
+        p.send_signal(signal.SIGINT)
+        _, err = p.communicate(timeout=30)
+    finally:
+        if p.poll() is None:
+            p.kill()
+    assert "Traceback" not in err, err[-3000:]
+    assert err.strip().splitlines()[-1] == "neuvision: interrupted"
+    assert p.returncode == 0  # an endpoint asked to stop exits 0 (docs/contract.md)
