@@ -94,6 +94,8 @@ class BusObserver:
             "controls": self.role == "operator",
         }
         state.observer = {"connected": False, "hub_alive": False, "dropped": {}}
+        self.tries = 0  # tries at reaching the hub
+        self._why: str | None = None  # why the last try failed, as said
 
     # ------------------------------------------------------------------ life
 
@@ -205,9 +207,21 @@ class BusObserver:
 
     def _connect(self) -> bool:
         try:
-            session = open_session(self.bus, listener=False, role=self.role)
+            session = open_session(
+                self.bus, listener=False, role=self.role, timeout_name="one try of many"
+            )
         except BusError as exc:
-            log.debug("no hub yet: %s", exc)
+            # a hub not started yet, or one that refuses this dashboard's certificate or
+            # password, or none of its own: said in the terminal (once per reason) and on
+            # the page, not only at debug level
+            self.tries += 1
+            why = str(exc)
+            if why != self._why:
+                self._why = why
+                log.info("waiting for a hub at %s (session %r): %s", self.where,
+                            self.bus.session, why)  # fmt: skip
+            with self.state.lock:
+                self.state.observer = {**self.state.observer, "reason": why}
             return False
         ring = zenoh.handlers.RingChannel
         subs = {"status": session.declare_subscriber(self.keys.hub_status, ring(RINGS["status"]))}

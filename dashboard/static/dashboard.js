@@ -179,7 +179,9 @@ function drawHeader() {
   const src = nv.source, st = nv.status, badge = $("source");
   if (src.kind === "live") {
     const obs = nv.observer || {};
-    const where = obs.hub_alive ? `hub ${src.hub}` : `waiting for a hub at ${src.hub}`;
+    const where = obs.hub_alive ? `hub ${src.hub}`
+      : obs.connected || !obs.reason ? `waiting for a hub at ${src.hub}`
+      : `waiting for a hub at ${src.hub}: ${obs.reason}`;
     const bad = Object.values(obs.dropped || {}).reduce((a, b) => a + b, 0);
     badge.textContent = `live · session ${src.session} · ${where}` + (bad ? ` · ${bad} bad messages` : "");
     badge.className = "badge live";

@@ -240,3 +240,37 @@ def test_a_streamed_steps_spikes_reach_live_displays_and_the_decoder_whole(tmp_p
     assert channel.count(1) == n and len(channel) == h.record.spikes()[0].size
     for v in views:  # each step whole: its echoes (at 0 ms) before the part's spike (9 ms)
         assert v.spike_t_ms.tolist() == sorted(v.spike_t_ms.tolist())
+
+
+def test_a_dashboard_that_cannot_join_says_why(tmp_path, caplog):
+    """`neuvision dashboard --connect` under mTLS with no certificate of its own, or a hub
+    that refuses it, said nothing: the terminal stayed silent and the page said "waiting for
+    a hub" for ever. Now the reason is logged (once per reason) and in the page's frames."""
+    import logging
+
+    from hub.bus import free_tcp_port
+    from hub.config import BusSection
+
+    (tmp_path / "ca.pem").write_text("")  # a folder without the observer's certificate
+    bus = BusSection(
+        session="test-nocert",
+        listen=(f"tls/127.0.0.1:{free_tcp_port()}",),
+        security="mtls",
+        certs_dir=str(tmp_path),
+    )
+    state = FrameState()
+    caplog.set_level(logging.INFO, logger="dashboard.observer")
+    observer = BusObserver(bus, state)
+    observer.start()
+    try:
+        wait_for(lambda: "reason" in state.observer, 10)
+        assert "no certificate file" in state.observer["reason"]
+        assert "observer.pem" in state.observer["reason"]
+        assert not state.observer["connected"]
+        wait_for(lambda: any("no certificate file" in r.getMessage() for r in caplog.records))
+        tries = observer.tries
+        wait_for(lambda: observer.tries >= tries + 2, 10)  # it goes on trying ...
+    finally:
+        observer.close()
+    said = [r for r in caplog.records if "no certificate file" in r.getMessage()]
+    assert len(said) == 1  # ... and says it once
