@@ -744,9 +744,9 @@ class Hub:
                 waiting = ", ".join(f"{r}/{i}" for r, i in sorted(needed - self.alive))
                 log.info(
                     "waiting for %s on session %r (%.0f s of %g s): each builds its model "
-                    "before it appears; a simulator's first run also compiles its kernels",
+                    "before it appears; a simulator's first run also compiles its kernels%s",
                     waiting, self.cfg.bus.session, time.monotonic() - start,
-                    self.cfg.loop.wait_timeout_s,
+                    self.cfg.loop.wait_timeout_s, self._elsewhere(needed - self.alive),
                 )  # fmt: skip
                 next_note += 5.0
             if self.stop_reason:
@@ -765,8 +765,32 @@ class Hub:
                     f"endpoint(s) {missing} did not appear on session {self.cfg.bus.session!r} "
                     f"within {self.cfg.loop.wait_timeout_s} s (listening on "
                     f"{', '.join(self.cfg.bus.listen)}){hint}"
+                    f"{self._elsewhere(needed - self.alive)}"
                 )
             self.next_event(min(deadline, time.monotonic() + 0.1))
+
+    def _elsewhere(self, missing: set[tuple[str, str]]) -> str:
+        """Where on this hub's bus the ``missing`` participants are, under other sessions
+        (an endpoint started with another ``--session`` reaches the router, not the run):
+        "; body/0 is on this hub's bus under session 'lab3' ..." or ""."""
+        found = []
+        for role, i in sorted(missing):
+            sessions = set()
+            try:
+                replies = self.link.session.liveliness().get(f"nv/*/alive/{role}/{i}", timeout=0.5)
+                for reply in replies:
+                    if reply.ok is not None:
+                        parts = str(reply.ok.key_expr).split("/")
+                        if len(parts) > 1 and parts[1] != self.cfg.bus.session:
+                            sessions.add(parts[1])
+            except zenoh.ZError:
+                continue
+            if sessions:
+                names = " and ".join(repr(n) for n in sorted(sessions))
+                found.append(f"{role}/{i} is on this hub's bus under session {names}")
+        if not found:
+            return ""
+        return f"; {', '.join(found)}: start it with --session {self.cfg.bus.session}"
 
     def _wait_for_view(self) -> None:
         """Hold the first step until a live display subscribes to ``hub/view``, at most

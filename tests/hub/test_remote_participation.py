@@ -9,6 +9,7 @@ import signal
 import socket
 import subprocess
 import sys
+import uuid
 
 import pytest
 
@@ -159,3 +160,31 @@ def test_ctrl_c_while_an_endpoint_builds_its_model_is_one_line(tmp_path, bus_ove
     assert "Traceback" not in err, err[-3000:]
     assert err.strip().splitlines()[-1] == "neuvision: interrupted"
     assert p.returncode == 0  # an endpoint asked to stop exits 0 (docs/contract.md)
+
+
+def test_an_endpoint_on_another_session_is_named_by_the_hub_waiting_for_it(tmp_path, bus_overrides):
+    """An endpoint started with another --session reaches the hub's router but not its run:
+    the hub waited and said only that body/0 did not appear on its session. Now it says
+    where body/0 is."""
+    other = f"other-{uuid.uuid4().hex[:8]}"
+    body_items = [i for i in bus_overrides if not i.startswith("bus.session")]
+    log = open(tmp_path / "body.log", "w")
+    body = neuvision("endpoint", "body", CONFIG, "--session", other, *sets(body_items), stderr=log)
+    culture = _serve("culture", bus_overrides, subprocess.DEVNULL)
+    try:
+        done = subprocess.run(
+            [sys.executable, "-m", "hub.cli", "hub", CONFIG, "--quiet", "--duration-s", "0.2",
+             "--runs-dir", str(tmp_path / "runs"),
+             *sets([*bus_overrides, *EXTERNAL, "loop.wait_timeout_s=8"])],
+            capture_output=True, text=True, timeout=120,
+        )  # fmt: skip
+        assert done.returncode == 2, done.stderr[-2000:]
+        last = done.stderr.strip().splitlines()[-1]
+        assert "body/0 did not appear on session" in last
+        assert f"body/0 is on this hub's bus under session {other!r}" in last, last
+        assert "culture/0" not in last.split("did not appear")[0]
+    finally:
+        for p in (body, culture):
+            p.terminate()
+            p.wait(timeout=20)
+        log.close()
