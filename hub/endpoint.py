@@ -91,6 +91,19 @@ def _host() -> dict:
 _HOST = _host()
 
 
+#: how often an endpoint whose run's inputs stopped asks whether its hub is still there
+HUB_CHECK_S = 1.0
+
+
+def _hub_answers(session, keys: Keys, timeout_s: float = 0.5) -> bool:
+    """Whether the hub's liveliness token is on the bus (asked, not waited for)."""
+    try:
+        replies = session.liveliness().get(keys.alive("hub", "0"), timeout=timeout_s)
+        return any(reply.ok is not None for reply in replies)
+    except zenoh.ZError:
+        return False
+
+
 class _StoppedWaiting(Exception):
     """Asked to stop while still waiting for the hub."""
 
@@ -517,6 +530,7 @@ class Endpoint(abc.ABC):
             gc.freeze()  # the model is long-lived: keep full collections short
             log.info("%s/%s (%s) ready on session %s", self.role, self.id, self.kind, bus.session)
             timed_out = False
+            next_hub_check = 0.0
             while not self._stop.wait(0.05):
                 with self._lock:
                     idle_s = time.monotonic() - state["last_input"]
@@ -525,6 +539,19 @@ class Endpoint(abc.ABC):
                     elif not timed_out:
                         timed_out = True
                         self.on_input_timeout()
+                    in_run = self.run is not None
+                # A run whose inputs stopped: is its hub still there? A hub killed takes its
+                # router with it, and its clients hear no liveliness change then (they would
+                # stay busy with its run, and refuse the next hub's). Paused, it answers.
+                now = time.monotonic()
+                if in_run and idle_s > self.input_timeout_s and now >= next_hub_check:
+                    next_hub_check = now + HUB_CHECK_S
+                    if not _hub_answers(session, keys):
+                        log.warning(
+                            "%s/%s: the hub does not answer (no input for %.1f s)",
+                            self.role, self.id, idle_s,
+                        )  # fmt: skip
+                        self.on_hub_gone()
         finally:
             try:
                 with self._lock:

@@ -188,3 +188,38 @@ def test_an_endpoint_on_another_session_is_named_by_the_hub_waiting_for_it(tmp_p
             p.terminate()
             p.wait(timeout=20)
         log.close()
+
+
+def test_endpoints_end_the_run_of_a_killed_hub_and_serve_the_next_one(tmp_path, bus_overrides):
+    """The hub killed mid-run (SIGKILL, a crash): its router goes with it, and its clients
+    got no word that its liveliness had gone. The endpoints stayed busy with the dead run
+    (the body stopped by its input timeout) until a new hub came, whose run they refused
+    ("busy with run ..."). Now each ends the dead run on its own, and the next hub's run
+    goes."""
+    logs = {role: open(tmp_path / f"{role}.log", "w") for role in ("body", "culture")}
+    endpoints = [
+        neuvision("endpoint", role, CONFIG, *sets(bus_overrides), stderr=logs[role])
+        for role in ("body", "culture")
+    ]
+    hub_cmd = ["hub", CONFIG, "--quiet", "--runs-dir", str(tmp_path / "runs"), "--mode",
+               "realtime", *sets([*bus_overrides, *EXTERNAL])]  # fmt: skip
+    first = neuvision(*hub_cmd, "--duration-s", "60", stderr=subprocess.DEVNULL)
+    try:
+        body_log = tmp_path / "body.log"
+        wait_for(lambda: "took run" in body_log.read_text(), 60)
+        first.kill()
+        first.wait(timeout=20)
+        wait_for(lambda: "ended: the hub went away" in body_log.read_text(), 10)
+        wait_for(lambda: "ended: the hub went away" in (tmp_path / "culture.log").read_text(), 10)
+        done = subprocess.run(
+            [sys.executable, "-m", "hub.cli", *hub_cmd, "--duration-s", "0.5"],
+            capture_output=True, text=True, timeout=120,
+        )  # fmt: skip
+        assert done.returncode == 0, done.stderr[-2000:]
+    finally:
+        for p in (first, *endpoints):
+            if p.poll() is None:
+                p.terminate()
+                p.wait(timeout=20)
+        for f in logs.values():
+            f.close()
