@@ -80,7 +80,15 @@ def _address(text: str, args) -> str:
     config's ``bus.listen`` port."""
     if "/" in text:
         return text  # already a locator: tcp/10.0.0.2:7447, tls/...
-    host, _, port = text.rpartition(":") if text.count(":") == 1 else (text, "", "")
+    if text.startswith("["):  # [IPv6] or [IPv6]:PORT
+        host, _, rest = text[1:].partition("]")
+        port = rest[1:] if rest.startswith(":") else ""
+    elif text.count(":") == 1:  # HOST:PORT
+        host, _, port = text.partition(":")
+    else:  # HOST, or a bare IPv6 address (no port)
+        host, port = text, ""
+    if ":" in host:
+        host = f"[{host}]"  # Zenoh's locators bracket an IPv6 address
     if not port:
         listen = load_config(args.config, list(args.set or [])).bus.listen
         port = listen[0].rsplit(":", 1)[-1] if listen else "7447"

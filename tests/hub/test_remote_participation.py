@@ -223,3 +223,56 @@ def test_endpoints_end_the_run_of_a_killed_hub_and_serve_the_next_one(tmp_path, 
                 p.wait(timeout=20)
         for f in logs.values():
             f.close()
+
+
+@pytest.mark.parametrize(
+    "given, locator",
+    [
+        ("10.0.0.1", "tcp/10.0.0.1:7447"),
+        ("10.0.0.1:7500", "tcp/10.0.0.1:7500"),
+        ("hub.lab.example", "tcp/hub.lab.example:7447"),
+        ("[::1]:7500", "tcp/[::1]:7500"),
+        ("[::1]", "tcp/[::1]:7447"),
+        ("::1", "tcp/[::1]:7447"),
+        ("fe80::1:2", "tcp/[fe80::1:2]:7447"),
+        ("tls/10.0.0.1:7447", "tls/10.0.0.1:7447"),
+    ],
+)
+def test_connect_and_listen_addresses_become_zenoh_locators(given, locator):
+    """IPv6 addresses became `tcp/[::1]:7500:7447` or `tcp/::1:7447`, which Zenoh cannot
+    use ("failed to lookup address information")."""
+    from argparse import Namespace
+
+    from hub.cli import _address
+
+    assert _address(given, Namespace(config=None, set=None)) == locator
+
+
+def test_a_hub_on_ipv6_loopback_answers_ctl(tmp_path, bus_overrides):
+    try:
+        with socket.socket(socket.AF_INET6, socket.SOCK_STREAM) as s:
+            s.bind(("::1", 0))
+            port = s.getsockname()[1]
+    except OSError as exc:
+        pytest.skip(f"no IPv6 loopback here: {exc}")
+    session = [i for i in bus_overrides if i.startswith("bus.session")]
+    log = tmp_path / "hub.log"
+    with open(log, "w") as err:
+        hub = neuvision(
+            "hub", CONFIG, "--quiet", "--listen", f"[::1]:{port}", "--runs-dir",
+            str(tmp_path / "runs"), *sets([*session, *EXTERNAL, "bus.scouting=false"]),
+            stderr=err,
+        )  # fmt: skip
+    try:
+        wait_for(lambda: "waiting for body/0" in log.read_text() or hub.poll() is not None, 60)
+        ctl = subprocess.run(
+            [sys.executable, "-m", "hub.cli", "ctl", "stop", "--connect", f"[::1]:{port}",
+             "--timeout-s", "20", *sets(session)],
+            capture_output=True, text=True, timeout=60,
+        )  # fmt: skip
+        assert ctl.returncode == 0, ctl.stderr[-2000:]
+        assert json.loads(ctl.stdout)["state"] == "stopping"
+        assert hub.wait(timeout=60) == 0, log.read_text()[-2000:]
+    finally:
+        if hub.poll() is None:
+            hub.kill()
