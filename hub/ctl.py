@@ -10,11 +10,15 @@ config). Nothing here keeps state; a caller with a session of its own uses
 from __future__ import annotations
 
 import dataclasses
+import time
 
 from hub import wire
 from hub.bus import open_session
 from hub.config import BusSection
 from hub.protocol import ControlReply, ControlRequest, Keys, ProtocolError
+
+#: between two queries of a router that answered nothing (no hub's queryable there yet)
+RETRY_S = 0.2
 
 
 def request(session, keys: Keys, cmd: str, *, timeout_s: float = 5.0) -> ControlReply | None:
@@ -58,9 +62,17 @@ def ctl(
     hub.bus.BusError
         The hub's router was not reached.
     """
+    deadline = time.monotonic() + timeout_s
     bus = dataclasses.replace(bus, connect_timeout_s=timeout_s)
     session = open_session(bus, listener=False, role="operator", timeout_name=timeout_name)
     try:
-        return request(session, bus.keys, cmd, timeout_s=timeout_s)
+        # The router may be up before its hub's control queryable (a hub just started),
+        # and then answers at once with nothing: ask again until the time is up.
+        while True:
+            left_s = deadline - time.monotonic()
+            reply = request(session, bus.keys, cmd, timeout_s=max(left_s, 0.1))
+            if reply is not None or deadline - time.monotonic() < RETRY_S:
+                return reply
+            time.sleep(RETRY_S)
     finally:
         session.close()

@@ -276,3 +276,35 @@ def test_a_hub_on_ipv6_loopback_answers_ctl(tmp_path, bus_overrides):
     finally:
         if hub.poll() is None:
             hub.kill()
+
+
+def test_ctl_asks_again_a_router_whose_hub_is_not_answering_yet(bus_overrides):
+    """`neuvision ctl` started with (or just before) its hub reached the router before the
+    hub's control queryable was declared, and said "no hub answered" at once, whatever its
+    --timeout-s (1 in 4 tries in a shell). Here a router answers the first query with
+    nothing, as it does before the hub's queryable is there, and the second properly."""
+    from hub import wire
+    from hub.bus import open_session
+    from hub.config import load_config
+    from hub.ctl import ctl
+    from hub.protocol import ControlReply
+
+    bus = load_config(CONFIG, bus_overrides).bus
+    asked = []
+
+    def on_control(query):
+        asked.append(query)
+        if len(asked) > 1:
+            wire.reply(query, ControlReply(ok=True, state="running").encode())
+        else:
+            asked[0] = None  # no answer: the query's end goes out when it is freed
+            del query
+
+    router = open_session(bus, listener=True)
+    try:
+        queryable = router.declare_queryable(bus.keys.hub_control, on_control)  # noqa: F841
+        reply = ctl(bus, "status", timeout_s=10.0)
+    finally:
+        router.close()
+    assert reply is not None and reply.ok and reply.state == "running"
+    assert len(asked) == 2
