@@ -286,14 +286,15 @@ def watch_local_endpoints(procs: list[LocalProcess], on_exit) -> threading.Event
             for p in procs:
                 code = p.popen.poll()
                 if code is not None:
-                    on_exit(f"{p.role} endpoint exited with status {code}{_last_line(p.log_path)}")
+                    on_exit(f"{p.role} endpoint exited with status {code}{last_line(p.log_path)}")
                     return
 
     threading.Thread(target=watch, name="endpoint-watch", daemon=True).start()
     return done
 
 
-def _last_line(path: Path | None) -> str:
+def last_line(path: Path | None) -> str:
+    """': <the last line of a child's log>', or '' (no log, an empty one)."""
     if path is None or not path.exists():
         return ""
     lines = [ln for ln in path.read_text(errors="replace").splitlines() if ln.strip()]

@@ -45,7 +45,13 @@ from hub.burst_observer import NAME as OBSERVER
 from hub.burst_observer import OnlineTally
 from hub.bus import BusError, open_session, payload_bytes
 from hub.config import ConfigError, ExperimentConfig
-from hub.launch import LocalProcess, settings_digest, start_burst_observer, stop_local_endpoints
+from hub.launch import (
+    LocalProcess,
+    last_line,
+    settings_digest,
+    start_burst_observer,
+    stop_local_endpoints,
+)
 from hub.ledger import Ledger
 from hub.link import HubLink
 from hub.lockstep import Lockstep
@@ -243,6 +249,7 @@ class Hub:
         self._last_wake = time.monotonic()
         self._stall: tuple[float, float] = (-math.inf, 0.0)
         self._digests: dict[str, str | None] = {}  # _settings_digest's, by role
+        self._observer_proc: LocalProcess | None = None  # the burst observer it started
 
     # ================================================================ public
 
@@ -283,7 +290,7 @@ class Hub:
                 self.recorder = Recorder(self.run_dir, flush_s=cfg.record.flush_s)
             write_manifest(self.run_dir, manifest)
         # Started first: it builds its detector while the endpoints build their models.
-        observer = self._start_observer()
+        observer = self._observer_proc = self._start_observer()
         # Before Zenoh starts its threads, which inherit the placement.
         self.placement = place_threads("loop.cpus", cfg.loop.cpus)
         if self.placement.reason:
@@ -751,6 +758,17 @@ class Hub:
                 next_note += 5.0
             if self.stop_reason:
                 self._stop_while_waiting("endpoints")
+            proc = self._observer_proc
+            if (
+                proc is not None
+                and ("observer", OBSERVER) in needed - self.alive
+                and proc.popen.poll() is not None
+            ):  # it will not come: say why now, not after the wait
+                raise HubError(
+                    f"the burst observer that the hub started ended before the run, with exit "
+                    f"status {proc.popen.returncode}{last_line(proc.log_path)} (its log: "
+                    f"{proc.log_path or 'none'}; online.enabled = false runs without it)"
+                )
             if time.monotonic() >= deadline:
                 missing = ", ".join(f"{r}/{i}" for r, i in sorted(needed - self.alive))
                 hint = ""

@@ -308,3 +308,27 @@ def test_ctl_asks_again_a_router_whose_hub_is_not_answering_yet(bus_overrides):
         router.close()
     assert reply is not None and reply.ok and reply.state == "running"
     assert len(asked) == 2
+
+
+def test_a_burst_observer_that_cannot_start_fails_the_hub_at_once(tmp_path, bus_overrides):
+    """Under mTLS the hub starts the burst observer with the observer's certificate from its
+    own certs folder. Without it the observer ended at once, saying so in observer.log, and
+    the hub waited out loop.wait_timeout_s (30 s) to give a generic hint. Now it says why
+    as soon as the observer has ended."""
+    from hub.certs import make_certificates
+
+    certs = tmp_path / "certs"
+    make_certificates(certs, ["hub"], hub_hosts=["127.0.0.1"])  # no observer.pem
+    port = port_of(bus_overrides)
+    session = [i for i in bus_overrides if i.startswith("bus.session")]
+    items = [*session, *EXTERNAL, 'bus.security="mtls"', f"bus.certs_dir={json.dumps(str(certs))}",
+             f'bus.listen=["tls/127.0.0.1:{port}"]', "loop.wait_timeout_s=600"]  # fmt: skip
+    done = subprocess.run(
+        [sys.executable, "-m", "hub.cli", "hub", CONFIG, "--quiet", "--runs-dir",
+         str(tmp_path / "runs"), *sets(items)],
+        capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert done.returncode == 2, done.stderr[-2000:]
+    last = done.stderr.strip().splitlines()[-1]
+    assert "the burst observer that the hub started ended before the run" in last, last
+    assert "no certificate file" in last and "observer.pem" in last
