@@ -119,6 +119,14 @@ def run_experiment(
             f"--session {cfg.bus.session})"
         )
     announce(f"run folder {run_dir}")
+    awaited = [r for r in ("body", "culture") if cfg.endpoint(r).launch == "local"]
+    if not local and awaited:  # `neuvision hub` on a file whose endpoints are "local"
+        where = ", ".join(cfg.bus.listen)
+        announce(
+            "the hub starts no endpoint: start "
+            + " and ".join(f"'neuvision endpoint {r} CONFIG --connect HOST'" for r in awaited)
+            + f" (the hub listens on {where}), or give 'neuvision run' to start them here"
+        )
     procs = start_local_endpoints(config, overrides, cfg, run_dir) if local else []
     dash = None
     if dashboard:

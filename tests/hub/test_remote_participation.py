@@ -332,3 +332,19 @@ def test_a_burst_observer_that_cannot_start_fails_the_hub_at_once(tmp_path, bus_
     last = done.stderr.strip().splitlines()[-1]
     assert "the burst observer that the hub started ended before the run" in last, last
     assert "no certificate file" in last and "observer.pem" in last
+
+
+def test_a_hub_says_it_starts_no_endpoint(tmp_path, bus_overrides):
+    """`neuvision hub CONFIG` on the paper's file (endpoints `launch = "local"`), as
+    docs/dashboard.md showed it: the hub starts no endpoint and waited in silence for those
+    the file says are local. It now says whom it waits for and how they are started."""
+    done = subprocess.run(
+        [sys.executable, "-m", "hub.cli", "hub", CONFIG, "--quiet", "--runs-dir", str(tmp_path),
+         *sets([*bus_overrides, "loop.wait_timeout_s=1", "online.enabled=false"])],
+        capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert done.returncode == 2
+    said = [ln for ln in done.stderr.splitlines() if "starts no endpoint" in ln]
+    assert said, done.stderr
+    assert "neuvision endpoint body" in said[0] and "neuvision endpoint culture" in said[0]
+    assert "neuvision run" in said[0]
