@@ -375,6 +375,10 @@ class OnlineTally:
         }
 
 
+class _StoppedWaiting(Exception):
+    """Asked to stop while still waiting for the hub."""
+
+
 def main(bus: BusSection, *, once: bool = False) -> int:
     """``neuvision observe bursts``: serve on the bus until SIGINT/SIGTERM."""
     stop = StopFlag()
@@ -384,7 +388,17 @@ def main(bus: BusSection, *, once: bool = False) -> int:
     sys.setswitchinterval(0.001)
     where = ", ".join(bus.connect or bus.listen)
     log.info("burst observer: connecting to the hub at %s", where)
-    session = open_session(bus, listener=False, role="observer")
+
+    def waiting(where: str, waited_s: float) -> None:  # as an endpoint says it
+        if stop.is_set():
+            raise _StoppedWaiting
+        log.info("burst observer: waiting for the hub at %s (%.0f s so far): is it started?",
+                 where, waited_s)  # fmt: skip
+
+    try:
+        session = open_session(bus, listener=False, role="observer", on_wait=waiting)
+    except _StoppedWaiting:
+        return 0  # asked to stop before the hub was reached: nothing was opened
     try:
         observer = BurstObserver(session, bus.keys)
         # The analysis (this thread) takes only the CPU the loop leaves: it falls behind and

@@ -348,3 +348,22 @@ def test_a_hub_says_it_starts_no_endpoint(tmp_path, bus_overrides):
     assert said, done.stderr
     assert "neuvision endpoint body" in said[0] and "neuvision endpoint culture" in said[0]
     assert "neuvision run" in said[0]
+
+
+def test_a_burst_observer_started_before_its_hub_says_so_and_stops_on_ctrl_c(
+    tmp_path, bus_overrides
+):
+    """`neuvision observe bursts CONFIG --connect HOST` with no hub yet said nothing and did
+    not hear Ctrl-C: it waited out bus.connect_timeout_s (30 s) and ended with status 2. As
+    an endpoint does, it now says where it is trying, and stops at Ctrl-C with status 0."""
+    log = tmp_path / "observer.log"
+    with open(log, "w") as err:
+        p = neuvision("observe", "bursts", CONFIG, *sets(bus_overrides), stderr=err)
+    try:
+        wait_for(lambda: "waiting for the hub at tcp/127.0.0.1:" in log.read_text(), 20)
+        p.send_signal(signal.SIGINT)
+        assert p.wait(timeout=10) == 0, log.read_text()
+    finally:
+        if p.poll() is None:
+            p.kill()
+    assert "cannot reach the hub" not in log.read_text()
