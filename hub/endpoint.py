@@ -273,6 +273,8 @@ class Endpoint(abc.ABC):
                 if request.hold:
                     log.info("%s/%s: run %s paused", self.role, self.id, request.run)
                     self.make_safe()
+                else:
+                    log.info("%s/%s: run %s resumed", self.role, self.id, request.run)
                 self.holds += int(request.hold)
                 return RunReply(ok=True, run=request.run)
             if isinstance(request, RunEnd):

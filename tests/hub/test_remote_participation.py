@@ -367,3 +367,23 @@ def test_a_burst_observer_started_before_its_hub_says_so_and_stops_on_ctrl_c(
         if p.poll() is None:
             p.kill()
     assert "cannot reach the hub" not in log.read_text()
+
+
+def test_an_endpoint_says_when_its_run_is_paused_and_when_resumed(caplog):
+    """The terminal of a remote endpoint said "run ... paused" and never that it went on."""
+    import logging
+
+    from hub.protocol import RunHold, RunStart
+    from tests.endpoints import EchoBody
+
+    body = EchoBody()
+    run = "a" * 32
+    start = RunStart(run=run, period_ms=10.0, n_steps=10, mode="realtime", start_unix_s=1.0,
+                     deadline_ms=10.0, key=bytes(16))  # fmt: skip
+    caplog.set_level(logging.INFO, logger="hub.endpoint")
+    assert body.take_run_request(start.encode()).ok
+    assert body.take_run_request(RunHold(run=run, hold=True).encode()).ok
+    assert body.take_run_request(RunHold(run=run, hold=False).encode()).ok
+    said = [r.getMessage() for r in caplog.records]
+    assert f"body/0: run {run} paused" in said
+    assert f"body/0: run {run} resumed" in said
