@@ -150,6 +150,12 @@ def open_session(
                     if proof
                     else ""
                 )
+                if proof:  # Zenoh says only "Timeout!": look at the TLS link ourselves
+                    seen = security.diagnose(
+                        (bus.connect or bus.listen)[0], bus.certs_dir, role, bus.security
+                    )
+                    if seen:
+                        refused = f" (bus.security = {bus.security!r}: {seen})"
                 raise BusError(
                     f"cannot reach the hub at {where} within {bus.connect_timeout_s:g} s "
                     f"({timeout_name}){refused}: {_first_line(exc)}"

@@ -203,3 +203,54 @@ def _rule(name: str, flows: list[str], messages: list[str], key_exprs: list[str]
         "messages": messages,
         "key_exprs": key_exprs,
     }
+
+
+def diagnose(locator: str, certs_dir: str | Path, role: str | None, mode: str) -> str | None:
+    """Why a participant could not join the TLS hub at ``locator``, found by a TLS handshake
+    of its own (Zenoh says only "Timeout!"): nothing listening there, the hub's certificate
+    not valid for the address or not of this ``ca.pem``, or the hub refusing this
+    participant's certificate. None when the handshake goes through (with ``"password"``:
+    then the password was refused) or the reason is not known."""
+    import socket
+    import ssl
+
+    scheme, _, address = locator.partition("/")
+    if scheme != "tls" or not role:
+        return None
+    host, _, port = address.rpartition(":")
+    host = host.strip("[]")
+    files = certificate_files(certs_dir, role)
+    try:
+        context = ssl.create_default_context(cafile=str(files["ca"]))
+        if mode == "mtls":
+            context.load_cert_chain(str(files["certificate"]), str(files["key"]))
+    except (OSError, ssl.SSLError):
+        return None  # a file missing or unreadable is said when the session is configured
+    try:
+        with socket.create_connection((host, int(port)), timeout=2.0) as raw:
+            with context.wrap_socket(raw, server_hostname=host) as tls:
+                tls.settimeout(1.0)
+                try:
+                    tls.recv(1)  # a refusal of our certificate comes as an alert
+                except TimeoutError:
+                    return None  # taken: the TLS link is not the cause
+                return None
+    except ConnectionRefusedError:
+        return f"nothing listens at {host}:{port} (is the hub started, on that port?)"
+    except ssl.SSLCertVerificationError as exc:
+        why = exc.verify_message or str(exc)
+        if "mismatch" in why or "not valid for" in why:
+            return (
+                f"the hub's certificate is not valid for {host}: make it with 'neuvision "
+                f"certs DIR --roles hub --hub-hosts {host},...' (the addresses and names the "
+                f"participants reach it by), or connect by one it names"
+            )
+        return (
+            f"the hub's certificate does not verify against {files['ca']}: {why} (a "
+            f"certificate of another CA? every participant needs the experiment's ca.pem)"
+        )
+    except ssl.SSLError as exc:
+        reason = (exc.reason or str(exc)).lower().replace("_", " ")
+        return f"the hub refused the {role}'s certificate ({reason})"
+    except (OSError, ValueError):
+        return None

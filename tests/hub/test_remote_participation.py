@@ -387,3 +387,50 @@ def test_an_endpoint_says_when_its_run_is_paused_and_when_resumed(caplog):
     said = [r.getMessage() for r in caplog.records]
     assert f"body/0: run {run} paused" in said
     assert f"body/0: run {run} resumed" in said
+
+
+@pytest.mark.parametrize("case", ["hub name", "another CA", "no hub"])
+def test_an_endpoint_refused_under_mtls_says_which_side_refused(tmp_path, bus_overrides, case):
+    """An endpoint that could not join a TLS hub said "or the hub refused the body's
+    certificate" whatever the cause, even when the body refused the hub's (a certificate
+    made for other addresses, `--hub-hosts 10.0.0.1` as in docs/remote.md, reached at
+    127.0.0.1; a ca.pem of another CA). It now looks and says which."""
+    from hub.certs import make_certificates
+
+    certs, other = tmp_path / "certs", tmp_path / "other"
+    hosts = ["10.0.0.1"] if case == "hub name" else ["127.0.0.1"]
+    make_certificates(certs, ["hub", "body"], hub_hosts=hosts)
+    make_certificates(other, ["body"], hub_hosts=["127.0.0.1"])
+    port = port_of(bus_overrides)
+    session = [i for i in bus_overrides if i.startswith("bus.session")]
+    secure = ['bus.security="mtls"', f'bus.listen=["tls/127.0.0.1:{port}"]', *session]
+    hub = None
+    if case != "no hub":
+        hub = neuvision(
+            "hub", CONFIG, "--quiet", "--runs-dir", str(tmp_path / "runs"),
+            *sets([*secure, *EXTERNAL, f"bus.certs_dir={json.dumps(str(certs))}",
+                   "online.enabled=false"]),
+            stderr=subprocess.DEVNULL,
+        )  # fmt: skip
+    body_certs = other if case == "another CA" else certs
+    try:
+        done = subprocess.run(
+            [sys.executable, "-m", "hub.cli", "endpoint", "body", CONFIG,
+             *sets([*secure, f"bus.certs_dir={json.dumps(str(body_certs))}",
+                    "bus.connect_timeout_s=4"])],
+            capture_output=True, text=True, timeout=120,
+        )  # fmt: skip
+    finally:
+        if hub is not None:
+            hub.terminate()
+            hub.wait(timeout=30)
+    assert done.returncode == 2
+    last = done.stderr.strip().splitlines()[-1]
+    expected = {
+        "hub name": "the hub's certificate is not valid for 127.0.0.1",
+        "another CA": "the hub's certificate does not verify against",
+        "no hub": "nothing listens at 127.0.0.1:",
+    }[case]
+    assert expected in last, last
+    if case != "another CA":
+        assert "refused the body's certificate" not in last
