@@ -26,6 +26,7 @@ import abc
 import dataclasses
 import gc
 import logging
+import math
 import signal
 import threading
 import time
@@ -159,6 +160,7 @@ class Endpoint(abc.ABC):
         self._session = None
         self._telemetry: dict = {}
         self._once = False  # serve(once=True): stop when the first run ends
+        self._run_taken_at = -math.inf  # when the current run was taken (monotonic)
 
     # ------------------------------------------------------------ for subclasses
 
@@ -298,6 +300,7 @@ class Endpoint(abc.ABC):
                 self._outbox.key = request.key
             culture = self.role == "culture"
             self._limits = StimulationLimits(self._description()) if culture else None
+            self._run_taken_at = time.monotonic()  # the hub's inputs are due from now
             log.info("%s/%s took run %s", self.role, self.id, request.run)
             return RunReply(ok=True, run=request.run)
 
@@ -532,7 +535,7 @@ class Endpoint(abc.ABC):
             gc.freeze()  # the model is long-lived: keep full collections short
             log.info("%s/%s (%s) ready on session %s", self.role, self.id, self.kind, bus.session)
             timed_out = False
-            next_hub_check = 0.0
+            next_hub_check, unanswered = 0.0, 0
             while not self._stop.wait(0.05):
                 with self._lock:
                     idle_s = time.monotonic() - state["last_input"]
@@ -542,16 +545,23 @@ class Endpoint(abc.ABC):
                         timed_out = True
                         self.on_input_timeout()
                     in_run = self.run is not None
+                    # in this run: since its last input, or since it was taken
+                    run_idle_s = min(idle_s, time.monotonic() - self._run_taken_at)
                 # A run whose inputs stopped: is its hub still there? A hub killed takes its
                 # router with it, and its clients hear no liveliness change then (they would
                 # stay busy with its run, and refuse the next hub's). Paused, it answers.
+                # Two silent checks in a row: one may come as a new router's token does.
                 now = time.monotonic()
-                if in_run and idle_s > self.input_timeout_s and now >= next_hub_check:
+                if not in_run or run_idle_s <= self.input_timeout_s:
+                    unanswered = 0
+                elif now >= next_hub_check:
                     next_hub_check = now + HUB_CHECK_S
-                    if not _hub_answers(session, keys):
+                    unanswered = 0 if _hub_answers(session, keys) else unanswered + 1
+                    if unanswered >= 2:
+                        unanswered = 0
                         log.warning(
                             "%s/%s: the hub does not answer (no input for %.1f s)",
-                            self.role, self.id, idle_s,
+                            self.role, self.id, run_idle_s,
                         )  # fmt: skip
                         self.on_hub_gone()
         finally:
