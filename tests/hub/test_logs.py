@@ -26,6 +26,11 @@ def root_stream():
     root.handlers[:] = [handler]
     root.setLevel(logging.INFO)
     yield stream
+    # The cap also went on pytest's own handlers, which live on through the session
+    # (added to the root for each phase of each test): it must not cut later tests' logs.
+    for target in {*root.handlers, *saved[0]}:
+        for cap in [f for f in target.filters if isinstance(f, CapFilter)]:
+            target.removeFilter(cap)
     root.handlers[:], root.filters[:] = saved[0], saved[1]
     root.setLevel(saved[2])
 
