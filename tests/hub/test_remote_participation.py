@@ -203,19 +203,26 @@ def test_endpoints_end_the_run_of_a_killed_hub_and_serve_the_next_one(tmp_path, 
     ]
     hub_cmd = ["hub", CONFIG, "--quiet", "--runs-dir", str(tmp_path / "runs"), "--mode",
                "realtime", *sets([*bus_overrides, *EXTERNAL])]  # fmt: skip
-    first = neuvision(*hub_cmd, "--duration-s", "60", stderr=subprocess.DEVNULL)
+    logs["hub"] = open(tmp_path / "hub.log", "w")
+    first = neuvision(*hub_cmd, "--duration-s", "60", stderr=logs["hub"])
+
+    def said(role: str) -> str:
+        return (tmp_path / f"{role}.log").read_text()
+
     try:
-        body_log = tmp_path / "body.log"
-        wait_for(lambda: "took run" in body_log.read_text(), 60)
+        wait_for(lambda: "took run" in said("body"), 60)
         first.kill()
         first.wait(timeout=20)
-        wait_for(lambda: "ended: the hub went away" in body_log.read_text(), 10)
-        wait_for(lambda: "ended: the hub went away" in (tmp_path / "culture.log").read_text(), 10)
+        wait_for(lambda: "ended: the hub went away" in said("body"), 10)
+        wait_for(lambda: "ended: the hub went away" in said("culture"), 10)
         done = subprocess.run(
             [sys.executable, "-m", "hub.cli", *hub_cmd, "--duration-s", "0.5"],
             capture_output=True, text=True, timeout=120,
         )  # fmt: skip
         assert done.returncode == 0, done.stderr[-2000:]
+    except AssertionError as exc:  # what each part said, to tell why
+        tails = "".join(f"\n--- {r}.log\n{said(r)[-2000:]}" for r in ("hub", "body", "culture"))
+        raise AssertionError(f"{exc}{tails}") from None
     finally:
         for p in (first, *endpoints):
             if p.poll() is None:
