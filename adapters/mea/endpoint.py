@@ -351,8 +351,14 @@ class MeaEndpoint(Endpoint):
         self.trigger_lag_ms.append((time.monotonic() - due) * 1e3)
 
     def _failed(self, exc: DeviceFault) -> None:
-        log.error("the instrument failed: %s", exc)
-        self.driver.fault = exc
+        """End the endpoint with ``exc``; the first fault is the one raised (what follows it,
+        such as spikes streamed on the session it closed, is its consequence)."""
+        first = self.driver.fault  # the driver's own, when it found the instrument gone
+        if first is None or first is exc:
+            log.error("the instrument failed: %s", exc)
+            self.driver.fault = exc
+        else:
+            log.warning("after the fault (%s), also: %s", first, exc)
         self.request_stop()
 
     def serve(self, *args, **kwargs) -> int:

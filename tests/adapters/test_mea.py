@@ -497,6 +497,18 @@ def test_a_worker_that_fails_ends_the_endpoint_as_a_fault(emulators, monkeypatch
         hub.error = None  # the fault expected, seen
 
 
+def test_the_first_fault_is_the_one_the_endpoint_ends_with(emulators):
+    """What follows a fault (spikes streamed on the session its stop closed: a full suite
+    saw ``ZError('session closed')`` raised in place of the bug) does not replace it."""
+    from hub.endpoint import DeviceFault
+
+    endpoint = endpoint_for(emulators())
+    first = DeviceFault("the endpoint's device worker failed: RuntimeError('a bug')")
+    endpoint._failed(first)
+    endpoint._failed(DeviceFault("streaming spikes failed: ZError('session closed')"))
+    assert endpoint.driver.fault is first
+
+
 def test_the_stop_guard_disables_every_electrode_when_the_adapter_is_gone(emulator, capfd):
     """The adapter's process ended without making the instrument safe (SIGKILL, the OOM
     killer): the RHS kept its last pulse's electrodes enabled, on the trigger key, in run
