@@ -257,3 +257,13 @@ def test_a_reader_that_leaves_early_is_no_error(tmp_path):
         os.close(write_end)
     assert done.returncode == 0 and "Traceback" not in done.stderr, done.stderr
     assert any((tmp_path / "certs").iterdir())  # the work was done all the same
+
+
+def test_a_missing_certificate_is_a_config_error_before_any_folder(capsys, tmp_path, no_process):
+    certs = tmp_path / "certs"
+    err = refused_run(
+        capsys, tmp_path, CLOSED_LOOP,
+        'bus.security="mtls"', f'bus.certs_dir="{certs}"', 'bus.listen=["tls/127.0.0.1:7555"]',
+    )  # fmt: skip
+    assert f"no ca file '{certs}/ca.pem' for the hub" in err
+    assert f"neuvision certs {certs}" in err  # how to make it
