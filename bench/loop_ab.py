@@ -1,0 +1,101 @@
+"""The trivial lockstep loop of two versions, interleaved: what a change costs the loop.
+
+Each side is a tree of this project (a ``git worktree`` of another commit, or this one)
+and runs its *own* ``bench/loop.py``: ``run_once("lockstep", 10.0, STEPS)``, the hub and
+two trivial endpoints placed by the OS, in a fresh process per run. The runs alternate
+A B B A A B ... so that the host's drift over the session falls on both sides alike; each
+pair's ratio B/A gives the cost with a 90 % interval (``bench/closed_loop.py``'s
+:func:`paired_cost`). A side may add ``--set`` items to its runs (``TREE|KEY=VALUE;...``).
+
+    git worktree add /tmp/before 5231a2d
+    python bench/loop_ab.py /tmp/before . --pairs 6 --steps 10000
+    python bench/loop_ab.py . ".|online.enabled=false" --pairs 4
+
+The last line printed is one JSON object (``steps_per_s_a``, ``steps_per_s_b``: medians;
+``cost_share_paired`` and ``cost_share_interval_90``; ``steal_share``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from bench.closed_loop import paired_cost  # noqa: E402
+from bench.host import StealMeter, child_run, end_children_on_signal  # noqa: E402
+
+# Run in the side's tree, with that tree first on the path (its hub, its endpoints).
+PROGRAM = """
+import json, os, sys
+sys.path.insert(0, os.getcwd())
+os.environ["PYTHONPATH"] = os.getcwd()
+from bench.loop import run_once
+timing = run_once("lockstep", 10.0, {steps}, *{sets!r})
+print("RESULT", json.dumps({{"steps_per_s": timing["steps_per_s"]}}))
+"""
+
+
+def side(spec: str) -> tuple[Path, list[str]]:
+    """``TREE`` or ``TREE|KEY=VALUE;KEY=VALUE``: the tree and its runs' ``--set`` items."""
+    tree, _, sets = spec.partition("|")
+    path = Path(tree).resolve()
+    if not (path / "bench" / "loop.py").is_file():
+        raise SystemExit(f"loop_ab: {tree} has no bench/loop.py")
+    return path, [s for s in sets.split(";") if s]
+
+
+def run(tree: Path, sets: list[str], steps: int) -> float:
+    """One run of the tree's trivial lockstep loop; its steps per second."""
+    done = child_run([sys.executable, "-c", PROGRAM.format(steps=steps, sets=sets)], cwd=tree)
+    lines = [line for line in done.stdout.splitlines() if line.startswith("RESULT ")]
+    if done.returncode != 0 or not lines:
+        raise SystemExit(f"loop_ab: a run in {tree} failed:\n{done.stderr[-2000:]}")
+    return json.loads(lines[-1].removeprefix("RESULT "))["steps_per_s"]
+
+
+def main(argv: list[str] | None = None) -> dict:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("a", help="the side measured against (TREE or TREE|KEY=VALUE;...)")
+    ap.add_argument("b", help="the side whose cost is measured")
+    ap.add_argument("--pairs", type=int, default=4)
+    ap.add_argument("--steps", type=int, default=10_000)
+    args = ap.parse_args(argv)
+    if args.pairs < 1 or args.steps < 100:
+        ap.error("--pairs must be >= 1 and --steps >= 100")
+    end_children_on_signal()
+    sides = {"a": side(args.a), "b": side(args.b)}
+    figures: dict[str, list[float]] = {"a": [], "b": []}
+    with StealMeter() as steal:
+        for i in range(args.pairs):
+            for name in ("a", "b") if i % 2 == 0 else ("b", "a"):
+                figures[name].append(run(*sides[name], args.steps))
+                print(f"pair {i + 1}, {name}: {figures[name][-1]:,.0f} steps/s", flush=True)
+    ratios = [b / a for a, b in zip(figures["a"], figures["b"], strict=True)]
+    cost, lo, hi = paired_cost(ratios)
+    a, b = statistics.median(figures["a"]), statistics.median(figures["b"])
+    print(
+        f"{args.pairs} interleaved pairs of {args.steps:,} lockstep steps: A {a:,.0f}, "
+        f"B {b:,.0f} steps/s (medians); B's cost {100 * cost:+.1f} % from the pairs' ratios "
+        f"(90 % interval {100 * lo:+.1f} to {100 * hi:+.1f} %); CPU steal {100 * steal.share:.2f} %"
+    )
+    out = {
+        "a": args.a,
+        "b": args.b,
+        "steps_per_s_a": round(a, 1),
+        "steps_per_s_b": round(b, 1),
+        "runs_steps_per_s": {k: [round(v, 1) for v in vs] for k, vs in figures.items()},
+        "cost_share_paired": round(cost, 4),
+        "cost_share_interval_90": [round(lo, 4), round(hi, 4)],
+        "steal_share": round(steal.share, 4),
+    }
+    print(json.dumps(out))
+    return out
+
+
+if __name__ == "__main__":
+    main()
