@@ -23,6 +23,7 @@ them into the configuration.
 
 from __future__ import annotations
 
+import contextlib
 from pathlib import Path
 
 from hub.protocol import Keys
@@ -230,10 +231,10 @@ def diagnose(locator: str, certs_dir: str | Path, role: str | None, mode: str) -
         with socket.create_connection((host, int(port)), timeout=2.0) as raw:
             with context.wrap_socket(raw, server_hostname=host) as tls:
                 tls.settimeout(1.0)
-                try:
-                    tls.recv(1)  # a refusal of our certificate comes as an alert
-                except TimeoutError:
-                    return None  # taken: the TLS link is not the cause
+                # a refusal of our certificate comes as an alert; silence: taken, so the TLS
+                # link is not the cause
+                with contextlib.suppress(TimeoutError):
+                    tls.recv(1)
                 return None
     except ConnectionRefusedError:
         return f"nothing listens at {host}:{port} (is the hub started, on that port?)"

@@ -66,15 +66,22 @@ def emulator():
         yield emu
 
 
+def started(emulator, bus_overrides, tmp_path, body_stderr=subprocess.DEVNULL, **hub_kwargs):
+    """The Khepera adapter served on its own (as on a lab PC) and a 60 s hybrid run by a hub."""
+    args = sets(bus_overrides, emulator.path, 'body.launch="external"')
+    text = body_stderr is subprocess.PIPE
+    body = neuvision("endpoint", "body", HYBRID, *args, stderr=body_stderr, text=text)
+    hub = neuvision(
+        "run", HYBRID, "--quiet", "--duration-s", "60", "--runs-dir", str(tmp_path), *args,
+        stderr=subprocess.DEVNULL, **hub_kwargs,
+    )  # fmt: skip
+    return body, hub
+
+
 def test_the_hub_killed_mid_run_leaves_the_robot_stopped_within_the_watchdog(
     emulator, bus_overrides, tmp_path
 ):
-    args = sets(bus_overrides, emulator.path, 'body.launch="external"')
-    body = neuvision("endpoint", "body", HYBRID, *args, stderr=subprocess.DEVNULL)
-    hub = neuvision(
-        "run", HYBRID, "--quiet", "--duration-s", "60", "--runs-dir", str(tmp_path), *args,
-        stderr=subprocess.DEVNULL, start_new_session=True,
-    )  # fmt: skip
+    body, hub = started(emulator, bus_overrides, tmp_path, start_new_session=True)
     try:
         wait_for(lambda: moving(emulator), 60.0)
         os.killpg(hub.pid, signal.SIGKILL)  # the hub and its culture, at once
@@ -93,12 +100,7 @@ def test_the_adapter_killed_outright_leaves_the_robot_stopped(emulator, bus_over
     and a Khepera's protocol has no watchdog of its own — the robot drove on at its last
     speed. The adapter's stop guard, a process that holds the port with it, sends the stop
     when the adapter's process ends without releasing it, and then ends itself."""
-    args = sets(bus_overrides, emulator.path, 'body.launch="external"')
-    body = neuvision("endpoint", "body", HYBRID, *args, stderr=subprocess.PIPE, text=True)
-    hub = neuvision(
-        "run", HYBRID, "--quiet", "--duration-s", "60", "--runs-dir", str(tmp_path), *args,
-        stderr=subprocess.DEVNULL,
-    )  # fmt: skip
+    body, hub = started(emulator, bus_overrides, tmp_path, body_stderr=subprocess.PIPE)
     try:
         wait_for(lambda: moving(emulator), 60.0)
         guards = children(body.pid)
@@ -116,12 +118,7 @@ def test_the_adapter_killed_outright_leaves_the_robot_stopped(emulator, bus_over
 
 
 def test_sigterm_to_the_adapter_stops_the_motors_before_it_exits(emulator, bus_overrides, tmp_path):
-    args = sets(bus_overrides, emulator.path, 'body.launch="external"')
-    body = neuvision("endpoint", "body", HYBRID, *args, stderr=subprocess.DEVNULL)
-    hub = neuvision(
-        "run", HYBRID, "--quiet", "--duration-s", "60", "--runs-dir", str(tmp_path), *args,
-        stderr=subprocess.DEVNULL,
-    )  # fmt: skip
+    body, hub = started(emulator, bus_overrides, tmp_path)
     try:
         wait_for(lambda: moving(emulator), 60.0)
         n_before = len(emulator.commands)
