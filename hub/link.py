@@ -66,7 +66,7 @@ class HubLink:
 
         def on_output(sample):
             role = role_of.get(str(sample.key_expr))
-            if role is None:  # another endpoint's output, or someone's stimulation
+            if role is None:  # another endpoint's output
                 return
             inbox = inboxes[role]
             try:
