@@ -8,7 +8,9 @@ speeds and take the freshest reading, whose age they report.
 
 Safety lives here, not on the bus: the thread stops the motors (``D,0,0``) when no speed
 command came for ``watchdog_s``; :meth:`KheperaDriver.stop_motors` stops them at once;
-a link fault stops them if the link still allows and is then reported.
+a link fault stops them if the link still allows and is then reported. Each cycle beats
+the link's stop guard (:mod:`adapters.guard`), which stops them from outside this
+process when the beats stop (the process frozen or this thread hung).
 """
 
 from __future__ import annotations
@@ -206,6 +208,11 @@ class KheperaDriver:
 
     def _cycle(self) -> None:
         t0 = time.monotonic()
+        if self.link.beat():  # the stop guard stopped the robot while this process stood
+            with self._lock:
+                self._sent = None  # so the speeds go again (or stay stopped: the watchdog)
+                self.counts["guard_stops"] += 1
+            log.warning("the stop guard stopped the motors while this process was frozen")
         with self._motor:
             with self._lock:
                 target = self._target

@@ -12,7 +12,10 @@ model), ``baud`` (9600, 19200, 38400, 57600, 115200; default 9600 for a Khepera 
 for a Khepera III), ``stop_bits`` (1 or 2; default 2 for a Khepera II, 1 for a Khepera III),
 ``timeout_s`` (one reply; default 0.25), ``silent_s`` (no valid reply for this long is a
 fault; default 1.0), ``watchdog_s`` (no motor command for this long stops the motors; default
-0.5; at least two loop periods), ``ir_table_file`` (a lab's calibration, CSV
+0.5; at least two loop periods), ``freeze_s`` (the adapter's serial thread silent for this
+long — the process frozen or hung — and its stop guard, a process of its own, stops the
+motors; default 1.0; at least two reply timeouts and three serial cycles; 0 turns it off),
+``ir_table_file`` (a lab's calibration, CSV
 ``distance_m,value``; default the published Khepera II table; required for a Khepera III,
 which has none published), ``start_pose``
 (``[x_m, y_m, heading_deg]`` odometry starts from; default ``[0, 0, 0]``), ``world`` (a world
@@ -53,6 +56,7 @@ DEFAULTS = {
     "timeout_s": 0.25,
     "silent_s": 1.0,
     "watchdog_s": 0.5,
+    "freeze_s": 1.0,
     "dialect": "khepera2",
     "ir_table_file": None,
     "start_pose": [0.0, 0.0, 0.0],
@@ -126,6 +130,15 @@ class KheperaEndpoint(Endpoint):
                 f"body.params.watchdog_s {out['watchdog_s']:g} s is under two loop periods "
                 f"({least_s:g} s): the motors would stop between steps"
             )
+        # A failed reply and its retry are a live thread's longest silence; shorter, the
+        # guard would stop a robot whose adapter is only waiting for its link.
+        out["freeze_s"] = check_value("body.params.freeze_s", float, out["freeze_s"], ge=0)
+        if 0 < out["freeze_s"] < 2 * out["timeout_s"]:
+            raise ConfigError(
+                f"body.params.freeze_s {out['freeze_s']:g} s is under two reply timeouts "
+                f"(body.params.timeout_s {out['timeout_s']:g} s): the stop guard would stop "
+                "the robot while the link retries; 0 turns it off"
+            )
         pose = out["start_pose"]
         if not (isinstance(pose, list) and len(pose) == 3):
             raise ConfigError("body.params.start_pose must be [x_m, y_m, heading_deg]")
@@ -159,7 +172,8 @@ class KheperaEndpoint(Endpoint):
         link = SerialLink(
             port, timeout_s=p["timeout_s"], silent_s=p["silent_s"], dialect=p["dialect"]
         )
-        link.guard_motors()  # the motors stopped even if this process is killed outright
+        # the motors stopped even if this process is killed outright, or frozen
+        link.guard_motors(freeze_s=p["freeze_s"])
         driver = KheperaDriver(
             link,
             units=WheelUnits.of(model),
@@ -176,9 +190,15 @@ class KheperaEndpoint(Endpoint):
         """Connect: the robot stopped, answering, its link's cycle timed."""
         if self.driver.cycle_ms == 0.0:
             self.driver.connect()
-            log.info(
-                "khepera on %s: serial cycle %.1f ms", self.driver.link.name, self.driver.cycle_ms
-            )
+            link = self.driver.link
+            log.info("khepera on %s: serial cycle %.1f ms", link.name, self.driver.cycle_ms)
+            freeze_s = link.guard.freeze_s if link.guard is not None else 0.0
+            if 0 < freeze_s < 3 * self.driver.cycle_ms / 1e3:
+                raise ConfigError(
+                    f"body.params.freeze_s {freeze_s:g} s is under three serial cycles "
+                    f"({self.driver.cycle_ms:.0f} ms each, measured on {link.name}): the stop "
+                    "guard would stop the robot between cycles"
+                )
 
     def describe(self) -> Description:
         self.warm_up()

@@ -148,16 +148,22 @@ class SerialLink:
         self.counts[kind] += 1
         log.warning("serial link %s: %s", self.name, exc)
 
-    def guard_motors(self) -> None:
+    def guard_motors(self, freeze_s: float = 0.0) -> None:
         """Start a :class:`~adapters.guard.StopGuard` on this port: the motors stopped if
-        this process dies without closing the link (a Khepera has no watchdog of its own).
-        Released by :meth:`close`."""
+        this process dies without closing the link (a Khepera has no watchdog of its own),
+        and, with ``freeze_s``, if :meth:`beat` stops coming for that long. Released by
+        :meth:`close`."""
         if self.guard is None:
             stop = command("D", 0, 0, dialect=self.dialect)
             self.guard = StopGuard(
                 self.port.fd, b"\r" + stop, f"the khepera on {self.name}",
-                f"{stop.strip().decode()} on {self.name}",
+                f"{stop.strip().decode()} on {self.name}", freeze_s=freeze_s,
             )  # fmt: skip
+
+    def beat(self) -> bool:
+        """Tell the stop guard this process lives (once a cycle); True when the guard
+        stopped the motors since the last beat (this process was frozen)."""
+        return self.guard is not None and self.guard.beat()
 
     def close(self) -> None:
         """Release the port (and its stop guard: the caller stopped the motors, or could

@@ -69,6 +69,12 @@ def test_a_lockstep_run_with_a_khepera_is_refused_before_it_starts():
             r"body.params.watchdog_s 0.08 s is under two loop "
             r"periods \(0.1 s\)",
         ),  # fmt: skip
+        ("body.params.freeze_s=-1", "body.params.freeze_s"),
+        # a failed reply and its retry are a live adapter's longest silence
+        (
+            "body.params.freeze_s=0.3",
+            r"body.params.freeze_s 0.3 s is under two reply timeouts",
+        ),  # fmt: skip
         ('body.params.dialect="khepera4"', r"dialect must be one of .*, got 'khepera4'"),
         ("body.params.start_pose=[0, 0]", "body.params.start_pose"),
         ('body.params.ir_table_file="nowhere.csv"', "body.params.ir_table_file"),
@@ -85,6 +91,8 @@ def test_bad_params_are_named_before_the_port_is_opened(override, named):
 def test_the_hybrid_experiment_file_checks_out():
     params = check(config())
     assert params["port"] == "/tmp/neuvision-khepera" and params["baud"] == 9600
+    assert params["freeze_s"] == 1.0  # the stop guard watches for a frozen adapter
+    assert check(config("body.params.freeze_s=0"))["freeze_s"] == 0.0  # off, on purpose
 
 
 def test_the_world_drawn_in_the_figures_must_exist():

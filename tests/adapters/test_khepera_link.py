@@ -167,6 +167,41 @@ def test_the_stop_guard_stops_the_motors_only_when_its_adapter_is_gone(emulator)
     dying.close()
 
 
+def test_the_stop_guard_stops_the_motors_when_the_adapter_stops_beating(emulator, capfd):
+    """With ``freeze_s`` the guard also stops the robot when the adapter's beats stop for
+    that long (its process frozen, or its serial thread hung) — and only once armed by a
+    first beat. The adapter learns it at its next beat (so it sends its speeds again), and
+    the guard watches on: a stall is survived."""
+    link = open_link(emulator)
+    link.guard_motors(freeze_s=0.3)
+    try:
+        link.transact("D", 4, 4)
+        time.sleep(0.5)  # not armed yet: no beat came
+        assert emulator.speed_units == (4, 4)
+        for _ in range(8):  # beating: the guard stays quiet
+            time.sleep(0.1)
+            assert link.beat() is False
+        stood = time.monotonic()  # no more beats from here: as a frozen process
+        assert emulator.speed_units == (4, 4)
+        wait_for(lambda: emulator.speed_units == (0, 0), 2.0)
+        t_stop, line = motor_commands(emulator)[-1]
+        assert line == b"D,0,0" and 0.3 <= t_stop - stood <= 0.3 + 0.2
+        assert link.beat() is True  # told once, at the first beat after
+        assert link.beat() is False
+        link.transact("D", 5, 5)  # the adapter drives again; the guard watches on
+        for _ in range(5):
+            link.beat()
+            time.sleep(0.1)
+        assert emulator.speed_units == (5, 5)
+    finally:
+        guard = link.guard.process
+        link.transact("D", 0, 0)
+        link.close()
+    assert guard.wait(timeout=5) == 0
+    err = capfd.readouterr().err
+    assert "gave no sign of life for 0.3 s" in err and "alive again" in err
+
+
 def test_a_stop_is_not_undone_by_a_speed_the_serial_thread_was_about_to_send(emulator):
     """``stop_motors`` while the serial thread had read a speed and not yet sent it: the stop
     went first and the speed after it, so the robot drove again after the stop had

@@ -117,6 +117,34 @@ def test_the_adapter_killed_outright_leaves_the_robot_stopped(emulator, bus_over
         end(hub, body)
 
 
+def test_the_adapter_frozen_mid_run_leaves_the_robot_stopped(emulator, bus_overrides, tmp_path):
+    """SIGSTOP to the adapter (a debugger, a swap storm, a hung thread): none of its own
+    code runs, and it does not end either, so nothing stopped the robot — it drove on at
+    its last speed for as long as the adapter stood. Its serial thread beats the stop
+    guard each cycle; the guard sends the stop once the beats are missing for
+    ``body.params.freeze_s`` (1 s), and watches on when the adapter is back."""
+    body, hub = started(emulator, bus_overrides, tmp_path, body_stderr=subprocess.PIPE)
+    try:
+        wait_for(lambda: moving(emulator), 60.0)
+        body.send_signal(signal.SIGSTOP)
+        frozen = time.monotonic()
+        wait_for(lambda: not moving(emulator), 5.0)
+        t_stop, line = motor_commands(emulator)[-1]
+        assert line == b"D,0,0"
+        assert 1.0 - 0.1 <= t_stop - frozen <= 1.0 + 0.5  # freeze_s, and a cycle's beat
+        body.send_signal(signal.SIGCONT)
+        assert hub.wait(timeout=30) == 2  # the body stood past its lease: the run's fault
+        time.sleep(0.5)
+        assert not moving(emulator)  # back, it drives not on at its old speed
+        body.send_signal(signal.SIGTERM)
+        assert body.wait(timeout=10) == 0
+        err = body.stderr.read()
+        assert "gave no sign of life for 1 s" in err and "alive again" in err
+        assert "stopped the motors while this process was frozen" in err
+    finally:
+        end(hub, body)
+
+
 def test_sigterm_to_the_adapter_stops_the_motors_before_it_exits(emulator, bus_overrides, tmp_path):
     body, hub = started(emulator, bus_overrides, tmp_path)
     try:
