@@ -98,3 +98,22 @@ def test_the_hybrid_experiment_file_checks_out():
 def test_the_world_drawn_in_the_figures_must_exist():
     with pytest.raises(ConfigError, match="body.params.world: no world file"):
         check(config('body.params.world="nowhere.toml"'))
+
+
+def test_a_freeze_limit_under_three_serial_cycles_is_refused_once_the_cycle_is_measured():
+    """Shorter than three cycles of the serial thread, the stop guard would stop a live
+    robot between its beats: refused at connect (when the cycle is known), naming the key."""
+    with KheperaEmulator(baud=9600) as emulator:  # a cycle of ~60 ms: the bytes' time
+        cfg = config(
+            f'body.params.port="{emulator.path}"',
+            "body.params.timeout_s=0.05",
+            "body.params.freeze_s=0.1",
+        )
+        endpoint = KheperaEndpoint.from_config(cfg.body, cfg)
+        try:
+            with pytest.raises(
+                ConfigError, match=r"body.params.freeze_s 0.1 s is under three serial"
+            ):
+                endpoint.warm_up()
+        finally:
+            endpoint.close()
