@@ -7,9 +7,16 @@ A B B A A B ... so that the host's drift over the session falls on both sides al
 pair's ratio B/A gives the cost with a 90 % interval (``bench/closed_loop.py``'s
 :func:`paired_cost`). A side may add ``--set`` items to its runs (``TREE|KEY=VALUE;...``).
 
+With ``--closed-loop SECONDS`` each run is instead the tree's own ``neuvision run
+configs/closed_loop.toml --mode lockstep`` (the 1024-neuron culture and the arena: what
+``bench/closed_loop.py`` times), and the figure its steps per second from the run's
+manifest; each tree first runs it once unmeasured (its simulator's kernels compiled and
+cached).
+
     git worktree add /tmp/before 5231a2d
     python bench/loop_ab.py /tmp/before . --pairs 6 --steps 10000
     python bench/loop_ab.py . ".|online.enabled=false" --pairs 4
+    python bench/loop_ab.py /tmp/before . --pairs 6 --closed-loop 60
 
 The last line printed is one JSON object (``steps_per_s_a``, ``steps_per_s_b``: medians;
 ``cost_share_paired`` and ``cost_share_interval_90``; ``steal_share``).
@@ -19,8 +26,10 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import statistics
 import sys
+import tempfile
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -58,34 +67,71 @@ def run(tree: Path, sets: list[str], steps: int) -> float:
     return json.loads(lines[-1].removeprefix("RESULT "))["steps_per_s"]
 
 
+def run_closed_loop(tree: Path, sets: list[str], seconds: float) -> float:
+    """One lockstep run of the tree's configs/closed_loop.toml; its steps per second."""
+    with tempfile.TemporaryDirectory() as runs:
+        cmd = [sys.executable, "-m", "hub.cli", "run", "configs/closed_loop.toml", "--quiet"]
+        cmd += ["--mode", "lockstep", "--duration-s", str(seconds), "--runs-dir", runs]
+        for item in sets:
+            cmd += ["--set", item]
+        done = child_run(cmd, cwd=tree, env={**os.environ, "PYTHONPATH": str(tree)})
+        manifests = list(Path(runs).glob("*/manifest.json"))
+        if done.returncode != 0 or len(manifests) != 1:
+            raise SystemExit(f"loop_ab: a closed-loop run in {tree} failed:\n{done.stderr[-2000:]}")
+        return json.loads(manifests[0].read_text())["timing"]["steps_per_s"]
+
+
 def main(argv: list[str] | None = None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("a", help="the side measured against (TREE or TREE|KEY=VALUE;...)")
     ap.add_argument("b", help="the side whose cost is measured")
     ap.add_argument("--pairs", type=int, default=4)
     ap.add_argument("--steps", type=int, default=10_000)
+    ap.add_argument(
+        "--closed-loop",
+        type=float,
+        metavar="SECONDS",
+        help="A/B the closed loop instead (lockstep runs of this many seconds of run time)",
+    )
     args = ap.parse_args(argv)
     if args.pairs < 1 or args.steps < 100:
         ap.error("--pairs must be >= 1 and --steps >= 100")
+    if args.closed_loop is not None and args.closed_loop <= 0:
+        ap.error("--closed-loop must be > 0")
     end_children_on_signal()
     sides = {"a": side(args.a), "b": side(args.b)}
+    if args.closed_loop is None:
+        what = f"{args.steps:,} lockstep steps"
+
+        def measure(name):
+            return run(*sides[name], args.steps)
+    else:
+        what = f"{args.closed_loop:g} s closed-loop lockstep runs"
+
+        def measure(name):
+            return run_closed_loop(*sides[name], args.closed_loop)
+
+        for name in ("a", "b"):  # kernels compiled and cached, unmeasured
+            print(f"warming up {name}: a {min(args.closed_loop, 2.0):g} s run", flush=True)
+            run_closed_loop(*sides[name], min(args.closed_loop, 2.0))
     figures: dict[str, list[float]] = {"a": [], "b": []}
     with StealMeter() as steal:
         for i in range(args.pairs):
             for name in ("a", "b") if i % 2 == 0 else ("b", "a"):
-                figures[name].append(run(*sides[name], args.steps))
+                figures[name].append(measure(name))
                 print(f"pair {i + 1}, {name}: {figures[name][-1]:,.0f} steps/s", flush=True)
     ratios = [b / a for a, b in zip(figures["a"], figures["b"], strict=True)]
     cost, lo, hi = paired_cost(ratios)
     a, b = statistics.median(figures["a"]), statistics.median(figures["b"])
     print(
-        f"{args.pairs} interleaved pairs of {args.steps:,} lockstep steps: A {a:,.0f}, "
+        f"{args.pairs} interleaved pairs of {what}: A {a:,.0f}, "
         f"B {b:,.0f} steps/s (medians); B's cost {100 * cost:+.1f} % from the pairs' ratios "
         f"(90 % interval {100 * lo:+.1f} to {100 * hi:+.1f} %); CPU steal {100 * steal.share:.2f} %"
     )
     out = {
         "a": args.a,
         "b": args.b,
+        "bench": "closed_loop" if args.closed_loop else "loop",
         "steps_per_s_a": round(a, 1),
         "steps_per_s_b": round(b, 1),
         "runs_steps_per_s": {k: [round(v, 1) for v in vs] for k, vs in figures.items()},
