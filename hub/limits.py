@@ -19,6 +19,21 @@ from hub.protocol import SMALL_ARRAY, Description, MotorCommand, Stimulation
 
 # Pulses are counted over this trailing window for the per-channel rate limit.
 RATE_WINDOW_S = 1.0
+_f32 = np.float32
+
+
+# A pulse's amplitude and width travel as float32 (Stimulation's schema): a value asked
+# for exactly at a limit may arrive just above it (a 0.8 ms width as 0.80000001 ms). So
+# they are compared with the limit at the wire's precision: the limit itself passes, the
+# next float32 value above it does not.
+def over(value: float, limit: float) -> bool:
+    """``value`` is over ``limit`` at float32 precision (the wire's, for pulses)."""
+    return _f32(value) > _f32(limit)
+
+
+def under(value: float, limit: float) -> bool:
+    """``value`` is under ``limit`` at float32 precision (the wire's, for pulses)."""
+    return _f32(value) < _f32(limit)
 
 
 def motor_violation(motor: MotorCommand, body: Description) -> str | None:
@@ -59,11 +74,11 @@ class StimulationLimits:
         if self.max_amplitude_ua is not None:
             amplitude = stim.amplitude_ua
             top = max(map(abs, amplitude.tolist())) if small else float(np.abs(amplitude).max())
-            if top > self.max_amplitude_ua:
+            if over(top, self.max_amplitude_ua):
                 return f"amplitude {top:g} uA exceeds max_amplitude_ua {self.max_amplitude_ua:g}"
         if self.max_width_ms is not None:
             top = max(stim.width_ms.tolist()) if small else float(stim.width_ms.max())
-            if top > self.max_width_ms:
+            if over(top, self.max_width_ms):
                 return f"width {top:g} ms exceeds max_width_ms {self.max_width_ms:g}"
         if self.max_pulse_hz is not None:
             allowed = self.max_pulse_hz * RATE_WINDOW_S

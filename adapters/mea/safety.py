@@ -28,6 +28,7 @@ from collections import Counter, deque
 from dataclasses import dataclass
 
 from hub.config import ConfigError, check_value
+from hub.limits import over, under
 
 log = logging.getLogger(__name__)
 
@@ -121,14 +122,14 @@ class SafetyGate:
         elif not amplitude_ua >= 0:
             reason = ("amplitude", f"{amplitude_ua:g} µA < 0: the amplitude is the pulse's size "
                       "(its polarity is safety.polarity)")  # fmt: skip
-        elif amplitude_ua > lim.max_amplitude_ua:
+        elif over(amplitude_ua, lim.max_amplitude_ua):
             reason = (
                 "amplitude",
                 f"{amplitude_ua:g} µA > max_amplitude_ua {lim.max_amplitude_ua:g}",
             )
-        elif phase_us > lim.max_phase_us:
+        elif over(phase_us, lim.max_phase_us):
             reason = ("phase", f"phase {phase_us:g} µs > max_phase_us {lim.max_phase_us:g}")
-        elif phase_us < lim.min_phase_us:
+        elif under(phase_us, lim.min_phase_us):
             reason = ("phase", f"phase {phase_us:g} µs < min_phase_us {lim.min_phase_us:g}")
         elif charge_nc > lim.max_charge_nc:
             reason = ("charge", f"{charge_nc:.1f} nC per phase > {lim.max_charge_nc:.1f} nC safe "

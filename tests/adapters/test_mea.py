@@ -227,6 +227,20 @@ def test_an_unsafe_pulse_is_refused_and_counted_never_clipped(amplitude_ua, widt
     assert gate.refused == {reason: 1} and gate.admitted == 0
 
 
+def test_a_pulse_exactly_at_a_limit_is_admitted_though_it_came_as_float32():
+    """Widths and amplitudes travel as float32: 0.8 ms arrives as 0.80000001 ms, a phase of
+    400.000006 µs. A pulse asked for exactly at the limits was refused ("phase 400 µs >
+    max_phase_us 400"); the next float32 value above a limit still is."""
+    limits = PulseLimits(electrode_diameter_um=1000.0)  # a charge limit out of the way
+    gate = SafetyGate(limits)
+    f32 = lambda x: float(np.float32(x))  # noqa: E731
+    longest, shortest = 2 * limits.max_phase_us / 1e3, 2 * limits.min_phase_us / 1e3
+    assert not isinstance(gate.admit(0, f32(limits.max_amplitude_ua), f32(longest), 0.0), str)
+    assert not isinstance(gate.admit(1, 10.0, f32(shortest), 0.0), str)
+    above = float(np.nextafter(np.float32(longest), np.float32(1.0)))
+    assert gate.admit(2, 10.0, above, 0.0).startswith("phase")
+
+
 def test_charge_is_checked_against_the_electrodes_size():
     limits = PulseLimits(electrode_diameter_um=10.0, max_phase_us=1000.0)
     assert limits.max_charge_nc == pytest.approx(18.06, abs=0.01)  # devices.md: ~18 nC

@@ -90,6 +90,34 @@ def test_a_coded_stimulation_over_the_cultures_limits_is_refused_whole():
     assert p.refused == {"coding": 1} and refusals[0][0] == "coding"
 
 
+def test_a_pulse_exactly_at_the_cultures_limits_is_not_refused():
+    """Stimulation's widths and amplitudes are float32: a width asked for exactly at the
+    culture's limit (the MEA's 0.8 ms, two 400 µs phases) arrives as 0.80000001 ms and was
+    refused as over it. The limit is allowed; the next float32 above it is not."""
+    from hub.limits import StimulationLimits
+    from hub.protocol import Stimulation
+
+    culture = dataclasses.replace(
+        EchoCulture().describe(), max_amplitude_ua=100.0, max_width_ms=0.8
+    )
+    limits = StimulationLimits(culture)
+
+    def pulse(amplitude_ua, width_ms):
+        return Stimulation(
+            **W(3).stamp,
+            channel=np.zeros(1, np.uint32),
+            amplitude_ua=np.full(1, amplitude_ua, np.float32),
+            width_ms=np.full(1, width_ms, np.float32),
+            onset_ms=np.zeros(1, np.float32),
+        )
+
+    assert limits.violation(pulse(100.0, 0.8)) is None
+    wider = np.nextafter(np.float32(0.8), np.float32(1.0))
+    assert "exceeds max_width_ms" in limits.violation(pulse(100.0, wider))
+    stronger = np.nextafter(np.float32(100.0), np.float32(200.0))
+    assert "exceeds max_amplitude_ua" in limits.violation(pulse(stronger, 0.8))
+
+
 def test_a_scheme_that_answers_for_another_step_is_an_error():
     p = policy('coding.scheme="tests.endpoints:code_wrong_step_at_20"')
     p.stim_for(19, sensors(18))
