@@ -606,11 +606,15 @@ def cmd_compare(args) -> int:
 
 def cmd_analyze(args) -> int:
     from hub.analysis.spikes import AnalysisInputError
+    from hub.record import UNFINISHED, read_manifest
     from lab.run_analysis import analyze_run
 
     run_dir = _recorded_run(args.run_dir, "analyse")
     if args.out is not None:
         make_output_folder(args.out, "--out")
+    manifest = read_manifest(run_dir)  # its outcome as read back
+    if manifest.get("outcome") == UNFINISHED:
+        print(f"neuvision: note: {run_dir} is unfinished: {manifest['reason']}", file=sys.stderr)
     try:
         metrics = analyze_run(run_dir, args.out)
     except AnalysisInputError as exc:

@@ -142,8 +142,49 @@ def versions() -> dict[str, str]:
     return out
 
 
-def host() -> dict[str, str]:
-    return {"hostname": socket.gethostname(), "platform": platform.platform()}
+def host() -> dict[str, Any]:
+    """Where this process runs, and which process it is (``pid`` and, on Linux, when it
+    started: a pid alone may be reused). :func:`read_run` uses them to tell a run still
+    going from one whose hub ended without closing it."""
+    out: dict[str, Any] = {"hostname": socket.gethostname(), "platform": platform.platform()}
+    out["pid"] = os.getpid()
+    started = _process_start(out["pid"])
+    if started is not None:
+        out["pid_start_ticks"] = started
+    return out
+
+
+def _process_start(pid: int) -> int | None:
+    """When process ``pid`` started, in clock ticks since boot (Linux); None if unknown."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return int(f.read().rpartition(")")[2].split()[19])
+    except (OSError, ValueError, IndexError):
+        return None
+
+
+#: the outcome a run reads as when its manifest says "running" and its hub is gone
+UNFINISHED = "unfinished"
+
+
+def hub_gone(manifest: dict[str, Any]) -> bool:
+    """Whether a run whose manifest still says "running" has lost its hub: the hub's
+    process, on this host, no longer exists (killed outright, crashed in native code, or
+    the host restarted). A run written on another host is not judged (False)."""
+    hub = manifest.get("hosts", {}).get("hub", {})
+    pid = hub.get("pid")
+    if manifest.get("outcome") != "running" or not isinstance(pid, int):
+        return False
+    if hub.get("hostname") != socket.gethostname():
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return True
+    except PermissionError:
+        pass  # exists, another user's
+    started = hub.get("pid_start_ticks")
+    return started is not None and _process_start(pid) not in (None, started)
 
 
 def experiment_text(source: str | Path | None) -> str | None:
@@ -414,11 +455,28 @@ _SUFFIX = {
 }
 
 
-def read_run(run_dir: str | Path) -> RunRecord:
-    """Read a run folder; a missing manifest (killed before start) reads as ``{}``."""
-    run_dir = Path(run_dir)
-    manifest_path = run_dir / MANIFEST_FILE
+def read_manifest(run_dir: str | Path) -> dict[str, Any]:
+    """A run folder's manifest; a missing one (killed before start) reads as ``{}``.
+
+    A manifest that says "running" while its hub is gone (:func:`hub_gone`) reads as
+    outcome ``"unfinished"``, with the reason (the file is left as it is): the record
+    holds what the hub had written when it ended."""
+    manifest_path = Path(run_dir) / MANIFEST_FILE
     manifest = json.loads(manifest_path.read_text()) if manifest_path.exists() else {}
+    if hub_gone(manifest):
+        manifest["outcome"] = UNFINISHED
+        manifest.setdefault(
+            "reason",
+            "its hub ended without closing the run (killed outright, crashed, or its host "
+            "stopped): the record holds what the hub had written by then",
+        )
+    return manifest
+
+
+def read_run(run_dir: str | Path) -> RunRecord:
+    """Read a run folder: its manifest (:func:`read_manifest`) and its record's frames."""
+    run_dir = Path(run_dir)
+    manifest = read_manifest(run_dir)
     record_path = run_dir / RECORD_FILE
     frames = list(iter_frames(record_path)) if record_path.exists() else []
     return RunRecord(run_dir, manifest, frames)

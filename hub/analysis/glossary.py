@@ -101,7 +101,10 @@ TIMING: dict[str, tuple[str, str]] = {
         "reply round trip (ms)",
         "per endpoint, median / p99 / max of the time from its input's put to its reply",
     ),
-    "outcome": ("outcome", "completed, stopped, interrupted or fault"),
+    "outcome": (
+        "outcome",
+        "completed, stopped, interrupted or fault; unfinished: its hub ended without closing it",
+    ),
     "reason": ("reason", "why the run ended so (a fault, a stop request)"),
     "start_utc": ("start (UTC)", "when the run began"),
     "end_utc": ("end (UTC)", "when the run ended"),

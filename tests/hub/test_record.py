@@ -2,9 +2,13 @@
 
 import hashlib
 import json
+import socket
+import subprocess
+import sys
 
 import msgpack
 import numpy as np
+import pytest
 
 from hub.protocol import SensorReading, SpikeBatch
 from hub.record import (
@@ -12,6 +16,7 @@ from hub.record import (
     RECORD_FILE,
     Dropped,
     Recorder,
+    host,
     iter_frames,
     new_run_dir,
     read_run,
@@ -157,3 +162,43 @@ def test_with_the_default_budget_10000_drops_are_all_stored_in_under_2_mb(tmp_pa
     assert (tmp_path / RECORD_FILE).stat().st_size < 2 << 20
     run = read_run(tmp_path)
     assert len(run.drops) == 10_000 and not [e for e in run.events if e.key == "drops_not_stored"]
+
+
+def _manifest_of(tmp_path, **hub) -> None:
+    manifest = {"outcome": "running", "hosts": {"hub": {"hostname": socket.gethostname(), **hub}}}
+    (tmp_path / "manifest.json").write_text(json.dumps(manifest))
+
+
+def test_a_run_whose_hub_is_gone_reads_as_unfinished_not_running(tmp_path):
+    """A hub killed outright (or its host restarted) leaves its manifest saying "running"
+    for ever, and the analysis reported the run as running. Read back, a run whose hub's
+    process no longer exists is "unfinished", saying why; the file is left as it was."""
+    ended = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
+                           capture_output=True, text=True, check=True)  # fmt: skip
+    _manifest_of(tmp_path, pid=int(ended.stdout))
+    manifest = read_run(tmp_path).manifest
+    assert manifest["outcome"] == "unfinished"
+    assert "its hub ended without closing the run" in manifest["reason"]
+    assert json.loads((tmp_path / "manifest.json").read_text())["outcome"] == "running"
+
+
+def test_a_run_whose_hub_lives_reads_as_running(tmp_path):
+    me = host()  # this process: as a hub still stepping
+    _manifest_of(tmp_path, pid=me["pid"], pid_start_ticks=me.get("pid_start_ticks"))
+    assert read_run(tmp_path).manifest["outcome"] == "running"
+
+
+def test_a_reused_pid_is_not_taken_for_the_runs_hub(tmp_path):
+    me = host()
+    if "pid_start_ticks" not in me:
+        pytest.skip("no /proc: a process's start time is unknown here")
+    _manifest_of(tmp_path, pid=me["pid"], pid_start_ticks=me["pid_start_ticks"] - 1)
+    assert read_run(tmp_path).manifest["outcome"] == "unfinished"
+
+
+def test_a_run_written_on_another_host_is_not_judged(tmp_path):
+    _manifest_of(tmp_path, pid=1, pid_start_ticks=0)
+    manifest = json.loads((tmp_path / "manifest.json").read_text())
+    manifest["hosts"]["hub"]["hostname"] = "another-host.invalid"
+    (tmp_path / "manifest.json").write_text(json.dumps(manifest))
+    assert read_run(tmp_path).manifest["outcome"] == "running"

@@ -213,6 +213,8 @@ def test_endpoints_end_the_run_of_a_killed_hub_and_serve_the_next_one(tmp_path, 
         wait_for(lambda: "took run" in said("body"), 60)
         first.kill()
         first.wait(timeout=20)
+        (killed,) = (tmp_path / "runs").iterdir()  # its manifest says "running" for ever
+        assert read_run(killed).manifest["outcome"] == "unfinished"
         wait_for(lambda: "ended: the hub went away" in said("body"), 10)
         wait_for(lambda: "ended: the hub went away" in said("culture"), 10)
         done = subprocess.run(
