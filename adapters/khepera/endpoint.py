@@ -11,16 +11,15 @@ Parameters (``[body.params]``; docs in docs/khepera.md):
 model), ``baud`` (9600, 19200, 38400, 57600, 115200; default 9600 for a Khepera II, 115200
 for a Khepera III), ``stop_bits`` (1 or 2; default 2 for a Khepera II, 1 for a Khepera III),
 ``timeout_s`` (one reply; default 0.25), ``silent_s`` (no valid reply for this long is a
-fault; default 1.0), ``watchdog_s`` (no motor command for this long stops the motors; default
-0.5; at least two loop periods), ``freeze_s`` (the adapter's serial thread silent for this
-long — the process frozen or hung — and its stop guard, a process of its own, stops the
-motors; default 1.0; at least two reply timeouts and three serial cycles; 0 turns it off),
-``ir_table_file`` (a lab's calibration, CSV
+fault; default 1.0), ``watchdog_s`` (no motor command for this long stops the motors;
+default 0.5; at least two loop periods, at most 5 s or four periods), ``freeze_s`` (the
+adapter's serial thread silent for this long — the process frozen or hung — and its stop
+guard, a process of its own, stops the motors; default 1.0; at least two reply timeouts and
+three serial cycles; 0 turns it off), ``ir_table_file`` (a lab's calibration, CSV
 ``distance_m,value``; default the published Khepera II table; required for a Khepera III,
-which has none published), ``start_pose``
-(``[x_m, y_m, heading_deg]`` odometry starts from; default ``[0, 0, 0]``), ``world`` (a world
-file drawing the lab's arena: used only by the run's summary, for the trajectory figure and
-the arena metrics).
+which has none published), ``start_pose`` (``[x_m, y_m, heading_deg]`` odometry starts from;
+default ``[0, 0, 0]``), ``world`` (a world file drawing the lab's arena: used only by the
+run's summary, for the trajectory figure and the arena metrics).
 
 A device runs in real time only: a lockstep run is refused, at ``neuvision run`` before
 anything starts and by the endpoint itself.
@@ -46,6 +45,8 @@ from hub.protocol import Description, MotorCommand, RunStart, SensorReading, Ste
 
 log = logging.getLogger(__name__)
 
+#: the longest watchdog_s allowed at periods under 1.25 s (else four periods)
+WATCHDOG_MAX_S = 5.0
 LOCKSTEP_REFUSAL = (
     "a Khepera is a real device: it moves in real time and cannot wait for a lockstep "
     'loop; set loop.mode = "realtime"'
@@ -129,6 +130,15 @@ class KheperaEndpoint(Endpoint):
             raise ConfigError(
                 f"body.params.watchdog_s {out['watchdog_s']:g} s is under two loop periods "
                 f"({least_s:g} s): the motors would stop between steps"
+            )
+        # It is also how long the robot drives on blind when its commands stop (the hub
+        # killed, the network cut): long enough to cross the arena.
+        most_s = max(WATCHDOG_MAX_S, 4 * cfg.loop.period_ms / 1e3)
+        if out["watchdog_s"] > most_s:
+            raise ConfigError(
+                f"body.params.watchdog_s {out['watchdog_s']:g} s: the robot would drive on "
+                f"that long with no command (the hub gone, the network cut); at most "
+                f"{most_s:g} s ({WATCHDOG_MAX_S:g} s, or four loop periods if longer)"
             )
         # A failed reply and its retry are a live thread's longest silence; shorter, the
         # guard would stop a robot whose adapter is only waiting for its link.

@@ -69,6 +69,11 @@ def test_a_lockstep_run_with_a_khepera_is_refused_before_it_starts():
             r"body.params.watchdog_s 0.08 s is under two loop "
             r"periods \(0.1 s\)",
         ),  # fmt: skip
+        # and the longest the robot drives on blind when its commands stop
+        (
+            "body.params.watchdog_s=60",
+            r"body.params.watchdog_s 60 s: the robot would drive on that long .* at most 5 s",
+        ),  # fmt: skip
         ("body.params.freeze_s=-1", "body.params.freeze_s"),
         # a failed reply and its retry are a live adapter's longest silence
         (
