@@ -83,6 +83,9 @@ while True:
     if not data:  # the pipe's end: the adapter's process is gone
         say(f"the adapter of {what} ended without making it safe; {words} {send_stop()}")
         break
+    if data.endswith(b"p"):  # the beats stop on purpose (its link failed, it closes)
+        armed = False
+        continue
     if frozen:
         frozen = False
         say(f"the adapter of {what} is alive again")
@@ -148,6 +151,16 @@ class StopGuard:
         except OSError:  # full (the guard frozen too) or gone: nothing to tell it
             pass
         return self.stopped()
+
+    def rest(self) -> None:
+        """The beats stop on purpose (the device's thread ends: its link failed, or the
+        adapter closes): the guard watches only for the adapter's end until a beat comes
+        again."""
+        if self._pipe >= 0 and self.freeze_s > 0:
+            try:
+                os.write(self._pipe, b"p")
+            except OSError:
+                pass
 
     def stopped(self) -> bool:
         """Whether the guard stopped the device since the last call (``freeze_s``)."""

@@ -151,6 +151,7 @@ class KheperaDriver:
         self._stop.set()
         if self._thread is not None and self._thread is not threading.current_thread():
             self._thread.join(timeout=2.0)
+        self.link.rest()  # no more beats: not a freeze
         try:
             self.stop_motors()
         except (LinkFault, ReplyError) as exc:
@@ -235,6 +236,7 @@ class KheperaDriver:
             self.cycles_s.append(time.monotonic() - t0)
 
     def _fail(self, exc: LinkFault) -> None:
+        self.link.rest()  # this thread ends: its beats stop, and not for a freeze
         self.fault = exc
         log.error("%s", exc)
         try:

@@ -165,6 +165,12 @@ class SerialLink:
         stopped the motors since the last beat (this process was frozen)."""
         return self.guard is not None and self.guard.beat()
 
+    def rest(self) -> None:
+        """The beats stop on purpose (the serial thread ends): the guard stands by for
+        this process's end only."""
+        if self.guard is not None:
+            self.guard.rest()
+
     def close(self) -> None:
         """Release the port (and its stop guard: the caller stopped the motors, or could
         not)."""

@@ -202,6 +202,25 @@ def test_the_stop_guard_stops_the_motors_when_the_adapter_stops_beating(emulator
     assert "gave no sign of life for 0.3 s" in err and "alive again" in err
 
 
+def test_beats_that_stop_on_purpose_are_no_freeze(emulator, capfd):
+    """The serial thread ends (its link failed, or the adapter closes): its beats stop, and
+    the guard, told so, stands by for the adapter's end only — no stop, no "frozen"."""
+    link = open_link(emulator)
+    link.guard_motors(freeze_s=0.3)
+    try:
+        link.transact("D", 4, 4)
+        link.beat()
+        link.rest()
+        time.sleep(0.8)
+        assert emulator.speed_units == (4, 4)
+    finally:
+        guard = link.guard.process
+        link.transact("D", 0, 0)
+        link.close()
+    assert guard.wait(timeout=5) == 0
+    assert "stop guard" not in capfd.readouterr().err
+
+
 def test_a_stop_is_not_undone_by_a_speed_the_serial_thread_was_about_to_send(emulator):
     """``stop_motors`` while the serial thread had read a speed and not yet sent it: the stop
     went first and the speed after it, so the robot drove again after the stop had
