@@ -168,9 +168,7 @@ class StopGuard:
             return False
         try:
             return bool(os.read(self._notice, 4096))
-        except BlockingIOError:
-            return False
-        except OSError:
+        except OSError:  # nothing to read (BlockingIOError), or gone
             return False
 
     def release(self) -> None:

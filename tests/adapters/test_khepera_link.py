@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import math
 import time
 
@@ -167,14 +168,27 @@ def test_the_stop_guard_stops_the_motors_only_when_its_adapter_is_gone(emulator)
     dying.close()
 
 
+@contextlib.contextmanager
+def guarded_link(emulator, freeze_s: float):
+    """A link with a stop guard watching for beats; closed as an adapter does (motors
+    stopped, guard released), and the guard found ended cleanly."""
+    link = open_link(emulator)
+    link.guard_motors(freeze_s=freeze_s)
+    try:
+        yield link
+    finally:
+        guard = link.guard.process
+        link.transact("D", 0, 0)
+        link.close()
+    assert guard.wait(timeout=5) == 0
+
+
 def test_the_stop_guard_stops_the_motors_when_the_adapter_stops_beating(emulator, capfd):
     """With ``freeze_s`` the guard also stops the robot when the adapter's beats stop for
     that long (its process frozen, or its serial thread hung) — and only once armed by a
     first beat. The adapter learns it at its next beat (so it sends its speeds again), and
     the guard watches on: a stall is survived."""
-    link = open_link(emulator)
-    link.guard_motors(freeze_s=0.3)
-    try:
+    with guarded_link(emulator, freeze_s=0.3) as link:
         link.transact("D", 4, 4)
         time.sleep(0.5)  # not armed yet: no beat came
         assert emulator.speed_units == (4, 4)
@@ -193,11 +207,6 @@ def test_the_stop_guard_stops_the_motors_when_the_adapter_stops_beating(emulator
             link.beat()
             time.sleep(0.1)
         assert emulator.speed_units == (5, 5)
-    finally:
-        guard = link.guard.process
-        link.transact("D", 0, 0)
-        link.close()
-    assert guard.wait(timeout=5) == 0
     err = capfd.readouterr().err
     assert "gave no sign of life for 0.3 s" in err and "alive again" in err
 
@@ -205,19 +214,12 @@ def test_the_stop_guard_stops_the_motors_when_the_adapter_stops_beating(emulator
 def test_beats_that_stop_on_purpose_are_no_freeze(emulator, capfd):
     """The serial thread ends (its link failed, or the adapter closes): its beats stop, and
     the guard, told so, stands by for the adapter's end only — no stop, no "frozen"."""
-    link = open_link(emulator)
-    link.guard_motors(freeze_s=0.3)
-    try:
+    with guarded_link(emulator, freeze_s=0.3) as link:
         link.transact("D", 4, 4)
         link.beat()
         link.rest()
         time.sleep(0.8)
         assert emulator.speed_units == (4, 4)
-    finally:
-        guard = link.guard.process
-        link.transact("D", 0, 0)
-        link.close()
-    assert guard.wait(timeout=5) == 0
     assert "stop guard" not in capfd.readouterr().err
 
 
