@@ -123,6 +123,14 @@ class MeaDriver(Protocol):
     def close(self) -> None:
         """Stop, and let go of the instrument."""
 
+    def beat(self) -> bool:
+        """This process lives (called by the endpoint's device worker at least every
+        0.1 s): True when a stop guard made the instrument safe since the last beat, the
+        process having been frozen. A driver with no guard returns False."""
+
+    def rest(self) -> None:
+        """The beats stop on purpose (the device worker ends)."""
+
     def report(self) -> dict:
         """Counts and the fitted clock (``clock_offset_s``, ``clock_drift_ppm``…) for
         ``describe``."""

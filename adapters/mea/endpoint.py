@@ -23,7 +23,8 @@ Parameters (``[culture.params]``): ``driver`` (``"rhx"`` or ``"lsl"``), ``layout
 ``reply_margin_ms`` (2), ``stream_spikes_ms`` (1; 0: no parts, one batch per window),
 ``[culture.params.safety]``
 (:class:`~adapters.mea.safety.PulseLimits`); for ``rhx``: ``host`` (``127.0.0.1``),
-``command_port`` (5000), ``spike_port`` (5002); for ``lsl`` (:mod:`adapters.mea.lsl`):
+``command_port`` (5000), ``spike_port`` (5002), ``freeze_s`` (1.0: this process frozen that
+long, its stop guard makes the instrument safe; 0: off); for ``lsl`` (:mod:`adapters.mea.lsl`):
 ``spike_stream`` (""), ``spike_type`` (``"Spikes"``), ``spike_source_id`` (""),
 ``stim_outlet`` ("": record-only, every pulse refused and counted), ``resolve_timeout_s``
 (5), ``stim_wait_s`` (5). A key the driver does not take is named.
@@ -61,11 +62,17 @@ LOCKSTEP_REFUSAL = (
 )
 PARAMS = {"driver", "layout_file", "reply_margin_ms", "stream_spikes_ms", "safety"}  # any driver
 DRIVER_PARAMS = {
-    "rhx": {"host", "command_port", "spike_port"},
+    "rhx": {"host", "command_port", "spike_port", "freeze_s"},
     "lsl": {"spike_stream", "spike_type", "spike_source_id", "stim_outlet", "resolve_timeout_s",
             "stim_wait_s"},
 }  # fmt: skip
 CLOCK_SAMPLE_S = 0.5  # the instrument's clock is sampled this often during a run
+DEVICE_BEAT_S = 0.1  # the device worker beats the driver's stop guard at least this often
+FREEZE_MIN_S = 0.3  # the shortest culture.params.freeze_s: three beats
+FROZEN = (
+    "this process stood (frozen) past culture.params.freeze_s, and its stop guard disabled "
+    "every electrode and stopped run mode: the run's stimulation and clock cannot be trusted"
+)
 # Two threads, each with a heap of what falls due: one talks to the instrument (pulses, the
 # clock), one answers windows and streams their parts, so that a slow instrument command
 # never delays a reply.
@@ -155,7 +162,16 @@ class MeaEndpoint(Endpoint):
                                             params.get("command_port", 5000), ge=1, le=65535),
                 "spike_port": check_value("culture.params.spike_port", int,
                                           params.get("spike_port", 5002), ge=1, le=65535),
+                "freeze_s": check_value("culture.params.freeze_s", float,
+                                        params.get("freeze_s", 1.0), ge=0),
             }  # fmt: skip
+            if 0 < out["freeze_s"] < FREEZE_MIN_S:
+                raise ConfigError(
+                    f"culture.params.freeze_s {out['freeze_s']:g} s is under "
+                    f"{FREEZE_MIN_S:g} s: the device worker beats every {DEVICE_BEAT_S:g} s "
+                    "at most, and the stop guard would disable a live instrument; 0 turns "
+                    "it off"
+                )
         else:
             out |= cls._check_lsl(params)
         PulseLimits.from_params(out["safety"])
@@ -202,7 +218,9 @@ class MeaEndpoint(Endpoint):
                 p["stim_outlet"], p["resolve_timeout_s"], p["stim_wait_s"],
             )  # fmt: skip
         else:
-            driver = RhxDriver(layout, p["host"], p["command_port"], p["spike_port"])
+            driver = RhxDriver(
+                layout, p["host"], p["command_port"], p["spike_port"], freeze_s=p["freeze_s"]
+            )
         limits = PulseLimits.from_params(p["safety"])
         return cls(
             driver, limits, section.id,
@@ -396,20 +414,31 @@ class MeaEndpoint(Endpoint):
         except Exception as exc:
             log.exception("the %s worker failed", lane)
             self._failed(DeviceFault(f"the endpoint's {lane} worker failed: {exc!r}"))
+        finally:
+            if lane == "device":
+                self.driver.rest()  # its beats stop here, and not for a freeze
 
     def _serve_lane(self, lane: str) -> None:
         """What falls due in ``lane``: fire pulses at their onsets and sample the clock
         ("device"), or answer windows once they have passed ("replies")."""
+        beats = lane == "device"  # it beats the driver's stop guard (adapters.guard)
         while True:
             with self._timing:
                 while not self._closing:
+                    if beats and self.driver.beat():
+                        kind = "frozen"  # the guard made the instrument safe meanwhile
+                        break
                     now, due = time.monotonic(), self._due[lane]
                     if due and due[0][0] <= now:
                         _, _, kind, payload = heapq.heappop(due)
                         break
-                    self._wake[lane].wait(due[0][0] - now if due else 0.1)
+                    wait_s = due[0][0] - now if due else DEVICE_BEAT_S
+                    self._wake[lane].wait(min(wait_s, DEVICE_BEAT_S) if beats else wait_s)
                 else:
                     return
+            if kind == "frozen":
+                self._failed(DeviceFault(FROZEN))
+                return
             if kind == "fire":
                 self._fire(*payload)
                 if self.driver.fault is not None:

@@ -228,6 +228,13 @@ class LslDriver:
             self._inlet.close_stream()
         self._inlet = self._outlet = None
 
+    def beat(self) -> bool:
+        """No stop guard here (a frozen adapter sends no markers): nothing to learn."""
+        return False
+
+    def rest(self) -> None:
+        """No stop guard: nothing to tell."""
+
     def report(self) -> dict:
         """Counts, the fitted clock and LSL's latest correction (for ``describe``)."""
         out = {**dict(self.counts), **(self.clock.report() if self.clock.pairs else {})}

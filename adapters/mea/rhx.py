@@ -124,8 +124,10 @@ class RhxDriver:
         command_port: int = 5000,
         spike_port: int = 5002,
         timeout_s: float = 1.0,
+        freeze_s: float = 0.0,
     ):
         self.layout, self.host = layout, host
+        self.freeze_s = freeze_s  # the stop guard's, for a frozen process (adapters.guard)
         self.command_port, self.spike_port, self.timeout_s = command_port, spike_port, timeout_s
         self.counts: Counter[str] = Counter()
         self.sample_rate_hz = 0.0
@@ -241,9 +243,10 @@ class RhxDriver:
 
     def _guard(self) -> None:
         """A :class:`~adapters.guard.StopGuard` on the command port: if this process ends
-        without :meth:`close` (SIGKILL, the OOM killer), every electrode is disabled and
-        uploaded and run mode stopped, as :meth:`finish` would (after a line end, which
-        ends any command this process was cut off in)."""
+        without :meth:`close` (SIGKILL, the OOM killer), or, with ``freeze_s``, stops
+        beating for that long (frozen), every electrode is disabled and uploaded and run
+        mode stopped, as :meth:`finish` would (after a line end, which ends any command
+        this process was cut off in)."""
         names = self.layout.names
         stop = ";".join(
             [f"set {n}.stimenabled false" for n in names]
@@ -253,8 +256,19 @@ class RhxDriver:
         where = f"{self.host}:{self.command_port}"
         self.guard = StopGuard(
             self._cmd.fileno(), f"\n{stop}\n".encode("ascii"), f"the RHX at {where}",
-            "every electrode disabled and uploaded, run mode stop,",
+            "every electrode disabled and uploaded, run mode stop,", freeze_s=self.freeze_s,
         )  # fmt: skip
+
+    def beat(self) -> bool:
+        """This process lives (the endpoint's device worker, at least every 0.1 s); True
+        when the stop guard made the instrument safe since the last beat (this process
+        was frozen for ``freeze_s``)."""
+        return self.guard is not None and self.guard.beat()
+
+    def rest(self) -> None:
+        """The beats stop on purpose (the device worker ends): no freeze."""
+        if self.guard is not None:
+            self.guard.rest()
 
     def start(self) -> None:
         """Run mode on; the clock mapped afresh; each pulse parameter written afresh at its

@@ -271,6 +271,10 @@ def test_too_frequent_pulses_are_refused_per_electrode_and_in_total():
             r"unknown key\(s\) \['command_port', 'host', 'spike_port'\]",
         ),
         ('loop.mode="lockstep"', "loop.mode: a culture on an MEA is a real device"),
+        ("culture.params.freeze_s=-1", "culture.params.freeze_s"),
+        # the device worker beats every 0.1 s at most: under three beats, a live
+        # instrument would be disabled
+        ("culture.params.freeze_s=0.2", r"culture.params.freeze_s 0.2 s is under 0.3 s"),
     ],
 )
 def test_unsafe_or_unsupported_settings_are_named_before_anything_opens(override, named):

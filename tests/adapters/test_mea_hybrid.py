@@ -206,3 +206,51 @@ def test_the_adapter_killed_outright_leaves_no_electrode_enabled(tmp_path, bus_o
                 if p.poll() is None:
                     p.kill()
                 p.wait(timeout=10)
+
+
+def test_the_adapter_frozen_mid_run_leaves_no_electrode_enabled(tmp_path, bus_overrides):
+    """SIGSTOP to the MEA adapter mid-run (a debugger, a swap storm): it does not end, so
+    nothing of its own nor its guard's end-watch ran, and the RHS kept its last pulses'
+    electrodes enabled on the trigger key, in run mode, for as long as it stood. Its
+    device worker beats the stop guard; after ``culture.params.freeze_s`` (1 s) without a
+    beat the guard makes the instrument safe, and the adapter, back, ends as a fault: the
+    run's stimulation and clock can no longer be trusted."""
+    import signal
+    import time
+
+    from adapters.mea.emulator import IntanEmulator
+
+    with IntanEmulator(seed=1) as emu:
+        points_at = [f"culture.params.command_port={emu.command_port}",
+                     f"culture.params.spike_port={emu.spike_port}"]  # fmt: skip
+        sets = []
+        for item in [*bus_overrides, *points_at, 'culture.launch="external"']:
+            sets += ["--set", item]
+        culture = subprocess.Popen(
+            [sys.executable, "-m", "hub.cli", "endpoint", "culture", HYBRID, *sets],
+            stderr=subprocess.PIPE, text=True,
+        )  # fmt: skip
+        hub = run(tmp_path, bus_overrides, [*points_at, 'culture.launch="external"'], 60.0)
+        try:
+            wait_for(lambda: len(emu.triggers) >= 3, 60.0)
+            assert any(p.get("stimenabled") == "true" for p in emu.uploaded.values())
+            culture.send_signal(signal.SIGSTOP)
+            frozen = time.monotonic()
+
+            def safe() -> bool:
+                return emu.values["runmode"] == "stop" and all(
+                    p.get("stimenabled", "false") == "false" for p in emu.uploaded.values()
+                )
+
+            wait_for(safe, 5.0)
+            assert 1.0 - 0.1 <= time.monotonic() - frozen <= 1.0 + 0.6  # freeze_s, a beat
+            culture.send_signal(signal.SIGCONT)
+            assert culture.wait(timeout=30) == 2  # back, it ends as a fault, named
+            err = culture.stderr.read()
+            assert "gave no sign of life for 1 s" in err
+            assert "stood (frozen) past culture.params.freeze_s" in err
+        finally:
+            for p in (hub, culture):
+                if p.poll() is None:
+                    p.kill()
+                p.wait(timeout=10)
