@@ -18,16 +18,16 @@ the spikes read since are sent as a *part* of their window (``SpikeBatch(partial
 so the hub, its record and its observers have each spike within about that long of the
 instrument's report, not a period later; the window's batch after its end holds the rest.
 
-Parameters (``[culture.params]``): ``driver`` (``"rhx"`` or ``"lsl"``), ``layout_file``
-(CSV ``name,x_um,y_um``; default the MCS 60-electrode layout on Intan ports A and B),
+Parameters (``[culture.params]``): ``driver`` (``"rhx"`` or ``"lsl"``), ``layout_file`` (CSV
+``name,x_um,y_um``; default the MCS 60-electrode layout on Intan ports A and B),
 ``reply_margin_ms`` (2), ``stream_spikes_ms`` (1; 0: no parts, one batch per window),
-``[culture.params.safety]``
-(:class:`~adapters.mea.safety.PulseLimits`); for ``rhx``: ``host`` (``127.0.0.1``),
-``command_port`` (5000), ``spike_port`` (5002), ``freeze_s`` (1.0: this process frozen that
-long, its stop guard makes the instrument safe; 0: off); for ``lsl`` (:mod:`adapters.mea.lsl`):
-``spike_stream`` (""), ``spike_type`` (``"Spikes"``), ``spike_source_id`` (""),
-``stim_outlet`` ("": record-only, every pulse refused and counted), ``resolve_timeout_s``
-(5), ``stim_wait_s`` (5). A key the driver does not take is named.
+``[culture.params.safety]`` (:class:`~adapters.mea.safety.PulseLimits`); for ``rhx``:
+``host`` (``127.0.0.1``), ``command_port`` (5000), ``spike_port`` (5002), ``freeze_s`` (1.5:
+this process frozen that long, its stop guard makes the instrument safe; at least 1.2; 0:
+off); for ``lsl`` (:mod:`adapters.mea.lsl`): ``spike_stream`` (""), ``spike_type``
+(``"Spikes"``), ``spike_source_id`` (""), ``stim_outlet`` ("": record-only, every pulse
+refused and counted), ``resolve_timeout_s`` (5), ``stim_wait_s`` (5). A key the driver does
+not take is named.
 
 Safety does not depend on the hub: stimulation stops (every electrode disabled, run mode
 off) when the run ends, when the hub's liveliness vanishes, when no input comes for the
@@ -48,7 +48,7 @@ import numpy as np
 
 from adapters.mea.driver import MeaDriver
 from adapters.mea.layout import ElectrodeLayout
-from adapters.mea.rhx import RhxDriver
+from adapters.mea.rhx import COMMAND_TIMEOUT_S, RhxDriver
 from adapters.mea.safety import PulseLimits, SafetyGate
 from hub.config import ConfigError, EndpointSection, ExperimentConfig, check_value
 from hub.endpoint import DeviceFault, Endpoint, RunRefused
@@ -68,7 +68,9 @@ DRIVER_PARAMS = {
 }  # fmt: skip
 CLOCK_SAMPLE_S = 0.5  # the instrument's clock is sampled this often during a run
 DEVICE_BEAT_S = 0.1  # the device worker beats the driver's stop guard at least this often
-FREEZE_MIN_S = 0.3  # the shortest culture.params.freeze_s: three beats
+# The shortest culture.params.freeze_s: a command's longest wait for its reply, and two
+# beats (the worker beats between commands); shorter, a slow reply would pass for a freeze.
+FREEZE_MIN_S = COMMAND_TIMEOUT_S + 2 * DEVICE_BEAT_S
 FROZEN = (
     "this process stood (frozen) past culture.params.freeze_s, and its stop guard disabled "
     "every electrode and stopped run mode: the run's stimulation and clock cannot be trusted"
@@ -163,14 +165,14 @@ class MeaEndpoint(Endpoint):
                 "spike_port": check_value("culture.params.spike_port", int,
                                           params.get("spike_port", 5002), ge=1, le=65535),
                 "freeze_s": check_value("culture.params.freeze_s", float,
-                                        params.get("freeze_s", 1.0), ge=0),
+                                        params.get("freeze_s", 1.5), ge=0),
             }  # fmt: skip
             if 0 < out["freeze_s"] < FREEZE_MIN_S:
                 raise ConfigError(
                     f"culture.params.freeze_s {out['freeze_s']:g} s is under "
-                    f"{FREEZE_MIN_S:g} s: the device worker beats every {DEVICE_BEAT_S:g} s "
-                    "at most, and the stop guard would disable a live instrument; 0 turns "
-                    "it off"
+                    f"{FREEZE_MIN_S:g} s (a command's {COMMAND_TIMEOUT_S:g} s wait for its "
+                    "reply and two beats): the stop guard would disable an instrument that is "
+                    "only slow to answer; 0 turns it off"
                 )
         else:
             out |= cls._check_lsl(params)

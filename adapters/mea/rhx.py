@@ -101,6 +101,10 @@ def spike_record(name: str, timestamp: int, spike_id: int = 1) -> bytes:
     return SPIKE_RECORD.pack(SPIKE_MAGIC, name.encode("ascii")[:5], timestamp, spike_id)
 
 
+#: how long a command's reply may take (a slower one is a fault)
+COMMAND_TIMEOUT_S = 1.0
+
+
 class RhxDriver:
     """An RHS controller through the RHX software's TCP ports (thread-safe); a
     :class:`~adapters.mea.driver.MeaDriver`.
@@ -113,6 +117,9 @@ class RhxDriver:
         Where RHX listens.
     timeout_s : float
         One command's answer.
+    freeze_s : float
+        This process frozen (no :meth:`beat`) this long, its stop guard makes the
+        instrument safe; 0: only the process's end does.
     """
 
     stimulates = True
@@ -123,7 +130,7 @@ class RhxDriver:
         host: str = "127.0.0.1",
         command_port: int = 5000,
         spike_port: int = 5002,
-        timeout_s: float = 1.0,
+        timeout_s: float = COMMAND_TIMEOUT_S,
         freeze_s: float = 0.0,
     ):
         self.layout, self.host = layout, host

@@ -272,9 +272,9 @@ def test_too_frequent_pulses_are_refused_per_electrode_and_in_total():
         ),
         ('loop.mode="lockstep"', "loop.mode: a culture on an MEA is a real device"),
         ("culture.params.freeze_s=-1", "culture.params.freeze_s"),
-        # the device worker beats every 0.1 s at most: under three beats, a live
-        # instrument would be disabled
-        ("culture.params.freeze_s=0.2", r"culture.params.freeze_s 0.2 s is under 0.3 s"),
+        # a command waits up to 1 s for its reply, between two beats: shorter, an
+        # instrument only slow to answer would be disabled
+        ("culture.params.freeze_s=0.5", r"culture.params.freeze_s 0.5 s is under 1.2 s"),
     ],
 )
 def test_unsafe_or_unsupported_settings_are_named_before_anything_opens(override, named):
