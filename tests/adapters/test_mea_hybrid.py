@@ -3,9 +3,12 @@ arena; and the instrument dying mid-run."""
 
 from __future__ import annotations
 
+import contextlib
 import json
+import signal
 import subprocess
 import sys
+import time
 
 import pytest
 
@@ -166,13 +169,11 @@ def test_a_short_run_with_both_devices_emulated(tmp_path, bus_overrides):
     assert endpoints["body"]["kind"] == "khepera"
 
 
-def test_the_adapter_killed_outright_leaves_no_electrode_enabled(tmp_path, bus_overrides):
-    """SIGKILL to the MEA adapter mid-run: none of its own stops runs, and the RHS kept its
-    last pulses' electrodes enabled on the trigger key, in run mode (seen on the emulator).
-    Its stop guard disables and uploads every electrode and stops run mode."""
-    import signal
-    import time
-
+@contextlib.contextmanager
+def stimulating_adapter(tmp_path, bus_overrides):
+    """The MEA adapter served on its own against the RHX emulator, a hub's 60 s run, and
+    the first pulses delivered: ``(emulator, the adapter's process)``. Both processes are
+    ended after."""
     from adapters.mea.emulator import IntanEmulator
 
     with IntanEmulator(seed=1) as emu:
@@ -189,23 +190,32 @@ def test_the_adapter_killed_outright_leaves_no_electrode_enabled(tmp_path, bus_o
         try:
             wait_for(lambda: len(emu.triggers) >= 3, 60.0)
             assert any(p.get("stimenabled") == "true" for p in emu.uploaded.values())
-            culture.send_signal(signal.SIGKILL)
-            killed = time.monotonic()
-
-            def safe() -> bool:
-                return emu.values["runmode"] == "stop" and all(
-                    p.get("stimenabled", "false") == "false" for p in emu.uploaded.values()
-                )
-
-            wait_for(safe, 5.0)
-            assert time.monotonic() - killed < 1.0
-            assert culture.wait(timeout=10) == -signal.SIGKILL
-            assert "stop guard" in culture.stderr.read()
+            yield emu, culture
         finally:
             for p in (hub, culture):
                 if p.poll() is None:
                     p.kill()
                 p.wait(timeout=10)
+
+
+def made_safe(emu) -> bool:
+    """Every electrode disabled and uploaded, run mode stopped (at the emulator)."""
+    return emu.values["runmode"] == "stop" and all(
+        p.get("stimenabled", "false") == "false" for p in emu.uploaded.values()
+    )
+
+
+def test_the_adapter_killed_outright_leaves_no_electrode_enabled(tmp_path, bus_overrides):
+    """SIGKILL to the MEA adapter mid-run: none of its own stops runs, and the RHS kept its
+    last pulses' electrodes enabled on the trigger key, in run mode (seen on the emulator).
+    Its stop guard disables and uploads every electrode and stops run mode."""
+    with stimulating_adapter(tmp_path, bus_overrides) as (emu, culture):
+        culture.send_signal(signal.SIGKILL)
+        killed = time.monotonic()
+        wait_for(lambda: made_safe(emu), 5.0)
+        assert time.monotonic() - killed < 1.0
+        assert culture.wait(timeout=10) == -signal.SIGKILL
+        assert "stop guard" in culture.stderr.read()
 
 
 def test_the_adapter_frozen_mid_run_leaves_no_electrode_enabled(tmp_path, bus_overrides):
@@ -215,42 +225,13 @@ def test_the_adapter_frozen_mid_run_leaves_no_electrode_enabled(tmp_path, bus_ov
     device worker beats the stop guard; after ``culture.params.freeze_s`` (1.5 s) without a
     beat the guard makes the instrument safe, and the adapter, back, ends as a fault: the
     run's stimulation and clock can no longer be trusted."""
-    import signal
-    import time
-
-    from adapters.mea.emulator import IntanEmulator
-
-    with IntanEmulator(seed=1) as emu:
-        points_at = [f"culture.params.command_port={emu.command_port}",
-                     f"culture.params.spike_port={emu.spike_port}"]  # fmt: skip
-        sets = []
-        for item in [*bus_overrides, *points_at, 'culture.launch="external"']:
-            sets += ["--set", item]
-        culture = subprocess.Popen(
-            [sys.executable, "-m", "hub.cli", "endpoint", "culture", HYBRID, *sets],
-            stderr=subprocess.PIPE, text=True,
-        )  # fmt: skip
-        hub = run(tmp_path, bus_overrides, [*points_at, 'culture.launch="external"'], 60.0)
-        try:
-            wait_for(lambda: len(emu.triggers) >= 3, 60.0)
-            assert any(p.get("stimenabled") == "true" for p in emu.uploaded.values())
-            culture.send_signal(signal.SIGSTOP)
-            frozen = time.monotonic()
-
-            def safe() -> bool:
-                return emu.values["runmode"] == "stop" and all(
-                    p.get("stimenabled", "false") == "false" for p in emu.uploaded.values()
-                )
-
-            wait_for(safe, 5.0)
-            assert 1.5 - 0.1 <= time.monotonic() - frozen <= 1.5 + 0.6  # freeze_s, a beat
-            culture.send_signal(signal.SIGCONT)
-            assert culture.wait(timeout=30) == 2  # back, it ends as a fault, named
-            err = culture.stderr.read()
-            assert "gave no sign of life for 1.5 s" in err
-            assert "stood (frozen) past culture.params.freeze_s" in err
-        finally:
-            for p in (hub, culture):
-                if p.poll() is None:
-                    p.kill()
-                p.wait(timeout=10)
+    with stimulating_adapter(tmp_path, bus_overrides) as (emu, culture):
+        culture.send_signal(signal.SIGSTOP)
+        frozen = time.monotonic()
+        wait_for(lambda: made_safe(emu), 5.0)
+        assert 1.5 - 0.1 <= time.monotonic() - frozen <= 1.5 + 0.6  # freeze_s, a beat
+        culture.send_signal(signal.SIGCONT)
+        assert culture.wait(timeout=30) == 2  # back, it ends as a fault, named
+        err = culture.stderr.read()
+        assert "gave no sign of life for 1.5 s" in err
+        assert "stood (frozen) past culture.params.freeze_s" in err
