@@ -431,18 +431,8 @@ class Message:
     def __init_subclass__(cls, **kwargs):
         super().__init_subclass__(**kwargs)
         cls._KNOWN = frozenset(cls.SCHEMA) | {"v"}
-        leaders: dict[str, str] = {}  # group → its first field
-        quick, decode = [], []
-        for name, spec in cls.SCHEMA.items():
-            accepts, leader = _quick_check(spec), _leader(leaders, name, spec)
-            quick.append((name, accepts, leader))
-            # An array viewed from its bytes already has the schema's dtype: only its
-            # values need checking. On a big-endian machine arrays take the full path.
-            wire = spec.wire if isinstance(spec, Array) and spec.wire.isnative else None
-            valid = accepts if wire is None else _valid_values(spec)
-            decode.append((name, wire, valid, spec.optional, leader))
-        cls._QUICK, cls._DECODE = tuple(quick), tuple(decode)
-        cls._TO_WIRE = tuple((name, _to_wire(spec)) for name, spec in cls.SCHEMA.items())
+        for name, function in _straight_line(cls).items():
+            setattr(cls, name, function)
 
     def __post_init__(self):
         if not self._accepted_at_once():
@@ -452,17 +442,9 @@ class Message:
     def _accepted_at_once(self) -> bool:
         """The quick path of validation: True if every field already has its schema type
         and passes its checks, so nothing needs converting. False sends the message to
-        :meth:`_validate_fields`, which converts what it can and names what is wrong."""
-        values = self.__dict__
-        for name, accepts, leader in self._QUICK:
-            value = values[name]
-            if not accepts(value):
-                return False
-            if leader and value is not None:
-                first = values[leader]
-                if first is None or first.size != value.size:
-                    return False
-        return True
+        :meth:`_validate_fields`, which converts what it can and names what is wrong.
+        (Written out per class by :func:`_straight_line`.)"""
+        raise NotImplementedError
 
     def _validate_fields(self) -> None:
         groups: dict[str, tuple[str, int]] = {}
@@ -506,14 +488,9 @@ class Message:
         """Cross-field rules; subclasses override."""
 
     def to_dict(self) -> dict[str, Any]:
-        """The msgpack-ready map: arrays as little-endian bytes, ``v`` added."""
-        out: dict[str, Any] = {"v": SCHEMA_VERSION}
-        values = self.__dict__
-        for name, to_wire in self._TO_WIRE:
-            value = values[name]
-            if value is not None:
-                out[name] = value if to_wire is None else to_wire(value)
-        return out
+        """The msgpack-ready map: arrays as little-endian bytes, ``v`` added, absent
+        optional fields left out. (Written out per class by :func:`_straight_line`.)"""
+        raise NotImplementedError
 
     def encode(self) -> bytes:
         try:
@@ -534,33 +511,18 @@ class Message:
         ``__init__`` costs more than the checks of a small message): arrays viewed
         straight from their bytes, so only their values need checking, and the other
         fields through the constructor's quick checks. Anything else takes the full
-        path, through the constructor, which names what is wrong."""
+        path, through the constructor, which names what is wrong. (Written out per class
+        by :func:`_straight_line`.)"""
+        raise NotImplementedError
+
+    @classmethod
+    def _refuse_version_or_fields(cls, data: dict[str, Any]) -> None:
+        """Raise :class:`ProtocolError` for a map of another version or with unknown fields."""
         version = data.get("v")
         if type(version) is not int or version not in READ_VERSIONS:  # True, 2.0 are not 2
             raise ProtocolError("version", f"v must be one of {READ_VERSIONS}, got {version!r}")
-        if not data.keys() <= cls._KNOWN:
-            unknown = sorted(set(data) - cls._KNOWN)
-            raise ProtocolError("unknown", f"{cls.__name__} has no field(s) {unknown}")
-        message = object.__new__(cls)
-        values = message.__dict__
-        for name, wire, valid, optional, leader in cls._DECODE:
-            value = data.get(name)
-            if wire is None:  # not an array: ``valid`` is the constructor's quick check
-                ok = valid(value)
-            elif type(value) is bytes and not len(value) % wire.itemsize:
-                value = np.frombuffer(value, wire)  # read-only: a view of immutable bytes
-                ok = valid(value)
-            else:
-                ok = value is None and optional
-            if not ok:
-                return cls._from_dict_in_full(data)
-            if leader and value is not None:
-                first = values[leader]
-                if first is None or first.size != value.size:
-                    return cls._from_dict_in_full(data)
-            values[name] = value
-        message._check()
-        return message
+        unknown = sorted(set(data) - cls._KNOWN)
+        raise ProtocolError("unknown", f"{cls.__name__} has no field(s) {unknown}")
 
     @classmethod
     def _from_dict_in_full(cls, data: dict[str, Any]):
@@ -590,6 +552,112 @@ class Message:
         return True
 
     __hash__ = None
+
+
+# ------------------------------------------------------------------- straight-line paths
+
+
+def _straight_line(cls) -> dict[str, Callable]:
+    """``_accepted_at_once``, ``from_dict`` and ``to_dict`` of a message class, written out
+    field by field from its ``SCHEMA`` and compiled once (as :mod:`dataclasses` writes
+    ``__init__``): a loop over the schema costs more than the checks of a small message,
+    and these run for every message of the loop."""
+    ns: dict[str, Any] = {
+        "frombuffer": np.frombuffer,
+        "new": object.__new__,
+        "READ_VERSIONS": READ_VERSIONS,
+        "KNOWN": cls._KNOWN,
+        "SCHEMA_VERSION": SCHEMA_VERSION,
+    }
+    names = list(cls.SCHEMA)
+    leaders: dict[str, str] = {}  # group → its first field
+    accept, decode, fill, first, encode = [], [], [], ["'v': SCHEMA_VERSION"], []
+    for i, (name, spec) in enumerate(cls.SCHEMA.items()):
+        v, key = f"v{i}", repr(name)
+        test = _quick_test(spec, v, i, ns)
+        leader = _leader(leaders, name, spec)
+        # a grouped array has its group's first array's length (checked before it)
+        j = None if leader is None else names.index(leader)
+        same = None if j is None else f"{v} is not None and (v{j} is None or v{j}.size != {v}.size)"
+        accept += [f"    {v} = d[{key}]", f"    if not ({test}): return False"]
+        decode.append(f"    {v} = data.get({key})")
+        if isinstance(spec, Array) and spec.wire.isnative:
+            # viewed from its bytes, an array has the schema's dtype: only its values need
+            # checking (on a big-endian machine arrays take the full path)
+            ns[f"wire{i}"], ns[f"valid{i}"] = spec.wire, _valid_values(spec)
+            decode += [
+                f"    if type({v}) is bytes and not len({v}) % {spec.wire.itemsize}:",
+                f"        {v} = frombuffer({v}, wire{i})",
+                f"        if not valid{i}({v}): return cls._from_dict_in_full(data)",
+                f"    elif {v} is not None:" if spec.optional else "    else:",
+                "        return cls._from_dict_in_full(data)",
+            ]
+        else:
+            decode.append(f"    if not ({test}): return cls._from_dict_in_full(data)")
+        if same:
+            accept.append(f"    if {same}: return False")
+            decode.append(f"    if {same}: return cls._from_dict_in_full(data)")
+        fill.append(f"    d[{key}] = {v}")
+        to_wire = _to_wire(spec)
+        if to_wire is not None:
+            ns[f"to_wire{i}"] = to_wire
+        if spec.optional:
+            wired = v if to_wire is None else f"to_wire{i}({v})"
+            encode += [f"    {v} = d[{key}]", f"    if {v} is not None: out[{key}] = {wired}"]
+        elif not encode:  # the leading required fields (never None) go in the map's literal
+            first.append(f"{key}: d[{key}]" if to_wire is None else f"{key}: to_wire{i}(d[{key}])")
+        else:
+            wired = f"d[{key}]" if to_wire is None else f"to_wire{i}(d[{key}])"
+            encode.append(f"    out[{key}] = {wired}")
+    source = "\n".join(
+        [
+            "def _accepted_at_once(self):",
+            "    d = self.__dict__",
+            *accept,
+            "    return True",
+            "def from_dict(cls, data):",
+            "    version = data.get('v')",
+            "    if type(version) is not int or version not in READ_VERSIONS"
+            " or not data.keys() <= KNOWN:",
+            "        cls._refuse_version_or_fields(data)",
+            *decode,
+            "    message = new(cls)",
+            "    d = message.__dict__",
+            *fill,
+            "    message._check()",
+            "    return message",
+            "def to_dict(self):",
+            "    d = self.__dict__",
+            f"    out = {{{', '.join(first)}}}",
+            *encode,
+            "    return out",
+        ]
+    )
+    exec(compile(source, f"<{cls.__name__} straight-line paths>", "exec"), ns)
+    out = {}
+    for name in ("_accepted_at_once", "from_dict", "to_dict"):
+        function = ns[name]
+        function.__qualname__ = f"{cls.__name__}.{name}"
+        function.__doc__ = getattr(Message, name).__doc__
+        out[name] = classmethod(function) if name == "from_dict" else function
+    return out
+
+
+def _quick_test(spec, v: str, i: int, ns: dict) -> str:
+    """:func:`_quick_check` of the value named ``v`` as an expression: a scalar's written
+    out (one chained comparison also rejects NaN and infinities), the rest a call of the
+    predicate :func:`_quick_check` makes."""
+    if not isinstance(spec, Scalar):
+        ns[f"accepts{i}"] = _quick_check(spec)
+        return f"accepts{i}({v})"
+    kind = spec.kind
+    if kind is float or kind is int:
+        ns[f"lo{i}"] = -_FMAX if spec.min is None else spec.min
+        ns[f"hi{i}"] = _FMAX if spec.max is None else spec.max
+        test = f"type({v}) is {kind.__name__} and lo{i} <= {v} <= hi{i}"
+    else:
+        test = f"type({v}) is {kind.__name__}"
+    return f"{v} is None or ({test})" if spec.optional else test
 
 
 def unpack_map(raw: bytes | bytearray | memoryview) -> dict[str, Any]:
