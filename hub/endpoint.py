@@ -94,6 +94,9 @@ _HOST = _host()
 
 #: how often an endpoint whose run's inputs stopped asks whether its hub is still there
 HUB_CHECK_S = 1.0
+#: :meth:`Endpoint.serve`'s status when, serving one run (``once``), its hub left without
+#: starting it (``neuvision endpoint --once`` exits with it)
+UNSERVED = 1
 
 
 def _hub_answers(session, keys: Keys, timeout_s: float = 0.5) -> bool:
@@ -453,7 +456,9 @@ class Endpoint(abc.ABC):
         """Serve on the bus until stopped; return the exit status (0 on a clean stop).
 
         An endpoint serves one run after another (each ``RunStart`` resets it); with
-        ``once`` it returns when its first run ends. ``realtime_priority`` > 0 puts this
+        ``once`` it returns when its first run ends, or :data:`UNSERVED` when a hub that
+        answered leaves without starting one (it refused this endpoint: other settings, a
+        second endpoint of the same name). ``realtime_priority`` > 0 puts this
         process's threads under ``SCHED_FIFO`` at that priority once warmed up (see
         :mod:`hub.scheduling`; refused: ordinary scheduling). ``cpus`` keeps the process's
         threads on those CPUs (``<role>.cpus``; empty: the OS decides).
@@ -490,7 +495,8 @@ class Endpoint(abc.ABC):
         # Inputs are stepped on in the subscriber's own callback thread (one thread, so in
         # order): handing them to this thread would cost a wake-up per step. This thread
         # only watches for the input timeout and the stop request.
-        state = {"last_input": time.monotonic(), "serving": True}
+        state = {"last_input": time.monotonic(), "serving": True, "hub_seen": False}
+        status = 0
         failures: list[BaseException] = []
 
         def on_input(sample) -> None:
@@ -520,6 +526,8 @@ class Endpoint(abc.ABC):
         def on_hub_alive(sample) -> None:
             if sample.kind == zenoh.SampleKind.DELETE:
                 self.on_hub_gone()
+            else:
+                state["hub_seen"] = True
 
         try:
             # Zenoh undeclares what is garbage-collected: keep every declaration.
@@ -527,7 +535,9 @@ class Endpoint(abc.ABC):
                 session.declare_subscriber(keys.input(self.role, self.id), on_input),
                 session.declare_queryable(keys.describe(self.role, self.id), on_describe),
                 session.declare_queryable(keys.run(self.role, self.id), on_run),
-                session.liveliness().declare_subscriber(keys.alive("hub", "0"), on_hub_alive),
+                session.liveliness().declare_subscriber(
+                    keys.alive("hub", "0"), on_hub_alive, history=True
+                ),
             ]
             # Declared last: when the hub sees us alive, we already listen.
             token = session.liveliness().declare_token(keys.alive(self.role, self.id))  # noqa: F841
@@ -537,6 +547,24 @@ class Endpoint(abc.ABC):
             timed_out = False
             next_hub_check, unanswered = 0.0, 0
             while not self._stop.wait(0.05):
+                if once and self.runs == 0:
+                    # Serving one run, none taken yet: a hub that was there and left (it
+                    # refused this endpoint, or ended) will not start it. Ask every second.
+                    now = time.monotonic()
+                    if now >= next_hub_check:
+                        next_hub_check = now + HUB_CHECK_S
+                        there = _hub_answers(session, keys)
+                        state["hub_seen"] |= there
+                        unanswered = 0 if there else unanswered + 1
+                        if state["hub_seen"] and unanswered >= 2:
+                            log.error(
+                                "%s/%s: the hub left without starting a run with it (did it "
+                                "refuse it? its log says why): exiting (--once)",
+                                self.role, self.id,
+                            )  # fmt: skip
+                            status = UNSERVED
+                            break
+                    continue
                 with self._lock:
                     idle_s = time.monotonic() - state["last_input"]
                     if idle_s <= self.input_timeout_s:
@@ -580,4 +608,4 @@ class Endpoint(abc.ABC):
             raise failures[0]
         if self.dropped:
             log.info("%s/%s dropped: %s", self.role, self.id, dict(self.dropped))
-        return 0
+        return status

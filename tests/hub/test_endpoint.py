@@ -14,7 +14,7 @@ import pytest
 from hub import wire
 from hub.bus import free_tcp_port, open_session
 from hub.config import BusSection
-from hub.endpoint import RunRefused
+from hub.endpoint import UNSERVED, RunRefused
 from hub.protocol import (
     Description,
     MotorCommand,
@@ -82,7 +82,8 @@ class RecordingBody(EchoBody):
 class Served:
     """An endpoint serving in a thread, and a hub-side session talking to it."""
 
-    def __init__(self, endpoint):
+    def __init__(self, endpoint, once: bool = False):
+        self.once = once
         port = free_tcp_port()
         self.bus = BusSection(
             session=f"test-{secrets.token_hex(4)}", listen=(f"tcp/127.0.0.1:{port}",)
@@ -116,7 +117,7 @@ class Served:
 
     def _serve(self):
         try:
-            self.status = self.endpoint.serve(self.bus, install_signals=False)
+            self.status = self.endpoint.serve(self.bus, install_signals=False, once=self.once)
         except BaseException as exc:
             self.error = exc
 
@@ -156,8 +157,8 @@ class Served:
 def served():
     started = []
 
-    def start(endpoint):
-        started.append(Served(endpoint))
+    def start(endpoint, once: bool = False):
+        started.append(Served(endpoint, once))
         return started[-1]
 
     yield start
@@ -303,3 +304,25 @@ def test_a_stop_request_ends_serve_cleanly_and_closes_the_device(served):
     s.stop()
     assert not s.thread.is_alive()
     assert s.status == 0 and body.closed
+
+
+def test_serving_once_it_returns_when_its_run_ends(served):
+    body = RecordingBody()
+    s = served(body, once=True)
+    s.start()
+    s.send(0)
+    s.reply()
+    assert s.announce(RunEnd(run=s.run.run, outcome="completed")).ok
+    s.thread.join(10)
+    assert not s.thread.is_alive()
+    assert s.status == 0 and body.closed
+
+
+def test_serving_once_it_gives_up_when_its_hub_leaves_without_starting_a_run(served):
+    # (a hub that refused it: other settings, a second endpoint of the same name)
+    body = RecordingBody()
+    s = served(body, once=True)
+    s.hub_token.undeclare()
+    s.thread.join(10)
+    assert not s.thread.is_alive()
+    assert s.status == UNSERVED and body.closed
