@@ -298,21 +298,14 @@ class Hub:
         try:
             session = open_session(cfg.bus, listener=True)
         except BaseException as exc:
-            restore_placement(self.placement)
-            if observer is not None:
-                stop_local_endpoints([observer])
+            self._release(observer)
             # the run folder exists: close it as a fault that says why (an address taken),
             # not "running" for ever
             reason = str(exc) if isinstance(exc, BusError) else f"hub crashed: {exc!r}"
             if isinstance(exc, KeyboardInterrupt):
                 reason = INTERRUPTED
             outcome = "interrupted" if reason == INTERRUPTED else "fault"
-            if self.recorder:
-                self._record_event("end", outcome=outcome, reason=reason)
-                self.recorder.close()
-            if self.run_dir:
-                manifest.update(end_utc=utc_now(), outcome=outcome, reason=reason, steps=0)
-                write_manifest(self.run_dir, manifest)
+            self._close_record(manifest, outcome, reason, steps=0)
             raise
         outcome, reason = "completed", ""
         try:
@@ -349,36 +342,44 @@ class Hub:
             self.state = "stopped"
             self._publish_status()
             timing, counts = self.timing(), self.counts()
-            if self.recorder:
-                self._record_event("end", outcome=outcome, reason=reason)
-                self.recorder.close()
-            if self.run_dir:
-                manifest.update(
-                    end_utc=utc_now(),
-                    outcome=outcome,
-                    reason=reason,
-                    steps=self.k_done,
-                    timing=timing,
-                    counts=counts,
-                    rejoins=self.rejoins,
-                    endpoints={
-                        r: {
-                            "kind": d.kind,
-                            "id": d.id,
-                            **self.participants.get(r, {}),
-                            **steps_share(d, endpoint_stats),
-                        }
-                        for r, d in self.descriptions.items()
-                    },
-                )
-                write_manifest(self.run_dir, manifest)
+            self._close_record(
+                manifest,
+                outcome,
+                reason,
+                steps=self.k_done,
+                timing=timing,
+                counts=counts,
+                rejoins=self.rejoins,
+                endpoints={
+                    r: {
+                        "kind": d.kind,
+                        "id": d.id,
+                        **self.participants.get(r, {}),
+                        **steps_share(d, endpoint_stats),
+                    }
+                    for r, d in self.descriptions.items()
+                },
+            )
             session.close()
-            restore_placement(self.placement)
-            if observer is not None:
-                stop_local_endpoints([observer])
+            self._release(observer)
         return RunResult(
             outcome, reason, self.k_done, timing, counts, self.run_dir, self.descriptions
         )
+
+    def _close_record(self, manifest: dict, outcome: str, reason: str, **results) -> None:
+        """The run's end in its record and its manifest, whatever ended it."""
+        if self.recorder:
+            self._record_event("end", outcome=outcome, reason=reason)
+            self.recorder.close()
+        if self.run_dir:
+            manifest.update(end_utc=utc_now(), outcome=outcome, reason=reason, **results)
+            write_manifest(self.run_dir, manifest)
+
+    def _release(self, observer: LocalProcess | None) -> None:
+        """The CPUs as they were before the run, and the burst observer it started stopped."""
+        restore_placement(self.placement)
+        if observer is not None:
+            stop_local_endpoints([observer])
 
     # ================================================================ the loop
 
