@@ -546,25 +546,23 @@ class Endpoint(abc.ABC):
             log.info("%s/%s (%s) ready on session %s", self.role, self.id, self.kind, bus.session)
             timed_out = False
             next_hub_check, unanswered = 0.0, 0
+            next_once_check, once_unanswered = 0.0, 0
             while not self._stop.wait(0.05):
-                if once and self.runs == 0:
+                if once and self.runs == 0 and time.monotonic() >= next_once_check:
                     # Serving one run, none taken yet: a hub that was there and left (it
-                    # refused this endpoint, or ended) will not start it. Ask every second.
-                    now = time.monotonic()
-                    if now >= next_hub_check:
-                        next_hub_check = now + HUB_CHECK_S
-                        there = _hub_answers(session, keys)
-                        state["hub_seen"] |= there
-                        unanswered = 0 if there else unanswered + 1
-                        if state["hub_seen"] and unanswered >= 2:
-                            log.error(
-                                "%s/%s: the hub left without starting a run with it (did it "
-                                "refuse it? its log says why): exiting (--once)",
-                                self.role, self.id,
-                            )  # fmt: skip
-                            status = UNSERVED
-                            break
-                    continue
+                    # refused this endpoint, or ended) will not start it. Asked every second.
+                    next_once_check = time.monotonic() + HUB_CHECK_S
+                    there = _hub_answers(session, keys)
+                    state["hub_seen"] |= there
+                    once_unanswered = 0 if there else once_unanswered + 1
+                    if state["hub_seen"] and once_unanswered >= 2:
+                        log.error(
+                            "%s/%s: the hub left without starting a run with it (did it "
+                            "refuse it? its log says why): exiting (--once)",
+                            self.role, self.id,
+                        )  # fmt: skip
+                        status = UNSERVED
+                        break
                 with self._lock:
                     idle_s = time.monotonic() - state["last_input"]
                     if idle_s <= self.input_timeout_s:
