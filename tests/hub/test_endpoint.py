@@ -148,9 +148,11 @@ class Served:
         return Description.decode(raw)
 
     def stop(self) -> None:
+        """End the endpoint (if it still serves) and close the hub side's router."""
         self.endpoint.request_stop()
         self.thread.join(10)
-        self.session.close()
+        if not self.session.is_closed():
+            self.session.close()
 
 
 @pytest.fixture
@@ -162,9 +164,8 @@ def served():
         return started[-1]
 
     yield start
-    for s in started:
-        if s.thread.is_alive():
-            s.stop()
+    for s in started:  # its router too: a listener left open would outlive the test
+        s.stop()
 
 
 def test_each_input_is_answered_once_with_an_output_of_its_step(served):
