@@ -321,30 +321,9 @@ def _valid_values(spec: Array) -> Callable[[np.ndarray], bool]:
 
 def _quick_check(spec) -> Callable[[Any], bool]:
     """A predicate that is True only for a value the full check would take unchanged
-    (exact type, in range); anything else, valid or not, gets the full check.
-
-    Bounds left open in the schema are ``±_FMAX`` here, so one chained comparison
-    also rejects NaN and infinities."""
-    if isinstance(spec, Scalar):
-        kind, optional = spec.kind, spec.optional
-        lo = -_FMAX if spec.min is None else spec.min
-        hi = _FMAX if spec.max is None else spec.max
-        if kind is float:
-
-            def accepts(value):
-                return type(value) is float and lo <= value <= hi
-
-        elif kind is int:
-
-            def accepts(value):
-                return type(value) is int and lo <= value <= hi
-
-        else:
-
-            def accepts(value):
-                return type(value) is kind
-
-    elif isinstance(spec, Array):
+    (exact type, in range); anything else, valid or not, gets the full check. For the
+    fields that are not scalars: :func:`_quick_test` writes a scalar's check out."""
+    if isinstance(spec, Array):
         dtype, optional, valid = spec.native, spec.optional, _valid_values(spec)
 
         def accepts(value):
@@ -534,8 +513,8 @@ class Message:
                 values[name] = None
                 continue
             value = data[name]
-            if isinstance(spec, Array):
-                value = _decode_array(name, spec, value)
+            if isinstance(spec, Array) and not (value is None and spec.optional):
+                value = _decode_array(name, spec, value)  # nil: absent, as for a scalar
             values[name] = value
         return cls(**values)
 
@@ -644,9 +623,9 @@ def _straight_line(cls) -> dict[str, Callable]:
 
 
 def _quick_test(spec, v: str, i: int, ns: dict) -> str:
-    """:func:`_quick_check` of the value named ``v`` as an expression: a scalar's written
-    out (one chained comparison also rejects NaN and infinities), the rest a call of the
-    predicate :func:`_quick_check` makes."""
+    """The quick check of the value named ``v`` as an expression: a scalar's written out,
+    the rest a call of the predicate :func:`_quick_check` makes. Bounds left open in the
+    schema are ``±_FMAX`` here, so one chained comparison also rejects NaN and infinities."""
     if not isinstance(spec, Scalar):
         ns[f"accepts{i}"] = _quick_check(spec)
         return f"accepts{i}({v})"
