@@ -92,7 +92,10 @@ class Ledger:
         if expected <= step <= self.last_sent.get(role, -1) and step not in missed:
             if step in self.pending[role]:
                 return self.drop(role, "duplicate", f"second reply for step {step}")
-            self.pending[role][step] = merge_parts(self.parts[role].pop(step, []), message)
+            parts = self.parts[role]
+            if parts:  # streamed before this reply (contract v4)
+                message = merge_parts(parts.pop(step, []), message)
+            self.pending[role][step] = message
             return "rx"
         if step in missed:
             self.late[role] += 1

@@ -112,14 +112,16 @@ class Lockstep:
         expect = ledger.expect
         for role in ("culture", "body"):
             pending = ledger.pending[role]
-            while expect[role] in pending:
+            while pending and expect[role] in pending:
                 self._pipeline(role, pending.pop(expect[role]), n)
-        done = min(expect.values())
-        if done > self.k_done:
+        done = min(expect["culture"], expect["body"])
+        k_done = self.k_done
+        if done > k_done:
             now = time.monotonic()
-            hub.times.step_wall_s[self.k_done : done] = (now - self._last_progress) / (
-                done - self.k_done
-            )
+            if done == k_done + 1:  # a numpy scalar store, not a slice's
+                hub.times.step_wall_s[k_done] = now - self._last_progress
+            else:
+                hub.times.step_wall_s[k_done:done] = (now - self._last_progress) / (done - k_done)
             self._last_progress = now
             self.k_done = self.k = done
             if done >= n:

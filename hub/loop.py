@@ -214,6 +214,7 @@ class Hub:
         # lockstep: the inputs each role has not answered yet, by step (sent again to an
         # endpoint that rejoins)
         self.unanswered: dict[str, dict[int, bytes]] = {role: {} for role in ROLES}
+        self._keep_unanswered = cfg.policy.rejoin_s > 0
         self._start_unix_s: float | None = None  # as announced to the endpoints
         # when each role's input of each step was put, for its reply's round trip
         # (plain lists: a numpy scalar read and NaN test cost microseconds a reply)
@@ -590,9 +591,10 @@ class Hub:
         verdict = self.ledger.judge(role, message, t_arrival, running=running)
         if verdict in ("rx", "late"):
             self._note_round_trip(role, message.step, t_arrival)
-            # live displays get a step's spikes whole (its parts merged): a display closes
-            # its rate bins up to the window's end when it gets them
-            self.view.took(self.ledger.pending[role].get(message.step, message))
+            if self.view.observed:
+                # live displays get a step's spikes whole (its parts merged): a display
+                # closes its rate bins up to the window's end when it gets them
+                self.view.took(self.ledger.pending[role].get(message.step, message))
         return verdict, message
 
     def _on_liveliness(self, key: str, present: bool) -> None:
@@ -1117,12 +1119,13 @@ class Hub:
         self.ledger.sent(role, message.step)
         if 0 <= message.step < self.n_steps:
             self._put_at[role][message.step] = time.monotonic()
-        if self.cfg.policy.rejoin_s > 0:
+        if self._keep_unanswered:
             unanswered = self.unanswered[role]
             for step in [k for k in unanswered if k < self.ledger.expect[role]]:
                 del unanswered[step]
             unanswered[message.step] = raw
-        self.view.sent(message)
+        if self.view.observed:
+            self.view.sent(message)
         if self.recorder:
             self.recorder.message("tx", self.input_key[role], raw)
 

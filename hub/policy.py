@@ -91,6 +91,7 @@ class InputPolicy:
         self.body = body
         self.run = run
         self.period_s = cfg.loop.period_ms / 1e3
+        self._window: StepWindow | None = None
         self.stim_limits = StimulationLimits(culture)
         self.last_motor = MotorCommand.stop(self.window(0))
         self.last_sensors: SensorReading | None = None
@@ -98,8 +99,11 @@ class InputPolicy:
         self.on_refused = on_refused
 
     def window(self, k: int) -> StepWindow:
-        """Step ``k`` of this run."""
-        return StepWindow.of(self.run, k, self.period_s)
+        """Step ``k`` of this run (the latest kept: both inputs of a step ask for it)."""
+        window = self._window
+        if window is None or window.step != k:
+            window = self._window = StepWindow.of(self.run, k, self.period_s)
+        return window
 
     def motor_for(self, k: int, spikes: SpikeBatch | None) -> MotorCommand:
         """The body's input of step ``k``, from the culture's spikes of step ``k``−1."""

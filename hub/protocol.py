@@ -391,6 +391,48 @@ def _empty(dtype: str) -> Callable[[], np.ndarray]:
     return lambda: empty
 
 
+class _Factory:
+    """The default of a field with a ``default_factory`` in a :func:`frozen` signature."""
+
+    def __repr__(self) -> str:
+        return "<factory>"
+
+
+_FACTORY = _Factory()
+
+
+def frozen(cls=None, *, eq: bool = False):
+    """``@dataclass(frozen=True, eq=eq)``, with an ``__init__`` that fills the instance's
+    ``__dict__`` directly. The frozen dataclass's own ``__init__`` sets each field through
+    ``object.__setattr__``, a call per field: half of building a small message, and the loop
+    builds several each step. Same signature, defaults and ``__post_init__`` call."""
+    if cls is None:
+        return lambda cls: frozen(cls, eq=eq)
+    cls = dataclass(frozen=True, eq=eq)(cls)
+    params, body, ns = [], ["    d = self.__dict__"], {"FACTORY": _FACTORY}
+    for f in dataclasses.fields(cls):
+        if not f.init:
+            continue
+        if f.default is not dataclasses.MISSING:
+            ns[f"default_{f.name}"] = f.default
+            params.append(f"{f.name}=default_{f.name}")
+        elif f.default_factory is not dataclasses.MISSING:
+            ns[f"factory_{f.name}"] = f.default_factory
+            params.append(f"{f.name}=FACTORY")
+            body.append(f"    if {f.name} is FACTORY: {f.name} = factory_{f.name}()")
+        else:
+            params.append(f.name)
+        body.append(f"    d[{f.name!r}] = {f.name}")
+    if hasattr(cls, "__post_init__"):
+        body.append("    self.__post_init__()")
+    source = "\n".join([f"def __init__(self, {', '.join(params)}):", *body])
+    exec(compile(source, f"<{cls.__name__}.__init__>", "exec"), ns)
+    init = ns["__init__"]
+    init.__qualname__ = f"{cls.__name__}.__init__"
+    cls.__init__ = init
+    return cls
+
+
 _PER_THREAD = threading.local()  # a msgpack Packer per thread: reused, never shared
 
 
@@ -662,7 +704,7 @@ WINDOW_TOLERANCE_S = 1e-9
 MODES = ("lockstep", "realtime")
 
 
-@dataclass(frozen=True)
+@frozen(eq=True)
 class StepWindow:
     """The run time that step ``step`` of run ``run`` covers: ``[t0_s, t1_s)``.
 
@@ -698,7 +740,7 @@ def _check_window(message) -> None:
 # --------------------------------------------------------------------------- messages
 
 
-@dataclass(frozen=True, eq=False)
+@frozen
 class MotorCommand(Message):
     """Hub → body: wheel speeds for one step's window (zeros at step 0)."""
 
@@ -734,7 +776,7 @@ class MotorCommand(Message):
         return StepWindow(self.run, self.step, self.t0_s, self.t1_s)
 
 
-@dataclass(frozen=True, eq=False)
+@frozen
 class SensorReading(Message):
     """Body → hub: range finders, pose and contact at the end of a step."""
 
@@ -757,7 +799,7 @@ class SensorReading(Message):
     }
 
 
-@dataclass(frozen=True, eq=False)
+@frozen
 class Stimulation(Message):
     """Hub → culture: the pulses to deliver during a step (parallel arrays)."""
 
@@ -806,7 +848,7 @@ class Stimulation(Message):
         return int(self.channel.size)
 
 
-@dataclass(frozen=True, eq=False)
+@frozen
 class SpikeBatch(Message):
     """Culture → hub: spikes fired in the window ``[t0_s, t1_s)``, sorted by time.
 
@@ -882,7 +924,7 @@ def merge_parts(parts: list[SpikeBatch], batch: SpikeBatch) -> SpikeBatch:
     return dataclasses.replace(batch, channel=channel, t_ms=t_ms[order])
 
 
-@dataclass(frozen=True, eq=False)
+@frozen
 class Potentials(Message):
     """Sim culture → observers: a low-rate snapshot of membrane potentials."""
 
@@ -893,7 +935,7 @@ class Potentials(Message):
     SCHEMA = {"step": _STEP, "t_s": Scalar(float, min=0.0), "v_mv": Array("<f4")}
 
 
-@dataclass(frozen=True, eq=False)
+@frozen
 class Description(Message):
     """Reply of an endpoint's ``describe`` queryable: what it is and its geometry.
 
@@ -974,7 +1016,7 @@ class Description(Message):
         return int(self.sensor_angles_rad.size)
 
 
-@dataclass(frozen=True, eq=False)
+@frozen
 class HubStatus(Message):
     """Hub → observers, a few times a second."""
 
@@ -1011,7 +1053,7 @@ class HubStatus(Message):
             raise ProtocolError("range", f"state must be one of {self.STATES}, got {self.state!r}")
 
 
-@dataclass(frozen=True, eq=False)
+@frozen
 class HubView(Message):
     """Hub → observers (``hub/view``), ``loop.view_hz`` times a second while anyone
     subscribes: what the loop carried since the last view, for a live display.
@@ -1075,7 +1117,7 @@ def _check_run_id(run: str) -> None:
         raise ProtocolError("range", f"run must be 32 lowercase hex characters, got {run!r}")
 
 
-@dataclass(frozen=True, eq=False)
+@frozen
 class RunStart(Message):
     """Hub → one endpoint, as the payload of a query on its ``run`` key: a run begins.
 
@@ -1120,7 +1162,7 @@ class RunStart(Message):
         return StepWindow.of(self.run, step, self.period_s)
 
 
-@dataclass(frozen=True, eq=False)
+@frozen
 class RunEnd(Message):
     """Hub → one endpoint, on its ``run`` key: the run is over (the endpoint makes
     itself safe and becomes idle)."""
@@ -1131,7 +1173,7 @@ class RunEnd(Message):
     SCHEMA = {"run": _RUN, "outcome": Scalar(str)}
 
 
-@dataclass(frozen=True, eq=False)
+@frozen
 class RunHold(Message):
     """Hub → one endpoint, on its ``run`` key: the run is paused (``hold``: the endpoint
     makes itself safe now: wheels stopped, nothing delivered) or resumed (contract v3)."""
@@ -1142,7 +1184,7 @@ class RunHold(Message):
     SCHEMA = {"run": _RUN, "hold": Scalar(bool)}
 
 
-@dataclass(frozen=True, eq=False)
+@frozen
 class RunReply(Message):
     """An endpoint's answer to ``RunStart``/``RunEnd``: taken, or refused and why."""
 
@@ -1161,7 +1203,7 @@ def decode_run_request(raw: bytes) -> RunStart | RunEnd | RunHold:
     return (RunHold if "hold" in data else RunEnd).from_dict(data)
 
 
-@dataclass(frozen=True, eq=False)
+@frozen
 class ObserverStart(Message):
     """Hub → the burst observer, on its ``run`` key (contract v3): a run begins. The hub
     forwards the culture's spikes to it (``ObservedSpikes`` on ``observer/bursts/spikes``)
@@ -1192,7 +1234,7 @@ class ObserverStart(Message):
             raise ProtocolError("range", "channel must not be empty")
 
 
-@dataclass(frozen=True, eq=False)
+@frozen
 class ObservedSpikes(Message):
     """Hub → the burst observer (``observer/bursts/spikes``, sealed with its run key): the
     culture's SpikeBatches the hub took since the last such message, each exactly as the
@@ -1206,7 +1248,7 @@ class ObservedSpikes(Message):
     SCHEMA = {"run": _RUN, "batches": BlobList()}
 
 
-@dataclass(frozen=True, eq=False)
+@frozen
 class ObserverEnd(Message):
     """Hub → the burst observer, on its ``run`` key: the run is over after ``steps``
     steps; the observer answers with its final ``BurstReport`` once it has analysed the
@@ -1218,7 +1260,7 @@ class ObserverEnd(Message):
     SCHEMA = {"run": _RUN, "steps": Scalar(int, min=0)}
 
 
-@dataclass(frozen=True, eq=False)
+@frozen
 class BurstReport(Message):
     """The burst observer → hub and live displays (``observer/bursts/reports``): what live
     burst detection found in the culture's spikes, up to ``until_ms`` of run time.
@@ -1285,7 +1327,7 @@ class BurstReport(Message):
 CONTROL_COMMANDS = ("status", "pause", "resume", "stop", "config")
 
 
-@dataclass(frozen=True, eq=False)
+@frozen
 class ControlRequest(Message):
     """Payload of a query on ``hub/control``."""
 
@@ -1298,7 +1340,7 @@ class ControlRequest(Message):
             raise ProtocolError("range", f"cmd must be one of {CONTROL_COMMANDS}, got {self.cmd!r}")
 
 
-@dataclass(frozen=True, eq=False)
+@frozen
 class ControlReply(Message):
     """Reply of ``hub/control``: whether the command was taken, the state, and data."""
 

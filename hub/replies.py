@@ -93,8 +93,7 @@ class ReplyChecker:
         if self._known_channels is None or not channel.size:
             return
         if channel.size <= SMALL_ARRAY:  # plain Python beats numpy calls here
-            known = self._known_channels
-            ok = all(c in known for c in channel.tolist())
+            ok = self._known_channels.issuperset(channel.tolist())
         else:
             known = self._known_channel
             ok = channel.max() < known.size and known[channel].all()
