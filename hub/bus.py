@@ -16,9 +16,12 @@ import time
 # Zenoh's threads are configured per process, from this variable, when the first session
 # opens. One network-receive thread, not two: with two, each arriving message wakes both
 # (one to steal the other's work), a wake-up per message more on every step's critical
-# path (bench/loop.py: ~10 % more lockstep steps per second on 2 cores). A
+# path (bench/loop.py: ~10 % more lockstep steps per second on 2 cores). Zenoh's
+# accept and application work runs on that thread too ("handover"), not on threads of
+# their own that each message's handling woke (bench/loop_ab.py: 1.6 % more lockstep
+# steps per second, 8 pairs; handing over the tx and net runtimes as well cost 3 %). A
 # ZENOH_RUNTIME set by the user is kept as it is.
-ZENOH_RUNTIME = "(rx: (worker_threads: 1))"
+ZENOH_RUNTIME = "(rx: (worker_threads: 1), acc: (handover: rx), app: (handover: rx))"
 os.environ.setdefault("ZENOH_RUNTIME", ZENOH_RUNTIME)
 
 import zenoh  # noqa: E402
