@@ -177,7 +177,7 @@ class BurstObserver:
         # holds it up; it catches up, and a message the link dropped is steps missing).
         run.subscriber = self.session.declare_subscriber(
             self.keys.observer_spikes(NAME),
-            lambda s: self._events.put((run, s.payload.to_bytes(), s.attachment)),
+            lambda s: self._events.put((run, s.payload.to_bytes())),
         )
         self._run = run
         log.info("observing run %s: %d channels", start.run, start.channel.size)
@@ -188,11 +188,11 @@ class BurstObserver:
 
     # ---------------------------------------------------------------- spikes
 
-    def _on_spikes(self, run: _Run, payload: bytes, attachment) -> None:
+    def _on_spikes(self, run: _Run, payload: bytes) -> None:
         """One ``ObservedSpikes`` message (or a frame of one) from the hub."""
         run_id = run.start.run
         try:
-            whole = run.inbox.feed(payload, attachment)
+            whole = run.inbox.feed(payload)
             if whole is None:
                 return  # more frames to come
             observed = ObservedSpikes.decode(whole)

@@ -325,8 +325,9 @@ class Endpoint(abc.ABC):
 
     # ------------------------------------------------------------ each step
 
-    def handle(self, payload, attachment=None) -> Message | None:
-        """Unseal, validate and check one input and step on it.
+    def handle(self, payload) -> Message | None:
+        """Unseal, validate and check one input (a put's payload: bytes or ``zenoh.ZBytes``,
+        its seal at its end) and step on it.
 
         Returns the output to publish, or None when the input was dropped (counted) or
         the endpoint replies later (:meth:`reply`).
@@ -337,7 +338,7 @@ class Endpoint(abc.ABC):
                 self._drop("foreign", "an input while no run is going")
                 return None
             try:
-                raw = self._inbox.feed(payload, attachment)
+                raw = self._inbox.feed(payload)
             except wire.WireError as exc:
                 self._drop(exc.kind, str(exc))
                 return None
@@ -504,7 +505,7 @@ class Endpoint(abc.ABC):
                 if not state["serving"]:
                     return
                 try:
-                    output = self.handle(sample.payload, sample.attachment)
+                    output = self.handle(sample.payload)
                     state["last_input"] = time.monotonic()
                     if output is not None:
                         self._outbox.put(output.encode())

@@ -70,7 +70,7 @@ class HubLink:
                 return
             inbox = inboxes[role]
             try:
-                raw = inbox.feed(sample.payload, sample.attachment)
+                raw = inbox.feed(sample.payload)  # sealed: the seal ends the payload
             except wire.WireError as exc:
                 deliver(
                     ("refused", role, payload_bytes(sample), exc.kind, str(exc), time.time_ns())
@@ -117,7 +117,7 @@ class HubLink:
 
         def on_report(sample):
             try:
-                raw = inbox.feed(sample.payload, sample.attachment)
+                raw = inbox.feed(sample.payload)
             except wire.WireError as exc:
                 self._deliver(("report_refused", exc.kind, str(exc)))
                 return

@@ -1,36 +1,38 @@
-"""Sealing and framing of payloads on the bus (wire contract v2, items 4 and 5).
+"""Sealing and framing of payloads on the bus (wire contract v2, items 4 and 5; docs/wire.md).
 
-Every loop message is *sealed*: the Zenoh attachment of its put carries a 16-byte keyed
-BLAKE2b tag made with the run key of the endpoint it goes to or comes from, so a receiver
-takes a payload only from who holds that key. Every payload of any size *passes*: Zenoh's
-low-latency transport (``bus.low_latency``, the default) cannot carry a message larger
-than one batch (in practice about 49 kB; see FRAME_MAX_BYTES), so a payload larger than
-:data:`FRAME_MAX_BYTES` is split into frames put one after another on the same key and
-reassembled by the receiver. Payloads stay the plain msgpack maps of the contract; all of
-this lives in the attachment.
+Every loop message is *sealed*: a 16-byte keyed BLAKE2b tag made with the run key of the
+endpoint it goes to or comes from, so a receiver takes a payload only from who holds that
+key. Every payload of any size *passes*: Zenoh's low-latency transport (``bus.low_latency``,
+the default) cannot carry a message larger than one batch (in practice about 49 kB; see
+FRAME_MAX_BYTES), so a payload larger than :data:`FRAME_MAX_BYTES` is split into frames put
+one after another on the same key and reassembled by the receiver.
 
-The attachment of each put is fixed-layout, little-endian (:data:`HEADER`)::
+Each put carries a fixed-layout, little-endian header (:data:`HEADER`)::
 
     magic  b"NW"      2 bytes
-    version  1        1 byte  (ATTACHMENT_VERSION)
+    version           1 byte  (TRAILER_VERSION sealed, ATTACHMENT_VERSION open)
     message id        uint32  (per Outbox, incremented per message)
     frame index       uint32  (0 .. count-1)
     frame count       uint32  (1 for a payload that fits one put)
-    tag               16 bytes, only when the sender has a key
+
+A *sealed* put is ``frame ‖ tag ‖ header``: the seal ends the payload, and the put has no
+Zenoh attachment (an attachment on every message of the loop cost the trivial lockstep loop
+5.5 %, bench/loop_ab.py). An *open* put (no key: views, query replies) is the frame as it
+is, a plain msgpack map when it fits one put, with the header as its Zenoh attachment.
 
 The tag of a single-frame message is ``blake2b(payload, key=key, digest_size=16)``. The
-tag of each frame of a split message covers that frame's bytes *and its header* (message
-id, index, count), so a frame injected or spliced by anyone without the key is refused on
-its own (``foreign``) and never disturbs the genuine message being reassembled; the
-frames' tags together authenticate the whole payload.
+tag of each frame of a split message covers that frame's header *and* its bytes, so a frame
+injected or spliced by anyone without the key is refused on its own (``foreign``) and never
+disturbs the genuine message being reassembled; the frames' tags together authenticate the
+whole payload.
 
 A receiver (:class:`Inbox`, one per key it subscribes to: frames of one key arrive in
 order from one publisher) returns the whole payload once complete; it raises
-:class:`WireError` ``"foreign"`` for a missing or bad tag when it has a key, and
-``"frame"`` for malformed framing (bad attachment, a frame out of order or of another
-message, a message over ``max_message_bytes``). A message abandoned incomplete because
-another started is counted in :attr:`Inbox.abandoned`. Memory held is at most one
-message's frames of at most ``max_message_bytes``.
+:class:`WireError` ``"foreign"`` when it has a key and the put is not sealed with it, and
+``"frame"`` for malformed framing (bad header, a frame out of order or of another message,
+a message over ``max_message_bytes``). A message abandoned incomplete because another
+started is counted in :attr:`Inbox.abandoned`. Memory held is at most one message's frames
+of at most ``max_message_bytes``.
 
 Queries: :func:`reply` answers a query with framed replies, :func:`get` reassembles them.
 """
@@ -53,10 +55,12 @@ FRAME_MAX_BYTES = 48_000
 MAX_MESSAGE_BYTES = 256 << 20
 
 MAGIC = b"NW"
-ATTACHMENT_VERSION = 1
+ATTACHMENT_VERSION = 1  # the header in an open message's attachment
+TRAILER_VERSION = 2  # the header at the end of a sealed message's payload, after its tag
 HEADER = struct.Struct("<2sBIII")  # magic, version, message id, frame index, frame count
 _HEADER_BYTES = HEADER.size
-_SEALED_BYTES = _HEADER_BYTES + TAG_BYTES
+SEAL_BYTES = TAG_BYTES + _HEADER_BYTES  # what a sealed put adds after its frame
+_SEALED_BYTES = SEAL_BYTES
 _ID_MASK = 0xFFFFFFFF
 _blake2b = hashlib.blake2b
 _compare = hmac.compare_digest
@@ -103,22 +107,26 @@ class WireError(ValueError):
 
 def frames(
     payload: bytes, key: bytes | None, message_id: int, frame_max_bytes: int = FRAME_MAX_BYTES
-) -> list[tuple[bytes | memoryview, bytes]]:
-    """The ``(frame payload, attachment)`` pairs that carry ``payload`` (one when it fits)."""
+) -> list[tuple[bytes | memoryview, bytes | None]]:
+    """The ``(put payload, attachment)`` pairs that carry ``payload`` (one when it fits):
+    sealed, each frame followed by its tag and header, with no attachment; open, each frame
+    as it is, with its header as the attachment."""
     n = len(payload)
     message_id &= _ID_MASK
-    if n <= frame_max_bytes:
-        header = _pack(MAGIC, ATTACHMENT_VERSION, message_id, 0, 1)
-        if key is None:
-            return [(payload, header)]
-        return [(payload, header + _blake2b(payload, key=key, digest_size=TAG_BYTES).digest())]
-    count = -(-n // frame_max_bytes)
-    view = memoryview(payload)
+    count = max(-(-n // frame_max_bytes), 1)
+    view = memoryview(payload) if count > 1 else payload
     out = []
     for index in range(count):
-        chunk = view[index * frame_max_bytes : (index + 1) * frame_max_bytes]
-        header = _pack(MAGIC, ATTACHMENT_VERSION, message_id, index, count)
-        out.append((chunk, header if key is None else header + _frame_tag(header, chunk, key)))
+        chunk = view[index * frame_max_bytes : (index + 1) * frame_max_bytes] if count > 1 else view
+        if key is None:
+            out.append((chunk, _pack(MAGIC, ATTACHMENT_VERSION, message_id, index, count)))
+            continue
+        header = _pack(MAGIC, TRAILER_VERSION, message_id, index, count)
+        if count == 1:
+            tag = _blake2b(chunk, key=key, digest_size=TAG_BYTES).digest()
+        else:
+            tag = _frame_tag(header, chunk, key)
+        out.append((b"".join((chunk, tag, header)), None))
     return out
 
 
@@ -158,16 +166,20 @@ class Outbox:
         message_id = self._next_id
         self._next_id = (message_id + 1) & _ID_MASK
         if len(payload) <= self.frame_max_bytes:  # the common, small-message path
-            header = _pack(MAGIC, ATTACHMENT_VERSION, message_id, 0, 1)
             mac = self._mac
-            if mac is not None:
-                mac = mac.copy()
-                mac.update(payload)
-                header += mac.digest()
-            self._put(payload, attachment=header)
+            if mac is None:
+                self._put(payload, attachment=_pack(MAGIC, ATTACHMENT_VERSION, message_id, 0, 1))
+                return
+            mac = mac.copy()
+            mac.update(payload)
+            header = _pack(MAGIC, TRAILER_VERSION, message_id, 0, 1)
+            self._put(b"".join((payload, mac.digest(), header)))
             return
         for chunk, attachment in frames(payload, self._key, message_id, self.frame_max_bytes):
-            self._put(bytes(chunk), attachment=attachment)
+            if attachment is None:
+                self._put(chunk)
+            else:
+                self._put(bytes(chunk), attachment=attachment)
 
 
 def _as_bytes(data) -> bytes | None:
@@ -236,48 +248,57 @@ class Inbox:
         self._skip_id = message_id
         return WireError("frame", message)
 
-    def feed(self, payload, attachment) -> bytes | None:
+    def _unseal(self, data: bytes) -> tuple[bytes, int, int, int]:
+        """A sealed put's frame, message id, frame index and count, once its tag is right."""
+        n = len(data)
+        if n < _SEALED_BYTES:
+            raise WireError("foreign", f"a put of {n} bytes: not sealed")
+        magic, version, message_id, index, count = _unpack_from(data, n - _HEADER_BYTES)
+        if magic != MAGIC or version != TRAILER_VERSION:
+            raise WireError("foreign", "no sealed trailer (magic or version): not sealed")
+        end = n - _SEALED_BYTES
+        frame = data[:end]
+        if count == 1 and index == 0:
+            mac = self._mac.copy()
+            mac.update(frame)
+            expected = mac.digest()
+        else:
+            expected = _frame_tag(data[n - _HEADER_BYTES :], frame, self._key)
+        if not _compare(data[end : n - _HEADER_BYTES], expected):
+            raise WireError("foreign", "bad tag")
+        return frame, message_id, index, count
+
+    def feed(self, payload, attachment=None) -> bytes | None:
         """Take one received put; return the whole payload once complete, else ``None``.
 
         Parameters
         ----------
         payload : bytes (or zenoh.ZBytes)
-            The put's payload.
+            The put's payload (sealed: its frame, tag and header).
         attachment : bytes, zenoh.ZBytes or None
-            The put's attachment.
+            The put's attachment: an open put's header (not read when a key is set).
 
         Raises
         ------
         WireError
-            ``"foreign"``: the tag is missing or wrong (only when a key is set);
+            ``"foreign"``: not sealed with the key (only when a key is set);
             ``"frame"``: malformed or out-of-order framing, or a message too large.
         """
         payload = _as_bytes(payload)
-        attachment = _as_bytes(attachment)
-        key = self._key
-        if attachment is None:
-            if key is not None:
-                raise WireError("foreign", "no attachment: not sealed")
-            if len(payload) > self.max_message_bytes:
-                raise WireError("frame", f"message of {len(payload)} bytes over the limit")
-            return payload
-        n_att = len(attachment)
-        if n_att not in (_HEADER_BYTES, _SEALED_BYTES):
-            raise WireError("frame", f"attachment of {n_att} bytes")
-        magic, version, message_id, index, count = _unpack_from(attachment)
-        if magic != MAGIC or version != ATTACHMENT_VERSION:
-            raise WireError("frame", "not a framed attachment (magic or version)")
-        if key is not None:
-            if n_att != _SEALED_BYTES:
-                raise WireError("foreign", "no tag: not sealed")
-            if count == 1 and index == 0:
-                mac = self._mac.copy()
-                mac.update(payload)
-                expected = mac.digest()
-            else:
-                expected = _frame_tag(attachment[:_HEADER_BYTES], payload, key)
-            if not _compare(attachment[_HEADER_BYTES:], expected):
-                raise WireError("foreign", "bad tag")
+        if self._key is not None:
+            payload, message_id, index, count = self._unseal(payload)
+        else:
+            attachment = _as_bytes(attachment)
+            if attachment is None:
+                if len(payload) > self.max_message_bytes:
+                    raise WireError("frame", f"message of {len(payload)} bytes over the limit")
+                return payload
+            n_att = len(attachment)
+            if n_att not in (_HEADER_BYTES, _SEALED_BYTES):
+                raise WireError("frame", f"attachment of {n_att} bytes")
+            magic, version, message_id, index, count = _unpack_from(attachment)
+            if magic != MAGIC or version != ATTACHMENT_VERSION:
+                raise WireError("frame", "not a framed attachment (magic or version)")
         if count == 1 and index == 0:  # the common, single-frame path
             if self._id != -1:
                 self.abandoned += 1

@@ -322,12 +322,12 @@ class MeaEndpoint(Endpoint):
             self._unanswered[window.step] = window
         return None
 
-    def handle(self, payload, attachment=None):
+    def handle(self, payload):
         """:meth:`Endpoint.handle`, then the pulses already due fired from this thread: a
         hand-over to the device thread cost ~0.25 ms before the instrument heard of them.
         They go out after the input's lock is released, so that a reply owed meanwhile does
         not wait for the instrument's round trip."""
-        output = super().handle(payload, attachment)
+        output = super().handle(payload)
         with self._timing:
             due_now, self._due_now = self._due_now, []
         for pulses, due in due_now:

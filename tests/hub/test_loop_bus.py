@@ -255,8 +255,10 @@ def _spray(bus, keys, rounds=3):
     key, and garbage queries on the control key. Returns what it put on each key."""
     session = open_session(bus, listener=False)
     seen: list[MotorCommand] = []
+    # sealing is not secrecy: the map before the seal is plain msgpack
     watcher = session.declare_subscriber(
-        keys.motor("0"), lambda s: seen.append(MotorCommand.decode(payload_bytes(s)))
+        keys.motor("0"),
+        lambda s: seen.append(MotorCommand.decode(payload_bytes(s)[: -wire.SEAL_BYTES])),
     )
     try:
         wait_for(lambda: len(seen) > 0)
@@ -275,8 +277,8 @@ def _spray(bus, keys, rounds=3):
             for name, key in targets.items():
                 for raw in GARBAGE:
                     session.put(key, raw, congestion_control=zenoh.CongestionControl.BLOCK)
-                (raw, attachment), *_ = wire.frames(forged[name], own_key, r)
-                session.put(key, forged[name], attachment=attachment)
+                ((sealed, _),) = wire.frames(forged[name], own_key, r)
+                session.put(key, sealed)
                 session.put(key, forged[name])  # unsealed
                 sent[name] += len(GARBAGE) + 2
         for key in (keys.potentials("0"), keys.hub_status, keys.alive("body", "0")):

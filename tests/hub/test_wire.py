@@ -14,7 +14,10 @@ from hub.bus import LOOP_PUBLISH, free_tcp_port, open_session
 from hub.config import BusSection
 from hub.wire import (
     FRAME_MAX_BYTES,
+    HEADER,
     KEY_BYTES,
+    TAG_BYTES,
+    TRAILER_VERSION,
     Inbox,
     Outbox,
     WireError,
@@ -55,12 +58,21 @@ def test_keys_are_random_and_tags_are_keyed_blake2b():
     assert tag(b"x", a) != tag(b"x", b)
 
 
-def test_a_small_payload_is_one_put_whose_attachment_ends_with_the_payloads_tag():
+def test_a_sealed_small_payload_is_one_put_of_the_payload_its_tag_and_its_header():
     key = new_key()
     puts = _sent(b"hello", key)
-    assert len(puts) == 1 and puts[0][0] == b"hello"
-    assert puts[0][1].endswith(tag(b"hello", key))
+    assert len(puts) == 1 and puts[0][1] is None  # no attachment: the seal is in the payload
+    put = puts[0][0]
+    header = put[-HEADER.size :]
+    assert put == b"hello" + tag(b"hello", key) + header
+    assert HEADER.unpack(header)[1:2] + HEADER.unpack(header)[3:] == (TRAILER_VERSION, 0, 1)
     assert _deliver(Inbox(key), puts) == [b"hello"]
+
+
+def test_an_open_payload_is_one_put_as_it_is_with_its_header_as_attachment():
+    puts = _sent(b"hello")
+    assert len(puts) == 1 and puts[0][0] == b"hello" and len(puts[0][1]) == HEADER.size
+    assert _deliver(Inbox(), puts) == [b"hello"]
 
 
 @pytest.mark.parametrize("size", [0, 1, FRAME_MAX_BYTES, FRAME_MAX_BYTES + 1, 1 << 20])
@@ -69,7 +81,8 @@ def test_any_size_arrives_whole_and_no_put_is_larger_than_a_frame(size, sealed):
     key = new_key() if sealed else None
     payload = bytes(range(256)) * (size // 256) + bytes(size % 256)
     puts = _sent(payload, key)
-    assert all(len(p) <= FRAME_MAX_BYTES for p, _ in puts)
+    seal = TAG_BYTES + HEADER.size if sealed else 0
+    assert all(len(p) <= FRAME_MAX_BYTES + seal for p, _ in puts)
     assert len(puts) == max(1, -(-size // FRAME_MAX_BYTES))
     inbox = Inbox(key)
     assert _deliver(inbox, puts) == [payload]
@@ -118,11 +131,11 @@ def test_a_payload_sealed_with_another_key_or_not_at_all_is_foreign(size):
 
 def test_a_tampered_payload_or_frame_is_foreign():
     key = new_key()
-    ((payload, att),) = _sent(b"left=0.1", key)
+    ((put, _),) = _sent(b"left=0.1", key)
     with pytest.raises(WireError, match="bad tag"):
-        Inbox(key).feed(b"left=9.9", att)
+        Inbox(key).feed(b"left=9.9" + put[8:])
     puts = _sent(bytes(30), key, frame_max_bytes=10)
-    puts[1] = (b"x" * 10, puts[1][1])
+    puts[1] = (b"x" * 10 + puts[1][0][10:], None)
     inbox = Inbox(key)
     assert inbox.feed(*puts[0]) is None
     with pytest.raises(WireError) as err:
@@ -143,9 +156,9 @@ def test_a_strangers_frames_do_not_disturb_the_genuine_message_being_reassembled
     assert got == [None, None, b"g" * 30] and inbox.abandoned == 0
 
 
-def test_without_a_key_tags_are_not_required_and_a_plain_put_is_a_whole_payload():
+def test_without_a_key_open_frames_are_reassembled_and_a_plain_put_is_a_whole_payload():
     assert Inbox().feed(b"plain", None) == b"plain"
-    assert _deliver(Inbox(), _sent(b"x" * 25, new_key(), frame_max_bytes=10)) == [b"x" * 25]
+    assert _deliver(Inbox(), _sent(b"x" * 25, None, frame_max_bytes=10)) == [b"x" * 25]
 
 
 def test_a_missing_frame_drops_the_message_as_frame_and_the_next_one_arrives():
@@ -211,8 +224,10 @@ def test_frames_of_an_unknown_message_are_frame():
 
 def test_zenoh_bytes_are_accepted_as_payload_and_attachment():
     key = new_key()
-    ((payload, att),) = _sent(b"z", key)
-    assert Inbox(key).feed(zenoh.ZBytes(payload), zenoh.ZBytes(att)) == b"z"
+    ((sealed, _),) = _sent(b"z", key)
+    assert Inbox(key).feed(zenoh.ZBytes(sealed)) == b"z"
+    ((payload, att),) = _sent(b"z")
+    assert Inbox().feed(zenoh.ZBytes(payload), zenoh.ZBytes(att)) == b"z"
 
 
 # --------------------------------------------------------------------- over real Zenoh
