@@ -34,6 +34,10 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
+# Each side's processes take Zenoh's thread settings from their own tree (hub/bus.py sets
+# ZENOH_RUNTIME when imported, and keeps one already set): importing this tree's hub below
+# sets it here, and the runs would inherit it. One the user set is given to both sides.
+USER_ZENOH_RUNTIME = os.environ.get("ZENOH_RUNTIME")
 
 from bench.closed_loop import paired_cost  # noqa: E402
 from bench.host import StealMeter, child_run, end_children_on_signal  # noqa: E402
@@ -58,9 +62,19 @@ def side(spec: str) -> tuple[Path, list[str]]:
     return path, [s for s in sets.split(";") if s]
 
 
+def side_env(tree: Path) -> dict[str, str]:
+    """The environment of a side's runs: its tree first on the path, and Zenoh's threads as
+    its tree sets them (or as the user set them for both)."""
+    env = {**os.environ, "PYTHONPATH": str(tree)}
+    if USER_ZENOH_RUNTIME is None:
+        env.pop("ZENOH_RUNTIME", None)
+    return env
+
+
 def run(tree: Path, sets: list[str], steps: int) -> float:
     """One run of the tree's trivial lockstep loop; its steps per second."""
-    done = child_run([sys.executable, "-c", PROGRAM.format(steps=steps, sets=sets)], cwd=tree)
+    program = PROGRAM.format(steps=steps, sets=sets)
+    done = child_run([sys.executable, "-c", program], cwd=tree, env=side_env(tree))
     lines = [line for line in done.stdout.splitlines() if line.startswith("RESULT ")]
     if done.returncode != 0 or not lines:
         raise SystemExit(f"loop_ab: a run in {tree} failed:\n{done.stderr[-2000:]}")
@@ -74,7 +88,7 @@ def run_closed_loop(tree: Path, sets: list[str], seconds: float) -> float:
         cmd += ["--mode", "lockstep", "--duration-s", str(seconds), "--runs-dir", runs]
         for item in sets:
             cmd += ["--set", item]
-        done = child_run(cmd, cwd=tree, env={**os.environ, "PYTHONPATH": str(tree)})
+        done = child_run(cmd, cwd=tree, env=side_env(tree))
         manifests = list(Path(runs).glob("*/manifest.json"))
         if done.returncode != 0 or len(manifests) != 1:
             raise SystemExit(f"loop_ab: a closed-loop run in {tree} failed:\n{done.stderr[-2000:]}")
