@@ -18,9 +18,9 @@ import time
 # (one to steal the other's work), a wake-up per message more on every step's critical
 # path (bench/loop.py: ~10 % more lockstep steps per second on 2 cores). Zenoh's
 # accept and application work runs on that thread too ("handover"), not on threads of
-# their own that each message's handling woke (bench/loop_ab.py: 1.6 % more lockstep
-# steps per second, 8 pairs; handing over the tx and net runtimes as well cost 3 %). A
-# ZENOH_RUNTIME set by the user is kept as it is.
+# their own that each message's handling woke (bench/loop_ab.py, 8 pairs: 2.8 % more
+# lockstep steps per second, 90 % interval 1.9-6.7 %; handing over the tx and net
+# runtimes as well cost 3.1 %). A ZENOH_RUNTIME set by the user is kept as it is.
 ZENOH_RUNTIME = "(rx: (worker_threads: 1), acc: (handover: rx), app: (handover: rx))"
 os.environ.setdefault("ZENOH_RUNTIME", ZENOH_RUNTIME)
 
