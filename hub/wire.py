@@ -17,8 +17,9 @@ Each put carries a fixed-layout, little-endian header (:data:`HEADER`)::
 
 A *sealed* put is ``frame ‖ tag ‖ header``: the seal ends the payload, and the put has no
 Zenoh attachment (an attachment on every message of the loop cost the trivial lockstep loop
-5.5 %, bench/loop_ab.py). An *open* put (no key: views, query replies) is the frame as it
-is, a plain msgpack map when it fits one put, with the header as its Zenoh attachment.
+5.5 % in an ablation, docs/wire.md). An *open* put (no key: views, query replies) is the
+frame as it is, a plain msgpack map when it fits one put, with the header as its Zenoh
+attachment.
 
 The tag of a single-frame message is ``blake2b(payload, key=key, digest_size=16)``. The
 tag of each frame of a split message covers that frame's header *and* its bytes, so a frame
