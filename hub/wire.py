@@ -61,7 +61,6 @@ TRAILER_VERSION = 2  # the header at the end of a sealed message's payload, afte
 HEADER = struct.Struct("<2sBIII")  # magic, version, message id, frame index, frame count
 _HEADER_BYTES = HEADER.size
 SEAL_BYTES = TAG_BYTES + _HEADER_BYTES  # what a sealed put adds after its frame
-_SEALED_BYTES = SEAL_BYTES
 _ID_MASK = 0xFFFFFFFF
 _blake2b = hashlib.blake2b
 _compare = hmac.compare_digest
@@ -252,12 +251,12 @@ class Inbox:
     def _unseal(self, data: bytes) -> tuple[bytes, int, int, int]:
         """A sealed put's frame, message id, frame index and count, once its tag is right."""
         n = len(data)
-        if n < _SEALED_BYTES:
+        if n < SEAL_BYTES:
             raise WireError("foreign", f"a put of {n} bytes: not sealed")
         magic, version, message_id, index, count = _unpack_from(data, n - _HEADER_BYTES)
         if magic != MAGIC or version != TRAILER_VERSION:
             raise WireError("foreign", "no sealed trailer (magic or version): not sealed")
-        end = n - _SEALED_BYTES
+        end = n - SEAL_BYTES
         frame = data[:end]
         if count == 1 and index == 0:
             mac = self._mac.copy()
@@ -295,7 +294,7 @@ class Inbox:
                     raise WireError("frame", f"message of {len(payload)} bytes over the limit")
                 return payload
             n_att = len(attachment)
-            if n_att not in (_HEADER_BYTES, _SEALED_BYTES):
+            if n_att not in (_HEADER_BYTES, SEAL_BYTES):
                 raise WireError("frame", f"attachment of {n_att} bytes")
             magic, version, message_id, index, count = _unpack_from(attachment)
             if magic != MAGIC or version != ATTACHMENT_VERSION:
