@@ -16,12 +16,11 @@ import time
 # Zenoh's threads are configured per process, from this variable, when the first session
 # opens. One network-receive thread, not two: with two, each arriving message wakes both
 # (one to steal the other's work), a wake-up per message more on every step's critical
-# path (bench/loop.py: ~10 % more lockstep steps per second on 2 cores). Zenoh's
-# accept and application work runs on that thread too ("handover"), not on threads of
-# their own that each message's handling woke (bench/loop_ab.py, 8 pairs: 2.8 % more
-# lockstep steps per second, 90 % interval 1.9-6.7 %; handing over the tx and net
-# runtimes as well cost 3.1 %). A ZENOH_RUNTIME set by the user is kept as it is.
-ZENOH_RUNTIME = "(rx: (worker_threads: 1), acc: (handover: rx), app: (handover: rx))"
+# path. Zenoh's accept and application work keeps threads of its own: handed over to the
+# receive thread, it cost the lockstep loop 9.5-15.6 % with the hub on a CPU of its own
+# (bench/loop.py's first figure) and won at most 3 % where the OS places the threads
+# (docs/benchmarks.md). A ZENOH_RUNTIME set by the user is kept as it is.
+ZENOH_RUNTIME = "(rx: (worker_threads: 1))"
 os.environ.setdefault("ZENOH_RUNTIME", ZENOH_RUNTIME)
 
 import zenoh  # noqa: E402
