@@ -17,6 +17,13 @@ cached).
     python bench/loop_ab.py /tmp/before . --pairs 6 --steps 10000
     python bench/loop_ab.py . ".|online.enabled=false" --pairs 4
     python bench/loop_ab.py /tmp/before . --pairs 6 --closed-loop 60
+    python bench/loop_ab.py /tmp/before . --pairs 6 --placed
+
+Placement matters: with ``--placed`` both sides run as ``bench/loop.py``'s first figure
+does, the hub on a CPU of its own and the endpoints on the others (``loop.cpus``,
+``body.cpus``, ``culture.cpus``); without it the OS places every thread. A change can win
+one and lose the other (Zenoh's thread settings once did: 2.8 % faster placed by the OS,
+23 % slower placed): measure both.
 
 The last line printed is one JSON object (``steps_per_s_a``, ``steps_per_s_b``: medians;
 ``cost_share_paired`` and ``cost_share_interval_90``; ``steal_share``).
@@ -41,6 +48,7 @@ USER_ZENOH_RUNTIME = os.environ.get("ZENOH_RUNTIME")
 
 from bench.closed_loop import paired_cost  # noqa: E402
 from bench.host import StealMeter, child_run, end_children_on_signal  # noqa: E402
+from bench.loop import placement  # noqa: E402
 
 # Run in the side's tree, with that tree first on the path (its hub, its endpoints).
 PROGRAM = """
@@ -107,6 +115,11 @@ def main(argv: list[str] | None = None) -> dict:
         metavar="SECONDS",
         help="A/B the closed loop instead (lockstep runs of this many seconds of run time)",
     )
+    ap.add_argument(
+        "--placed",
+        action="store_true",
+        help="the hub on a CPU of its own, the endpoints on the others (both sides)",
+    )
     args = ap.parse_args(argv)
     if args.pairs < 1 or args.steps < 100:
         ap.error("--pairs must be >= 1 and --steps >= 100")
@@ -114,6 +127,11 @@ def main(argv: list[str] | None = None) -> dict:
         ap.error("--closed-loop must be > 0")
     end_children_on_signal()
     sides = {"a": side(args.a), "b": side(args.b)}
+    if args.placed:
+        overrides, where = placement()
+        if not overrides:
+            ap.error(f"--placed needs two CPUs or more: {where}")
+        sides = {name: (tree, [*overrides, *sets]) for name, (tree, sets) in sides.items()}
     if args.closed_loop is None:
         what = f"{args.steps:,} lockstep steps"
 
@@ -138,7 +156,8 @@ def main(argv: list[str] | None = None) -> dict:
     cost, lo, hi = paired_cost(ratios)
     a, b = statistics.median(figures["a"]), statistics.median(figures["b"])
     print(
-        f"{args.pairs} interleaved pairs of {what}: A {a:,.0f}, "
+        f"{args.pairs} interleaved pairs of {what}"
+        f"{' (hub on a CPU of its own)' if args.placed else ''}: A {a:,.0f}, "
         f"B {b:,.0f} steps/s (medians); B's cost {100 * cost:+.1f} % from the pairs' ratios "
         f"(90 % interval {100 * lo:+.1f} to {100 * hi:+.1f} %); CPU steal {100 * steal.share:.2f} %"
     )
@@ -146,6 +165,7 @@ def main(argv: list[str] | None = None) -> dict:
         "a": args.a,
         "b": args.b,
         "bench": "closed_loop" if args.closed_loop else "loop",
+        "placed": args.placed,
         "steps_per_s_a": round(a, 1),
         "steps_per_s_b": round(b, 1),
         "runs_steps_per_s": {k: [round(v, 1) for v in vs] for k, vs in figures.items()},
