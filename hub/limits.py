@@ -31,6 +31,12 @@ def over(value: float, limit: float) -> bool:
     return _f32(value) > _f32(limit)
 
 
+def _as_f32(limit: float | None) -> float | None:
+    """``limit`` rounded to float32, as a Python float: a float32 value is ``over`` it
+    exactly when greater (both exact in float64)."""
+    return None if limit is None else float(_f32(limit))
+
+
 def under(value: float, limit: float) -> bool:
     """``value`` is under ``limit`` at float32 precision (the wire's, for pulses)."""
     return _f32(value) < _f32(limit)
@@ -64,6 +70,9 @@ class StimulationLimits:
         self.max_amplitude_ua = culture.max_amplitude_ua
         self.max_width_ms = culture.max_width_ms
         self.max_pulse_hz = culture.max_pulse_hz
+        # The limits as float32 (see ``over``): a pulse's values are float32 already.
+        self._amplitude_f32 = _as_f32(culture.max_amplitude_ua)
+        self._width_f32 = _as_f32(culture.max_width_ms)
         self._recent: dict[int, deque] = defaultdict(deque)  # channel → pulse times (s)
 
     def violation(self, stim: Stimulation) -> str | None:
@@ -71,19 +80,24 @@ class StimulationLimits:
         if not stim.n_pulses:
             return None
         small = stim.n_pulses <= SMALL_ARRAY  # plain Python beats numpy calls here
-        if self.max_amplitude_ua is not None:
+        if self._amplitude_f32 is not None:
             amplitude = stim.amplitude_ua
             top = max(map(abs, amplitude.tolist())) if small else float(np.abs(amplitude).max())
-            if over(top, self.max_amplitude_ua):
+            if top > self._amplitude_f32:
                 return f"amplitude {top:g} uA exceeds max_amplitude_ua {self.max_amplitude_ua:g}"
-        if self.max_width_ms is not None:
+        if self._width_f32 is not None:
             top = max(stim.width_ms.tolist()) if small else float(stim.width_ms.max())
-            if over(top, self.max_width_ms):
+            if top > self._width_f32:
                 return f"width {top:g} ms exceeds max_width_ms {self.max_width_ms:g}"
         if self.max_pulse_hz is not None:
             allowed = self.max_pulse_hz * RATE_WINDOW_S
             since = stim.t1_s - RATE_WINDOW_S
-            for channel, n in Counter(stim.channel.tolist()).items():
+            channels = stim.channel.tolist()
+            if len(set(channels)) == len(channels):  # each channel once: the usual case
+                counts = zip(channels, [1] * len(channels), strict=True)
+            else:
+                counts = Counter(channels).items()
+            for channel, n in counts:
                 recent = self._recent.get(channel)
                 if recent:  # times come in order: what left the window never comes back
                     while recent and recent[0] <= since:
