@@ -17,6 +17,7 @@ import json
 import logging
 import math
 import os
+import signal
 import sys
 import time
 from collections.abc import Callable
@@ -383,6 +384,10 @@ def _add_dashboard_commands(sub) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
+    if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
+        # Left ignored by the parent (a shell does so for a background job): Ctrl-C stops
+        # a command while it starts up as it does once the command's own handler is in.
+        signal.signal(signal.SIGINT, signal.default_int_handler)
     args = build_parser().parse_args(argv)
     # Schemes and endpoint kinds named module:attr may live in the user's own
     # folder, as with `python -m`.

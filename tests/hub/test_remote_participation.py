@@ -140,16 +140,24 @@ def test_two_endpoints_answering_as_one_role_are_refused(tmp_path, bus_overrides
             log.close()
 
 
-def test_ctrl_c_while_an_endpoint_builds_its_model_is_one_line(tmp_path, bus_overrides):
+@pytest.mark.parametrize("parent_ignores_it", [False, True])
+def test_ctrl_c_while_an_endpoint_builds_its_model_is_one_line(
+    tmp_path, bus_overrides, parent_ignores_it
+):
     """Ctrl-C before the endpoint serves (its model or device being built, which takes
-    seconds for a large culture): one line and a clean exit, not a traceback."""
+    seconds for a large culture): one line and a clean exit, not a traceback. Also when
+    started with SIGINT ignored, as a shell starts a background job: it was then ignored
+    until the endpoint served (a CI job in the background saw this test hang)."""
     built = tmp_path / "building"
     items = [
         *bus_overrides,
         'body.kind="tests.endpoints:SlowToBuildBody"',
         f"body.params={{built_file={json.dumps(str(built))}, build_s=60.0}}",
     ]
-    p = neuvision("endpoint", "body", CONFIG, *sets(items), stderr=subprocess.PIPE)
+    command = [sys.executable, "-m", "hub.cli", "endpoint", "body", CONFIG, *sets(items)]
+    if parent_ignores_it:  # exec keeps the ignored disposition
+        command = ["bash", "-c", 'trap "" INT; exec "$@"', "bash", *command]
+    p = subprocess.Popen(command, text=True, stderr=subprocess.PIPE)
     try:
         wait_for(built.exists, 60)
         p.send_signal(signal.SIGINT)
