@@ -1,6 +1,7 @@
 """The burst observer detects bursts beside the loop and reports them to the hub, which
 records them; the loop never waits for it and goes on without it."""
 
+import contextlib
 import json
 import queue
 import signal
@@ -145,10 +146,13 @@ def test_reports_without_news_go_at_most_every_quarter_second_of_wall_time(obser
     )
     elapsed_s = time.monotonic() - started
     assert BurstReport.decode(raw).missing_steps == 0  # every second of it was analysed
-    times = []
-    while not reports.empty():
-        times.append(reports.get())
-    assert 1 <= len(times) <= 1 + elapsed_s / REPORT_GAP_S, (len(times), elapsed_s)
+    # Every report was put before the final answer, but each comes through its own
+    # subscriber's thread: the first may still be on its way here.
+    times = [reports.get(timeout=5)]
+    with contextlib.suppress(queue.Empty):
+        while True:
+            times.append(reports.get(timeout=0.5))
+    assert len(times) <= 1 + elapsed_s / REPORT_GAP_S, (len(times), elapsed_s)
 
 
 def _manifest(run_dir):
