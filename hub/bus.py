@@ -14,11 +14,9 @@ import socket
 import time
 
 # Zenoh's threads are configured per process, from this variable, when the first session
-# opens. One network-receive thread, not two: with two, each arriving message wakes both
-# (one to steal the other's work), a wake-up per message more on every step's critical
-# path. Zenoh's accept and application work keeps threads of its own: handed over to the
-# receive thread, it cost the lockstep loop 9.5-15.6 % with the hub on a CPU of its own
-# (bench/loop.py's first figure) and won at most 3 % where the OS places the threads
+# opens. One network-receive thread, not two: with two, an arriving message wakes the
+# other to steal its work. Zenoh's accept and application work keeps threads of its own:
+# handed to the receive thread, it slowed the loop where the hub has a CPU of its own
 # (docs/benchmarks.md). A ZENOH_RUNTIME set by the user is kept as it is.
 ZENOH_RUNTIME = "(rx: (worker_threads: 1))"
 os.environ.setdefault("ZENOH_RUNTIME", ZENOH_RUNTIME)
