@@ -19,6 +19,7 @@ import math
 import os
 import signal
 import sys
+import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -384,7 +385,8 @@ def _add_dashboard_commands(sub) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
+    in_main_thread = threading.current_thread() is threading.main_thread()
+    if in_main_thread and signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
         # Left ignored by the parent (a shell does so for a background job): Ctrl-C stops
         # a command while it starts up as it does once the command's own handler is in.
         signal.signal(signal.SIGINT, signal.default_int_handler)

@@ -2,8 +2,10 @@
 folder or a process exists."""
 
 import os
+import signal
 import subprocess
 import sys
+import threading
 from pathlib import Path
 
 import pytest
@@ -267,3 +269,30 @@ def test_a_missing_certificate_is_a_config_error_before_any_folder(capsys, tmp_p
     )  # fmt: skip
     assert f"no ca file '{certs}/ca.pem' for the hub" in err
     assert f"neuvision certs {certs}" in err  # how to make it
+
+
+@pytest.fixture
+def sigint_ignored():
+    """SIGINT ignored, as a shell leaves it for a background job (restored after)."""
+    before = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    yield
+    signal.signal(signal.SIGINT, before)
+
+
+def test_ctrl_c_is_taken_again_when_the_parent_left_it_ignored(capsys, tmp_path, sigint_ignored):
+    main(["record-info", str(tmp_path / "nothing")])
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
+
+def test_a_command_called_from_another_thread_leaves_the_signals_alone(
+    capsys, tmp_path, sigint_ignored
+):
+    """Only the main thread may set a handler: a test's operator thread that runs
+    ``neuvision ctl`` through ``main`` under a parent that ignores SIGINT got a
+    ValueError."""
+    statuses: list[int] = []
+    thread = threading.Thread(target=lambda: statuses.append(main(["record-info", str(tmp_path)])))
+    thread.start()
+    thread.join(30)
+    assert len(statuses) == 1  # returned, without raising
+    assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN
