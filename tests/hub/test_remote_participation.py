@@ -218,7 +218,8 @@ def test_endpoints_end_the_run_of_a_killed_hub_and_serve_the_next_one(tmp_path, 
         return (tmp_path / f"{role}.log").read_text()
 
     try:
-        wait_for(lambda: "took run" in said("body"), 60)
+        # both in the run (the hub hands it to one, then the other)
+        wait_for(lambda: "took run" in said("body") and "took run" in said("culture"), 60)
         first.kill()
         first.wait(timeout=20)
         (killed,) = (tmp_path / "runs").iterdir()  # its manifest says "running" for ever
