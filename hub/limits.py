@@ -11,7 +11,8 @@ that asks for 1e6 µA gets nothing delivered rather than something else.
 
 from __future__ import annotations
 
-from collections import Counter, defaultdict, deque
+from bisect import bisect_right
+from collections import Counter, deque
 
 import numpy as np
 
@@ -73,7 +74,12 @@ class StimulationLimits:
         # The limits as float32 (see ``over``): a pulse's values are float32 already.
         self._amplitude_f32 = _as_f32(culture.max_amplitude_ua)
         self._width_f32 = _as_f32(culture.max_width_ms)
-        self._recent: dict[int, deque] = defaultdict(deque)  # channel → pulse times (s)
+        # The rate limit keeps, per channel, how many delivered pulses are in the window
+        # (a list indexed by channel: a lookup a pulse, no scan), and the delivered
+        # stimulations, oldest first, to take their pulses out as the window passes them.
+        self._in_window: list[int] = []
+        self._top = 0  # at least the largest count: below the limit, no channel is checked
+        self._delivered: deque[_Delivered] = deque()
 
     def violation(self, stim: Stimulation) -> str | None:
         """Why ``stim`` may not be delivered, or None. Call :meth:`accept` if delivered."""
@@ -90,31 +96,87 @@ class StimulationLimits:
             if top > self._width_f32:
                 return f"width {top:g} ms exceeds max_width_ms {self.max_width_ms:g}"
         if self.max_pulse_hz is not None:
-            allowed = self.max_pulse_hz * RATE_WINDOW_S
-            since = stim.t1_s - RATE_WINDOW_S
-            channels = stim.channel.tolist()
-            if len(set(channels)) == len(channels):  # each channel once: the usual case
-                counts = zip(channels, [1] * len(channels), strict=True)
-            else:
-                counts = Counter(channels).items()
-            for channel, n in counts:
-                recent = self._recent.get(channel)
-                if recent:  # times come in order: what left the window never comes back
-                    while recent and recent[0] <= since:
-                        recent.popleft()
-                    n += len(recent)
-                if n > allowed:
-                    return (
-                        f"channel {channel}: {n} pulses in {RATE_WINDOW_S:g} s exceed "
-                        f"max_pulse_hz {self.max_pulse_hz:g}"
-                    )
+            return self._rate_violation(stim.channel.tolist(), stim.t1_s - RATE_WINDOW_S)
+        return None
+
+    def _rate_violation(self, channels: list[int], since_s: float) -> str | None:
+        self._forget(since_s)
+        allowed = self.max_pulse_hz * RATE_WINDOW_S
+        n = len(channels)  # no channel can be asked for more than all the pulses
+        if self._top + n <= allowed:
+            return None
+        counts = self._counts(max(channels))
+        self._top = max(counts)
+        if self._top + n <= allowed:
+            return None
+        asked = dict.fromkeys(channels, 1) if len(set(channels)) == n else Counter(channels)
+        for channel, k in asked.items():  # in order of first appearance
+            k += counts[channel]
+            if k > allowed:
+                return (
+                    f"channel {channel}: {k} pulses in {RATE_WINDOW_S:g} s exceed "
+                    f"max_pulse_hz {self.max_pulse_hz:g}"
+                )
         return None
 
     def accept(self, stim: Stimulation) -> None:
         """Count ``stim``'s pulses towards the rate limit (it is being delivered)."""
         if self.max_pulse_hz is None or not stim.n_pulses:
             return
-        t0_s = stim.t0_s
-        recent = self._recent
-        for channel, onset_ms in zip(stim.channel.tolist(), stim.onset_ms.tolist(), strict=True):
-            recent[channel].append(t0_s + onset_ms / 1e3)
+        channels = stim.channel.tolist()
+        counts = self._counts(max(channels))
+        for channel in channels:
+            counts[channel] += 1
+        self._top += len(channels)
+        self._delivered.append(_Delivered(stim.t0_s, stim.onset_ms.tolist(), channels))
+
+    def _forget(self, since_s: float) -> None:
+        """Take the pulses at or before ``since_s`` (out of the window) out of the counts."""
+        delivered, counts = self._delivered, self._in_window
+        while delivered:
+            oldest = delivered[0]
+            if oldest.last_s <= since_s:
+                gone = oldest.channels
+                delivered.popleft()
+            elif oldest.first_s > since_s:
+                return
+            else:
+                gone = oldest.forget(since_s)
+            for channel in gone:
+                counts[channel] -= 1
+
+    def _counts(self, top_channel: int) -> list[int]:
+        """The per-channel counts, long enough to index ``top_channel``."""
+        counts = self._in_window
+        if top_channel >= len(counts):
+            counts.extend([0] * (top_channel + 1 - len(counts)))
+        return counts
+
+
+class _Delivered:
+    """The pulses of one delivered stimulation still in the rate limit's window.
+
+    A pulse's time is ``t0_s + onset_ms / 1e3``; that is monotonic in the onset, so the
+    first and last times come from the smallest and largest onsets, and each pulse's time
+    is computed only for the stimulation the window's start falls inside.
+    """
+
+    __slots__ = ("t0_s", "onsets_ms", "channels", "first_s", "last_s")
+
+    def __init__(self, t0_s: float, onsets_ms: list[float], channels: list[int]):
+        if onsets_ms != sorted(onsets_ms):
+            pulses = sorted(zip(onsets_ms, channels, strict=True))
+            onsets_ms, channels = [p[0] for p in pulses], [p[1] for p in pulses]
+        self.t0_s, self.onsets_ms, self.channels = t0_s, onsets_ms, channels
+        self.first_s = t0_s + onsets_ms[0] / 1e3
+        self.last_s = t0_s + onsets_ms[-1] / 1e3
+
+    def forget(self, since_s: float) -> list[int]:
+        """Drop the pulses at or before ``since_s`` (some, not all); their channels."""
+        t0_s = self.t0_s
+        times = [t0_s + onset_ms / 1e3 for onset_ms in self.onsets_ms]
+        end = bisect_right(times, since_s)
+        gone = self.channels[:end]
+        self.onsets_ms, self.channels = self.onsets_ms[end:], self.channels[end:]
+        self.first_s = times[end]
+        return gone
