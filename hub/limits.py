@@ -127,7 +127,7 @@ class StimulationLimits:
         counts = self._counts(max(channels))
         for channel in channels:
             counts[channel] += 1
-        self._top += len(channels)
+        self._top = max(self._top, max(map(counts.__getitem__, channels)))
         self._delivered.append(_Delivered(stim.t0_s, stim.onset_ms.tolist(), channels))
 
     def _forget(self, since_s: float) -> None:
