@@ -75,9 +75,9 @@ class StimulationLimits:
         self._amplitude_f32 = _as_f32(culture.max_amplitude_ua)
         self._width_f32 = _as_f32(culture.max_width_ms)
         # The rate limit keeps, per channel, how many delivered pulses are in the window
-        # (a list indexed by channel: a lookup a pulse, no scan), and the delivered
+        # (one lookup a pulse, no scan; channels with none are left out), and the delivered
         # stimulations, oldest first, to take their pulses out as the window passes them.
-        self._in_window: list[int] = []
+        self._in_window: dict[int, int] = {}
         self._top = 0  # at least the largest count: below the limit, no channel is checked
         self._delivered: deque[_Delivered] = deque()
 
@@ -105,13 +105,13 @@ class StimulationLimits:
         n = len(channels)  # no channel can be asked for more than all the pulses
         if self._top + n <= allowed:
             return None
-        counts = self._counts(max(channels))
-        self._top = max(counts)
+        counts = self._in_window
+        self._top = max(counts.values(), default=0)
         if self._top + n <= allowed:
             return None
         asked = dict.fromkeys(channels, 1) if len(set(channels)) == n else Counter(channels)
         for channel, k in asked.items():  # in order of first appearance
-            k += counts[channel]
+            k += counts.get(channel, 0)
             if k > allowed:
                 return (
                     f"channel {channel}: {k} pulses in {RATE_WINDOW_S:g} s exceed "
@@ -124,9 +124,9 @@ class StimulationLimits:
         if self.max_pulse_hz is None or not stim.n_pulses:
             return
         channels = stim.channel.tolist()
-        counts = self._counts(max(channels))
+        counts = self._in_window
         for channel in channels:
-            counts[channel] += 1
+            counts[channel] = counts.get(channel, 0) + 1
         self._top = max(self._top, max(map(counts.__getitem__, channels)))
         self._delivered.append(_Delivered(stim.t0_s, stim.onset_ms.tolist(), channels))
 
@@ -142,15 +142,12 @@ class StimulationLimits:
                 return
             else:
                 gone = oldest.forget(since_s)
-            for channel in gone:
-                counts[channel] -= 1
-
-    def _counts(self, top_channel: int) -> list[int]:
-        """The per-channel counts, long enough to index ``top_channel``."""
-        counts = self._in_window
-        if top_channel >= len(counts):
-            counts.extend([0] * (top_channel + 1 - len(counts)))
-        return counts
+            for channel in gone:  # a channel with none left is left out
+                left = counts[channel] - 1
+                if left:
+                    counts[channel] = left
+                else:
+                    del counts[channel]
 
 
 class _Delivered:

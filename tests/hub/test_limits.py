@@ -67,6 +67,16 @@ def test_pulses_of_one_stimulation_on_one_channel_count_together():
     assert "channel 7: 6 pulses" in deliver(limits, stim(1, [8, 7]))
 
 
+def test_a_channel_of_any_number_is_counted_like_any_other():
+    """A scheme's or an input's channel may be any uint32: counting it takes no more than
+    counting channel 0 (nothing sized by the channel's number)."""
+    limits = StimulationLimits(CULTURE)
+    top = 2**32 - 1
+    for k in range(ALLOWED):
+        assert deliver(limits, stim(k, [top, 0])) is None
+    assert deliver(limits, stim(ALLOWED, [top])).startswith(f"channel {top}: 6 pulses")
+
+
 def test_a_pulse_counts_from_its_onset_not_its_steps_start():
     early, late = StimulationLimits(CULTURE), StimulationLimits(CULTURE)
     deliver(early, stim(0, [1], onsets_ms=[0.0]))
