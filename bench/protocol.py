@@ -12,16 +12,23 @@ it is given): the CPU cost per message that :class:`Outbox.put` and :class:`Inbo
 add to a 300-spike SpikeBatch (sealed: tag made and checked; open: no key), and the
 throughput of a 1 MB payload split into frames and reassembled (MB/s, 1 MB = 1e6 bytes).
 
+Last, the stimulation limits of ``hub/limits.py`` as the hub and a culture's endpoint apply
+them each step: a stimulation of 28 pulses on 28 of 1,024 channels, checked and counted,
+in a stream of steps (10 ms) at the simulated culture's ``max_pulse_hz`` (200), the rate
+window full but for the stream's first second.
+
     .venv/bin/python bench/protocol.py             # about 8 s
     .venv/bin/python bench/protocol.py --repeat 3  # quicker
 
 The last line printed is one JSON object (keys ``<op>_us_<message>_<size>``, and
-``wire_<op>_us_<message>_<sealed|open>``, ``wire_<op>_mb_per_s_1mb_<sealed|open>``).
+``wire_<op>_us_<message>_<sealed|open>``, ``wire_<op>_mb_per_s_1mb_<sealed|open>``,
+``limits_us_stimulation_28``).
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import statistics
 import sys
@@ -33,6 +40,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from hub.limits import StimulationLimits  # noqa: E402
 from hub.protocol import (  # noqa: E402
     MotorCommand,
     SensorReading,
@@ -41,6 +49,8 @@ from hub.protocol import (  # noqa: E402
     Stimulation,
 )
 from hub.wire import Inbox, Outbox, new_key  # noqa: E402
+from sim_network.endpoint import MAX_PULSE_HZ  # noqa: E402
+from tests.endpoints import EchoCulture  # noqa: E402
 
 
 def per_call_us(fn, repeat: int, round_s: float) -> float:
@@ -168,6 +178,40 @@ def wire_cases(raw_small: bytes, repeat: int, round_s: float) -> dict:
     return result
 
 
+def limits_case(repeat: int, round_s: float, steps: int = 3000) -> dict:
+    """CPU cost of one step's stimulation limits: 28 pulses checked and counted."""
+    rng = np.random.default_rng(3)
+    culture = dataclasses.replace(
+        EchoCulture().describe(), max_amplitude_ua=100.0, max_width_ms=1.0,
+        max_pulse_hz=MAX_PULSE_HZ,
+    )  # fmt: skip
+    sites = rng.choice(1024, 28, replace=False).astype(np.uint32)  # a coder's fixed sites
+    stims = [
+        Stimulation(
+            **StepWindow.of("0" * 32, k, 0.01).stamp,
+            channel=sites,
+            amplitude_ua=np.full(28, 50.0, np.float32),
+            width_ms=np.full(28, 0.2, np.float32),
+            onset_ms=np.sort(rng.uniform(0, 9.9, 28)).astype(np.float32),
+        )
+        for k in range(steps)
+    ]
+    state = {"limits": StimulationLimits(culture), "k": 0}
+
+    def one_step():
+        k = state["k"]
+        if k == steps:  # the stream starts again, with a new run's limits
+            state["limits"], k = StimulationLimits(culture), 0
+        limits, stim = state["limits"], stims[k]
+        if limits.violation(stim) is None:
+            limits.accept(stim)
+        state["k"] = k + 1
+
+    us = per_call_us(one_step, repeat, round_s)
+    print(f"limits: a 28-pulse stimulation checked and counted {us:6.2f} us", flush=True)
+    return {"limits_us_stimulation_28": round(us, 2)}
+
+
 def main(argv=None) -> dict:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--repeat", type=int, default=5, help="rounds per figure (median taken)")
@@ -194,6 +238,7 @@ def main(argv=None) -> dict:
         print(f"{label:<22} ({len(raw):5d} bytes): " + ", ".join(line), flush=True)
     raw_300 = SpikeBatch(**spike_batch_fields(300, rng)).encode()
     result.update(wire_cases(raw_300, args.repeat, args.round_s))
+    result.update(limits_case(args.repeat, args.round_s))
     print(json.dumps(result))
     return result
 
