@@ -4,14 +4,16 @@
 interrupted code holds that lock (inside ``wait`` or another ``set``: a second SIGTERM
 during the first one's handler) waits for itself forever. A process seen stuck that way
 at its end is why this exists. :class:`StopFlag` is a plain flag, set and read without a
-lock; :meth:`StopFlag.wait` looks at it every few milliseconds.
+lock; :meth:`StopFlag.wait` sleeps on a pipe that ``set`` writes a byte to (a self-pipe:
+no lock anywhere, and no waking up to look at the flag, which an endpoint's main thread
+did 200 times a second, each time taking the interpreter from the loop's callback thread).
 """
 
 from __future__ import annotations
 
+import os
+import select
 import time
-
-POLL_S = 0.005  # how often wait() looks at the flag
 
 
 class StopFlag:
@@ -20,9 +22,19 @@ class StopFlag:
 
     def __init__(self):
         self._set = False
+        self._read_fd, self._write_fd = os.pipe2(os.O_NONBLOCK | os.O_CLOEXEC)
+
+    def __del__(self):
+        for fd in (getattr(self, "_read_fd", None), getattr(self, "_write_fd", None)):
+            if fd is not None:
+                os.close(fd)
 
     def set(self) -> None:
         self._set = True
+        try:
+            os.write(self._write_fd, b"\0")
+        except BlockingIOError:  # the pipe is full of earlier sets: the waiter wakes anyway
+            pass
 
     def is_set(self) -> bool:
         return self._set
@@ -34,5 +46,6 @@ class StopFlag:
             left = deadline - time.monotonic()
             if left <= 0:
                 return False
-            time.sleep(min(left, POLL_S))
+            # Never drained: once set, the pipe stays readable for every waiting thread.
+            select.select([self._read_fd], [], [], left)
         return True

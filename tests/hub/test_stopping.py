@@ -2,6 +2,7 @@
 was doing."""
 
 import os
+import resource
 import signal
 import threading
 import time
@@ -34,3 +35,29 @@ def test_signals_that_come_inside_each_others_handlers_still_stop_it():
     finally:
         signal.signal(signal.SIGUSR1, previous)
     assert depth == [0, 1, 2]
+
+
+def test_every_thread_that_waits_wakes_when_it_is_set():
+    flag = StopFlag()
+    woke = []
+    waiters = [threading.Thread(target=lambda: woke.append(flag.wait(5.0))) for _ in range(3)]
+    for waiter in waiters:
+        waiter.start()
+    t0 = time.monotonic()
+    flag.set()
+    for waiter in waiters:
+        waiter.join()
+    assert woke == [True, True, True] and time.monotonic() - t0 < 1.0
+    assert flag.wait(0.0) is True  # and stays set
+
+
+def test_waiting_does_not_wake_up_to_look():
+    """The flag is not polled: a waiting thread sleeps until set or timed out (an
+    endpoint's main thread waits this way beside the loop's callback thread)."""
+    flag = StopFlag()
+    switches = resource.getrusage(resource.RUSAGE_THREAD).ru_nvcsw
+    t0 = time.monotonic()
+    assert flag.wait(0.3) is False
+    assert time.monotonic() - t0 >= 0.3
+    slept = resource.getrusage(resource.RUSAGE_THREAD).ru_nvcsw - switches
+    assert slept <= 5  # a 5 ms poll sleeps and wakes ~60 times
