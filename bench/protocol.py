@@ -12,17 +12,26 @@ it is given): the CPU cost per message that :class:`Outbox.put` and :class:`Inbo
 add to a 300-spike SpikeBatch (sealed: tag made and checked; open: no key), and the
 throughput of a 1 MB payload split into frames and reassembled (MB/s, 1 MB = 1e6 bytes).
 
-Last, the stimulation limits of ``hub/limits.py`` as the hub and a culture's endpoint apply
+Then the stimulation limits of ``hub/limits.py`` as the hub and a culture's endpoint apply
 them each step: a stimulation of 28 pulses on 28 of 1,024 channels, checked and counted,
 in a stream of steps (10 ms) at the simulated culture's ``max_pulse_hz`` (200), the rate
 window full but for the stream's first second.
+
+Last, an endpoint's whole handling of one input (:meth:`hub.endpoint.Endpoint.handle`:
+unseal, decode, check, step; then encode and seal its reply), for the trivial endpoints of
+``bench/loop.py`` (``tests/endpoints.py``): *warm*, inputs back to back, and *cold*, each
+input after reading a buffer larger than the CPU's last-level cache (:data:`FLUSH_BYTES`),
+so that the interpreter, the message classes and the endpoint start from memory. Medians
+of the wall time per input. In the loop an endpoint's handling runs between the two (other
+processes and the kernel's networking run in between): a change's cold figure, not its
+warm one, says what it costs the loop.
 
     .venv/bin/python bench/protocol.py             # about 8 s
     .venv/bin/python bench/protocol.py --repeat 3  # quicker
 
 The last line printed is one JSON object (keys ``<op>_us_<message>_<size>``, and
 ``wire_<op>_us_<message>_<sealed|open>``, ``wire_<op>_mb_per_s_1mb_<sealed|open>``,
-``limits_us_stimulation_28``).
+``limits_us_stimulation_28``, ``handle_us_<body|culture>_<warm|cold>``).
 """
 
 from __future__ import annotations
@@ -43,6 +52,7 @@ sys.path.insert(0, str(ROOT))
 from hub.limits import StimulationLimits  # noqa: E402
 from hub.protocol import (  # noqa: E402
     MotorCommand,
+    RunStart,
     SensorReading,
     SpikeBatch,
     StepWindow,
@@ -50,7 +60,10 @@ from hub.protocol import (  # noqa: E402
 )
 from hub.wire import Inbox, Outbox, new_key  # noqa: E402
 from sim_network.endpoint import MAX_PULSE_HZ  # noqa: E402
-from tests.endpoints import EchoCulture  # noqa: E402
+from tests.endpoints import EchoBody, EchoCulture  # noqa: E402
+
+# Larger than the last-level cache of the machines this runs on (16-32 MB per EPYC CCX).
+FLUSH_BYTES = 64 << 20
 
 
 def per_call_us(fn, repeat: int, round_s: float) -> float:
@@ -212,6 +225,67 @@ def limits_case(repeat: int, round_s: float, steps: int = 3000) -> dict:
     return {"limits_us_stimulation_28": round(us, 2)}
 
 
+class _Publisher:
+    """Stands in for a Zenoh publisher (the bus is not what is measured): keeps what it
+    is given, or drops it."""
+
+    def __init__(self, keep: bool):
+        self.payloads: list[bytes] = []
+        self.keep = keep
+
+    def put(self, payload: bytes) -> None:
+        if self.keep:
+            self.payloads.append(payload)
+
+
+def handle_case(n_inputs: int = 2000) -> dict:
+    """Wall microseconds of an endpoint's handling of one input and its reply, warm and
+    cold (the medians over ``n_inputs`` inputs each)."""
+    run = "0" * 32
+    flush = np.ones(FLUSH_BYTES // 8)
+    result = {}
+    for endpoint in (EchoBody(), EchoCulture()):
+        key = new_key()
+        start = RunStart(
+            run=run, period_ms=10.0, n_steps=4 * n_inputs, mode="lockstep",
+            start_unix_s=time.time(), deadline_ms=10.0, key=key,
+        )  # fmt: skip
+        assert endpoint.take_run_request(start.encode()).ok
+        replies = Outbox(_Publisher(keep=False), key)
+        hub = _Publisher(keep=True)  # the sealed inputs, as the hub would put them
+        inputs = Outbox(hub, key)
+        for k in range(1, 2 * n_inputs + 1):
+            window = StepWindow.of(run, k, 0.01)
+            if endpoint.role == "body":
+                message = MotorCommand(**window.stamp, left_mps=0.1, right_mps=0.1)
+            else:  # the trivial loop's coder: 8 pulses on channel 0
+                message = Stimulation(
+                    **window.stamp, channel=np.zeros(8, np.uint32),
+                    amplitude_ua=np.ones(8, np.float32), width_ms=np.ones(8, np.float32),
+                    onset_ms=np.zeros(8, np.float32),
+                )  # fmt: skip
+            inputs.put(message.encode())
+        for label, payload_range in (
+            ("warm", range(n_inputs)),
+            ("cold", range(n_inputs, 2 * n_inputs)),
+        ):
+            times = []
+            for i in payload_range:
+                if label == "cold":
+                    flush.sum()
+                t0 = time.perf_counter_ns()
+                replies.put(endpoint.handle(hub.payloads[i]).encode())
+                times.append(time.perf_counter_ns() - t0)
+            result[f"handle_us_{endpoint.role}_{label}"] = round(statistics.median(times) / 1e3, 2)
+        print(
+            f"an endpoint's handling of an input ({endpoint.role}, trivial): "
+            f"warm {result[f'handle_us_{endpoint.role}_warm']:6.2f} us, "
+            f"cold {result[f'handle_us_{endpoint.role}_cold']:6.2f} us",
+            flush=True,
+        )
+    return result
+
+
 def main(argv=None) -> dict:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--repeat", type=int, default=5, help="rounds per figure (median taken)")
@@ -239,6 +313,7 @@ def main(argv=None) -> dict:
     raw_300 = SpikeBatch(**spike_batch_fields(300, rng)).encode()
     result.update(wire_cases(raw_300, args.repeat, args.round_s))
     result.update(limits_case(args.repeat, args.round_s))
+    result.update(handle_case())
     print(json.dumps(result))
     return result
 
