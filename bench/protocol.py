@@ -23,8 +23,8 @@ unseal, decode, check, step; then encode and seal its reply), for the trivial en
 input after reading a buffer larger than the CPU's last-level cache (:data:`FLUSH_BYTES`),
 so that the interpreter, the message classes and the endpoint start from memory. Medians
 of the wall time per input. In the loop an endpoint's handling runs between the two (other
-processes and the kernel's networking run in between): a change's cold figure, not its
-warm one, says what it costs the loop.
+processes and the kernel's networking run in between): a change's cold figure comes closer
+to what it costs the loop than its warm one (docs/benchmarks.md, "cold caches").
 
     .venv/bin/python bench/protocol.py             # about 8 s
     .venv/bin/python bench/protocol.py --repeat 3  # quicker
