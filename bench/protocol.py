@@ -22,9 +22,9 @@ unseal, decode, check, step; then encode and seal its reply), for the trivial en
 ``bench/loop.py`` (``tests/endpoints.py``): *warm*, inputs back to back, and *cold*, each
 input after reading a buffer larger than the CPU's last-level cache (:data:`FLUSH_BYTES`),
 so that the interpreter, the message classes and the endpoint start from memory. Medians
-of the wall time per input. In the loop an endpoint's handling runs between the two (other
-processes and the kernel's networking run in between): a change's cold figure comes closer
-to what it costs the loop than its warm one (docs/benchmarks.md, "cold caches").
+of the wall time per input. In the trivial lockstep loop, with the other processes and the
+kernel's networking running between any two inputs, the same handling took about three
+times its warm figure (docs/benchmarks.md, "Where the trivial loop's pace is set").
 
     .venv/bin/python bench/protocol.py             # about 8 s
     .venv/bin/python bench/protocol.py --repeat 3  # quicker
