@@ -39,16 +39,31 @@ def test_signals_that_come_inside_each_others_handlers_still_stop_it():
     assert depth == [0, 1, 2]
 
 
+def _sleeping(native_id: int) -> bool:
+    with open(f"/proc/self/task/{native_id}/stat") as f:
+        return f.read().rsplit(")", 1)[1].split()[0] == "S"
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc/self/task"), reason="thread states: Linux")
 def test_every_thread_that_waits_wakes_when_it_is_set():
     flag = StopFlag()
-    woke = []
-    waiters = [threading.Thread(target=lambda: woke.append(flag.wait(5.0))) for _ in range(3)]
-    for waiter in waiters:
-        waiter.start()
+    woke, ids = [], []
+
+    def waiter():
+        ids.append(threading.get_native_id())
+        woke.append(flag.wait(5.0))
+
+    waiters = [threading.Thread(target=waiter) for _ in range(3)]
+    for thread in waiters:
+        thread.start()
+    deadline = time.monotonic() + 5.0  # until all three are asleep in their wait
+    while not (len(ids) == 3 and all(map(_sleeping, ids))) and time.monotonic() < deadline:
+        time.sleep(0.001)
+    assert len(ids) == 3 and all(map(_sleeping, ids))
     t0 = time.monotonic()
     flag.set()
-    for waiter in waiters:
-        waiter.join()
+    for thread in waiters:
+        thread.join()
     assert woke == [True, True, True] and time.monotonic() - t0 < 1.0
     assert flag.wait(0.0) is True  # and stays set
 
