@@ -18,9 +18,10 @@ import sys
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, ClassVar
+from typing import Annotated, Any, ClassVar
 
 import msgpack
+import msgspec
 import numpy as np
 
 SCHEMA_VERSION = 4
@@ -433,7 +434,7 @@ def frozen(cls=None, *, eq: bool = False):
     return cls
 
 
-_PER_THREAD = threading.local()  # a msgpack Packer per thread: reused, never shared
+_PER_THREAD = threading.local()  # msgpack encoders per thread: reused, never shared
 
 
 # --------------------------------------------------------------------------- base
@@ -661,7 +662,111 @@ def _straight_line(cls) -> dict[str, Callable]:
         function.__qualname__ = f"{cls.__name__}.{name}"
         function.__doc__ = getattr(Message, name).__doc__
         out[name] = classmethod(function) if name == "from_dict" else function
+    decode = _typed_decode(cls, ns)
+    if decode is not None:
+        out["decode"] = classmethod(decode)
+        out["encode"] = _typed_encode
     return out
+
+
+def _typed_encode(self) -> bytes:
+    """``encode`` of a loop message: its map packed by msgspec (the same bytes as msgpack's,
+    in about half the time). Only for messages of scalars and arrays, whose values are
+    exact Python types once built: msgspec refuses a numpy scalar where msgpack takes it,
+    and a free-form map may hold one."""
+    try:
+        pack = _PER_THREAD.typed_pack
+    except AttributeError:  # this thread's first loop message
+        pack = _PER_THREAD.typed_pack = msgspec.msgpack.Encoder().encode
+    return pack(self.to_dict())
+
+
+def _wire_struct(cls) -> type | None:
+    """A ``msgspec.Struct`` of the map a ``cls`` is on the wire, that msgspec decodes and
+    checks in C: scalars of their exact types inside their bounds (floats finite), arrays as
+    ``bin``, no unknown field, every required one. None for a schema with fields other than
+    scalars and native-order arrays (those classes are not the loop's)."""
+    fields: list[tuple] = [("v", int)]
+    for name, spec in cls.SCHEMA.items():
+        if isinstance(spec, Scalar):
+            kind = spec.kind
+            if kind is float:  # bounds left open are ±_FMAX: NaN and infinities fail them
+                lo = -_FMAX if spec.min is None else spec.min
+                hi = _FMAX if spec.max is None else spec.max
+                kind = Annotated[float, msgspec.Meta(ge=lo, le=hi)]
+            elif kind is int and (spec.min is not None or spec.max is not None):
+                kind = Annotated[int, msgspec.Meta(ge=spec.min, le=spec.max)]
+        elif isinstance(spec, Array) and spec.wire.isnative:
+            kind = bytes
+        else:
+            return None
+        fields.append((name, kind | None, None) if spec.optional else (name, kind))
+    return msgspec.defstruct(
+        f"{cls.__name__}OnTheWire", fields, kw_only=True, forbid_unknown_fields=True
+    )
+
+
+def _typed_decode(cls, ns: dict) -> Callable | None:
+    """``decode`` of a loop message, written out from its schema: msgspec decodes the map
+    and checks its scalars (:func:`_wire_struct`), then arrays are viewed from their bytes
+    and their values checked as :meth:`Message.from_dict` does. Anything msgspec or those
+    checks refuse goes the general way (:func:`unpack_map`, :meth:`Message.from_dict`),
+    which names what is wrong; so the two ways differ in speed only."""
+    wire = _wire_struct(cls)
+    if wire is None:
+        return None
+    ns.update(
+        wire_decode=msgspec.msgpack.Decoder(wire).decode,
+        WireFault=msgspec.MsgspecError,
+        unpack_map=unpack_map,
+        MAX_MESSAGE_BYTES=MAX_MESSAGE_BYTES,
+    )
+    general = "return cls.from_dict(unpack_map(raw))"
+    lines = [
+        "def decode(cls, raw):",
+        "    if type(raw) is not bytes or len(raw) > MAX_MESSAGE_BYTES:",
+        f"        {general}",
+        "    try:",
+        "        s = wire_decode(raw)",
+        "    except WireFault:",
+        f"        {general}",
+        "    if s.v not in READ_VERSIONS:",
+        f"        {general}",
+    ]
+    names = list(cls.SCHEMA)
+    leaders: dict[str, str] = {}
+    fill = []
+    for i, (name, spec) in enumerate(cls.SCHEMA.items()):
+        v = f"v{i}"
+        lines.append(f"    {v} = s.{name}")
+        if isinstance(spec, Array):
+            ns[f"wire{i}"], ns[f"valid{i}"] = spec.wire, _valid_values(spec)
+            indent = "    "
+            if spec.optional:
+                lines.append(f"    if {v} is not None:")
+                indent = "        "
+            lines += [
+                f"{indent}if len({v}) % {spec.wire.itemsize}:",
+                f"{indent}    {general}",
+                f"{indent}{v} = frombuffer({v}, wire{i})",
+                f"{indent}if not valid{i}({v}):",
+                f"{indent}    {general}",
+            ]
+            leader = _leader(leaders, name, spec)
+            if leader is not None:
+                j = names.index(leader)
+                lines += [
+                    f"    if {v} is not None and (v{j} is None or v{j}.size != {v}.size):",
+                    f"        {general}",
+                ]
+        fill.append(f"    d[{name!r}] = {v}")
+    lines += ["    message = new(cls)", "    d = message.__dict__", *fill]
+    lines += ["    message._check()", "    return message"]
+    exec(compile("\n".join(lines), f"<{cls.__name__} typed decode>", "exec"), ns)
+    decode = ns["decode"]
+    decode.__qualname__ = f"{cls.__name__}.decode"
+    decode.__doc__ = Message.decode.__doc__
+    return decode
 
 
 def _quick_test(spec, v: str, i: int, ns: dict) -> str:

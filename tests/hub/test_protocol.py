@@ -306,6 +306,20 @@ LOOP_TYPES = (MotorCommand, SensorReading, Stimulation, SpikeBatch)
 MESSAGE_TYPES = {type(m) for m in EXAMPLES}
 
 
+@pytest.mark.parametrize("message", [m for m in EXAMPLES if type(m) in LOOP_TYPES], ids=str)
+def test_valid_loop_messages_decode_typed_and_encode_as_msgpack_would(message, monkeypatch):
+    """A loop message's bytes are decoded by msgspec into its fields, checked, without the
+    general path; and its encoding is byte for byte what msgpack makes of its map."""
+
+    def general_path(data):
+        raise AssertionError("a valid loop message took the general path")
+
+    raw = message.encode()
+    assert raw == msgpack.packb(message.to_dict(), use_bin_type=True)
+    monkeypatch.setattr(type(message), "from_dict", general_path)
+    assert type(message).decode(raw) == message
+
+
 @pytest.mark.parametrize("kind", sorted(MESSAGE_TYPES, key=lambda k: k.__name__), ids=str)
 def test_every_dataclass_field_is_in_the_schema(kind):
     # from_dict fills a bare instance with the SCHEMA fields only
@@ -517,6 +531,8 @@ def test_the_fast_decoding_path_agrees_with_the_full_one_on_any_map(data):
 
         fast, full = _outcome(kind.from_dict, wire), _outcome(kind._from_dict_in_full, wire)
         assert fast == full
+        # and decoding the bytes (msgspec first, the general path for what it refuses)
+        assert _outcome(kind.decode, msgpack.packb(wire, use_bin_type=True)) == full
 
 
 def _outcome(from_dict, data):
