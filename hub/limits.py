@@ -74,10 +74,13 @@ class StimulationLimits:
         # The limits as float32 (see ``over``): a pulse's values are float32 already.
         self._amplitude_f32 = _as_f32(culture.max_amplitude_ua)
         self._width_f32 = _as_f32(culture.max_width_ms)
-        # The rate limit keeps, per channel, how many delivered pulses are in the window
-        # (one lookup a pulse, no scan; channels with none are left out), and the delivered
-        # stimulations, oldest first, to take their pulses out as the window passes them.
-        self._in_window: dict[int, int] = {}
+        # The rate limit counts, per channel, the delivered pulses that entered the window
+        # and those that left it (a channel's pulses in the window are the difference; each
+        # count is one C-level Counter.update a step, not a lookup a pulse), and keeps the
+        # delivered stimulations, oldest first, to take their pulses out as the window
+        # passes them.
+        self._entered: Counter[int] = Counter()
+        self._left: Counter[int] = Counter()
         self._top = 0  # at least the largest count: below the limit, no channel is checked
         self._delivered: deque[_Delivered] = deque()
 
@@ -88,7 +91,11 @@ class StimulationLimits:
         small = stim.n_pulses <= SMALL_ARRAY  # plain Python beats numpy calls here
         if self._amplitude_f32 is not None:
             amplitude = stim.amplitude_ua
-            top = max(map(abs, amplitude.tolist())) if small else float(np.abs(amplitude).max())
+            if small:
+                values = amplitude.tolist()
+                top = max(max(values), -min(values))  # the largest absolute value
+            else:
+                top = float(np.abs(amplitude).max())
             if top > self._amplitude_f32:
                 return f"amplitude {top:g} uA exceeds max_amplitude_ua {self.max_amplitude_ua:g}"
         if self._width_f32 is not None:
@@ -105,13 +112,13 @@ class StimulationLimits:
         n = len(channels)  # no channel can be asked for more than all the pulses
         if self._top + n <= allowed:
             return None
-        counts = self._in_window
-        self._top = max(counts.values(), default=0)
+        entered, left = self._entered, self._left.get
+        self._top = max((k - left(c, 0) for c, k in entered.items()), default=0)
         if self._top + n <= allowed:
             return None
         asked = dict.fromkeys(channels, 1) if len(set(channels)) == n else Counter(channels)
         for channel, k in asked.items():  # in order of first appearance
-            k += counts.get(channel, 0)
+            k += entered.get(channel, 0) - left(channel, 0)
             if k > allowed:
                 return (
                     f"channel {channel}: {k} pulses in {RATE_WINDOW_S:g} s exceed "
@@ -124,30 +131,24 @@ class StimulationLimits:
         if self.max_pulse_hz is None or not stim.n_pulses:
             return
         channels = stim.channel.tolist()
-        counts = self._in_window
-        for channel in channels:
-            counts[channel] = counts.get(channel, 0) + 1
-        self._top = max(self._top, max(map(counts.__getitem__, channels)))
+        self._entered.update(channels)
+        # the largest count grows by at most the most pulses on one channel here
+        distinct = len(set(channels)) == len(channels)
+        self._top += 1 if distinct else max(Counter(channels).values())
         self._delivered.append(_Delivered(stim.t0_s, stim.onset_ms.tolist(), channels))
 
     def _forget(self, since_s: float) -> None:
         """Take the pulses at or before ``since_s`` (out of the window) out of the counts."""
-        delivered, counts = self._delivered, self._in_window
+        delivered, left = self._delivered, self._left
         while delivered:
             oldest = delivered[0]
             if oldest.last_s <= since_s:
-                gone = oldest.channels
+                left.update(oldest.channels)
                 delivered.popleft()
             elif oldest.first_s > since_s:
                 return
             else:
-                gone = oldest.forget(since_s)
-            for channel in gone:  # a channel with none left is left out
-                left = counts[channel] - 1
-                if left:
-                    counts[channel] = left
-                else:
-                    del counts[channel]
+                left.update(oldest.forget(since_s))
 
 
 class _Delivered:
