@@ -594,6 +594,8 @@ def _straight_line(cls) -> dict[str, Callable]:
     names = list(cls.SCHEMA)
     leaders: dict[str, str] = {}  # group → its first field
     accept, decode, fill, first, encode = [], [], [], ["'v': SCHEMA_VERSION"], []
+    typed = []  # the typed decode's fields (_typed_decode): arrays viewed and checked
+    general = "return cls.from_dict(unpack_map(raw))"
     for i, (name, spec) in enumerate(cls.SCHEMA.items()):
         v, key = f"v{i}", repr(name)
         test = _quick_test(spec, v, i, ns)
@@ -603,6 +605,7 @@ def _straight_line(cls) -> dict[str, Callable]:
         same = None if j is None else f"{v} is not None and (v{j} is None or v{j}.size != {v}.size)"
         accept += [f"    {v} = d[{key}]", f"    if not ({test}): return False"]
         decode.append(f"    {v} = data.get({key})")
+        typed.append(f"    {v} = s.{name}")
         if isinstance(spec, Array) and spec.wire.isnative:
             # viewed from its bytes, an array has the schema's dtype: only its values need
             # checking (on a big-endian machine arrays take the full path)
@@ -614,11 +617,21 @@ def _straight_line(cls) -> dict[str, Callable]:
                 f"    elif {v} is not None:" if spec.optional else "    else:",
                 "        return cls._from_dict_in_full(data)",
             ]
+            # msgspec gave bytes (or None for an optional array left out)
+            indent = "        " if spec.optional else "    "
+            if spec.optional:
+                typed.append(f"    if {v} is not None:")
+            typed += [
+                f"{indent}if len({v}) % {spec.wire.itemsize}: {general}",
+                f"{indent}{v} = frombuffer({v}, wire{i})",
+                f"{indent}if not valid{i}({v}): {general}",
+            ]
         else:
             decode.append(f"    if not ({test}): return cls._from_dict_in_full(data)")
         if same:
             accept.append(f"    if {same}: return False")
             decode.append(f"    if {same}: return cls._from_dict_in_full(data)")
+            typed.append(f"    if {same}: {general}")
         fill.append(f"    d[{key}] = {v}")
         to_wire = _to_wire(spec)
         if to_wire is not None:
@@ -662,7 +675,7 @@ def _straight_line(cls) -> dict[str, Callable]:
         function.__qualname__ = f"{cls.__name__}.{name}"
         function.__doc__ = getattr(Message, name).__doc__
         out[name] = classmethod(function) if name == "from_dict" else function
-    decode = _typed_decode(cls, ns)
+    decode = _typed_decode(cls, ns, typed + fill, general)
     if decode is not None:
         out["decode"] = classmethod(decode)
         out["encode"] = _typed_encode
@@ -706,11 +719,12 @@ def _wire_struct(cls) -> type | None:
     )
 
 
-def _typed_decode(cls, ns: dict) -> Callable | None:
+def _typed_decode(cls, ns: dict, fields: list[str], general: str) -> Callable | None:
     """``decode`` of a loop message, written out from its schema: msgspec decodes the map
-    and checks its scalars (:func:`_wire_struct`), then arrays are viewed from their bytes
-    and their values checked as :meth:`Message.from_dict` does. Anything msgspec or those
-    checks refuse goes the general way (:func:`unpack_map`, :meth:`Message.from_dict`),
+    and checks its scalars (:func:`_wire_struct`), then ``fields`` (written by
+    :func:`_straight_line`) view the arrays from their bytes, check their values as
+    :meth:`Message.from_dict` does, and fill the message. Anything msgspec or those checks
+    refuse goes the general way (``general``: :func:`unpack_map`, :meth:`Message.from_dict`),
     which names what is wrong; so the two ways differ in speed only."""
     wire = _wire_struct(cls)
     if wire is None:
@@ -721,7 +735,6 @@ def _typed_decode(cls, ns: dict) -> Callable | None:
         unpack_map=unpack_map,
         MAX_MESSAGE_BYTES=MAX_MESSAGE_BYTES,
     )
-    general = "return cls.from_dict(unpack_map(raw))"
     lines = [
         "def decode(cls, raw):",
         "    if type(raw) is not bytes or len(raw) > MAX_MESSAGE_BYTES:",
@@ -732,36 +745,12 @@ def _typed_decode(cls, ns: dict) -> Callable | None:
         f"        {general}",
         "    if s.v not in READ_VERSIONS:",
         f"        {general}",
+        "    message = new(cls)",
+        "    d = message.__dict__",
+        *fields,
+        "    message._check()",
+        "    return message",
     ]
-    names = list(cls.SCHEMA)
-    leaders: dict[str, str] = {}
-    fill = []
-    for i, (name, spec) in enumerate(cls.SCHEMA.items()):
-        v = f"v{i}"
-        lines.append(f"    {v} = s.{name}")
-        if isinstance(spec, Array):
-            ns[f"wire{i}"], ns[f"valid{i}"] = spec.wire, _valid_values(spec)
-            indent = "    "
-            if spec.optional:
-                lines.append(f"    if {v} is not None:")
-                indent = "        "
-            lines += [
-                f"{indent}if len({v}) % {spec.wire.itemsize}:",
-                f"{indent}    {general}",
-                f"{indent}{v} = frombuffer({v}, wire{i})",
-                f"{indent}if not valid{i}({v}):",
-                f"{indent}    {general}",
-            ]
-            leader = _leader(leaders, name, spec)
-            if leader is not None:
-                j = names.index(leader)
-                lines += [
-                    f"    if {v} is not None and (v{j} is None or v{j}.size != {v}.size):",
-                    f"        {general}",
-                ]
-        fill.append(f"    d[{name!r}] = {v}")
-    lines += ["    message = new(cls)", "    d = message.__dict__", *fill]
-    lines += ["    message._check()", "    return message"]
     exec(compile("\n".join(lines), f"<{cls.__name__} typed decode>", "exec"), ns)
     decode = ns["decode"]
     decode.__qualname__ = f"{cls.__name__}.decode"
