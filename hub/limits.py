@@ -11,15 +11,17 @@ that asks for 1e6 µA gets nothing delivered rather than something else.
 
 from __future__ import annotations
 
-from bisect import bisect_right
-from collections import Counter, deque
+import math
 
 import numpy as np
 
-from hub.protocol import SMALL_ARRAY, Description, MotorCommand, Stimulation
+from hub import limits_kernels as kernels
+from hub.protocol import Description, MotorCommand, Stimulation
 
 # Pulses are counted over this trailing window for the per-channel rate limit.
 RATE_WINDOW_S = 1.0
+# Pulses the ring of delivered pulses holds at first (it grows as needed).
+_RING_START = 4096
 _f32 = np.float32
 
 
@@ -60,6 +62,8 @@ class StimulationLimits:
     Amplitude (absolute value) and width per pulse; pulses per channel over the last
     :data:`RATE_WINDOW_S` (``max_pulse_hz`` per channel). Onsets inside the step are a
     rule of the message itself (``Stimulation`` refuses an onset outside its window).
+    The work is compiled (``limits_kernels.py``): the hub and a culture's endpoint each
+    check every step's stimulation.
 
     Parameters
     ----------
@@ -72,109 +76,80 @@ class StimulationLimits:
         self.max_width_ms = culture.max_width_ms
         self.max_pulse_hz = culture.max_pulse_hz
         # The limits as float32 (see ``over``): a pulse's values are float32 already.
-        self._amplitude_f32 = _as_f32(culture.max_amplitude_ua)
-        self._width_f32 = _as_f32(culture.max_width_ms)
-        # The rate limit counts, per channel, the delivered pulses that entered the window
-        # and those that left it (a channel's pulses in the window are the difference; each
-        # count is one C-level Counter.update a step, not a lookup a pulse), and keeps the
-        # delivered stimulations, oldest first, to take their pulses out as the window
-        # passes them.
-        self._entered: Counter[int] = Counter()
-        self._left: Counter[int] = Counter()
-        self._top = 0  # at least the largest count: below the limit, no channel is checked
-        self._delivered: deque[_Delivered] = deque()
+        self._amplitude_f32 = _unbounded(_as_f32(culture.max_amplitude_ua))
+        self._width_f32 = _unbounded(_as_f32(culture.max_width_ms))
+        self._rate = culture.max_pulse_hz is not None
+        self._allowed = (culture.max_pulse_hz or 0.0) * RATE_WINDOW_S
+        # The channels seen (sorted) with their pulses in the window, and the delivered
+        # pulses' times and channels, oldest first, in a ring (head and length in _pos).
+        self._ids = np.zeros(0, np.int64)
+        self._counts = np.zeros(0, np.int64)
+        self._ring_t = np.zeros(_RING_START, np.float64)
+        self._ring_c = np.zeros(_RING_START, np.int64)
+        self._pos = np.zeros(2, np.int64)
+        self._checked = (
+            self._rate or culture.max_amplitude_ua is not None or (culture.max_width_ms is not None)
+        )
+        kernels.ready()
 
     def violation(self, stim: Stimulation) -> str | None:
         """Why ``stim`` may not be delivered, or None. Call :meth:`accept` if delivered."""
-        if not stim.n_pulses:
+        if not (stim.n_pulses and self._checked):
             return None
-        small = stim.n_pulses <= SMALL_ARRAY  # plain Python beats numpy calls here
-        if self._amplitude_f32 is not None:
-            amplitude = stim.amplitude_ua
-            if small:
-                values = amplitude.tolist()
-                top = max(max(values), -min(values))  # the largest absolute value
-            else:
-                top = float(np.abs(amplitude).max())
-            if top > self._amplitude_f32:
-                return f"amplitude {top:g} uA exceeds max_amplitude_ua {self.max_amplitude_ua:g}"
-        if self._width_f32 is not None:
-            top = max(stim.width_ms.tolist()) if small else float(stim.width_ms.max())
-            if top > self._width_f32:
-                return f"width {top:g} ms exceeds max_width_ms {self.max_width_ms:g}"
-        if self.max_pulse_hz is not None:
-            return self._rate_violation(stim.channel.tolist(), stim.t1_s - RATE_WINDOW_S)
-        return None
-
-    def _rate_violation(self, channels: list[int], since_s: float) -> str | None:
-        self._forget(since_s)
-        allowed = self.max_pulse_hz * RATE_WINDOW_S
-        n = len(channels)  # no channel can be asked for more than all the pulses
-        if self._top + n <= allowed:
-            return None
-        entered, left = self._entered, self._left.get
-        self._top = max((k - left(c, 0) for c, k in entered.items()), default=0)
-        if self._top + n <= allowed:
-            return None
-        asked = dict.fromkeys(channels, 1) if len(set(channels)) == n else Counter(channels)
-        for channel, k in asked.items():  # in order of first appearance
-            k += entered.get(channel, 0) - left(channel, 0)
-            if k > allowed:
-                return (
-                    f"channel {channel}: {k} pulses in {RATE_WINDOW_S:g} s exceed "
-                    f"max_pulse_hz {self.max_pulse_hz:g}"
-                )
-        return None
+        while True:
+            code, value, index = kernels.check(
+                stim.channel, stim.amplitude_ua, stim.width_ms, self._amplitude_f32,
+                self._width_f32, self._rate, stim.t1_s - RATE_WINDOW_S, self._allowed,
+                self._ids, self._counts, self._ring_t, self._ring_c, self._pos,
+            )  # fmt: skip
+            if code == kernels.OK:
+                return None
+            if code != kernels.UNKNOWN:
+                break
+            self._add_channels(stim.channel)
+        if code == kernels.AMPLITUDE:
+            return f"amplitude {value:g} uA exceeds max_amplitude_ua {self.max_amplitude_ua:g}"
+        if code == kernels.WIDTH:
+            return f"width {value:g} ms exceeds max_width_ms {self.max_width_ms:g}"
+        return (
+            f"channel {int(stim.channel[index])}: {int(value)} pulses in {RATE_WINDOW_S:g} s "
+            f"exceed max_pulse_hz {self.max_pulse_hz:g}"
+        )
 
     def accept(self, stim: Stimulation) -> None:
         """Count ``stim``'s pulses towards the rate limit (it is being delivered)."""
-        if self.max_pulse_hz is None or not stim.n_pulses:
+        if not self._rate or not stim.n_pulses:
             return
-        channels = stim.channel.tolist()
-        self._entered.update(channels)
-        # the largest count grows by at most the most pulses on one channel here
-        distinct = len(set(channels)) == len(channels)
-        self._top += 1 if distinct else max(Counter(channels).values())
-        self._delivered.append(_Delivered(stim.t0_s, stim.onset_ms.tolist(), channels))
-
-    def _forget(self, since_s: float) -> None:
-        """Take the pulses at or before ``since_s`` (out of the window) out of the counts."""
-        delivered, left = self._delivered, self._left
-        while delivered:
-            oldest = delivered[0]
-            if oldest.last_s <= since_s:
-                left.update(oldest.channels)
-                delivered.popleft()
-            elif oldest.first_s > since_s:
+        while True:
+            code = kernels.accept(
+                stim.channel, stim.onset_ms, stim.t0_s,
+                self._ids, self._counts, self._ring_t, self._ring_c, self._pos,
+            )  # fmt: skip
+            if code == kernels.OK:
                 return
+            if code == kernels.UNKNOWN:
+                self._add_channels(stim.channel)
             else:
-                left.update(oldest.forget(since_s))
+                self._grow(stim.n_pulses)
+
+    def _add_channels(self, channel: np.ndarray) -> None:
+        """Make room in the counts for the channels of ``channel`` not seen before."""
+        ids = np.union1d(self._ids, channel.astype(np.int64))
+        counts = np.zeros(ids.size, np.int64)
+        counts[np.searchsorted(ids, self._ids)] = self._counts
+        self._ids, self._counts = ids, counts
+
+    def _grow(self, more: int) -> None:
+        """A ring with room for ``more`` pulses besides those it holds, oldest first."""
+        head, length = int(self._pos[0]), int(self._pos[1])
+        cap = max(2 * self._ring_t.size, length + more)
+        kept = (head + np.arange(length)) % self._ring_t.size
+        ring_t, ring_c = np.zeros(cap, np.float64), np.zeros(cap, np.int64)
+        ring_t[:length], ring_c[:length] = self._ring_t[kept], self._ring_c[kept]
+        self._ring_t, self._ring_c = ring_t, ring_c
+        self._pos[0] = 0
 
 
-class _Delivered:
-    """The pulses of one delivered stimulation still in the rate limit's window.
-
-    A pulse's time is ``t0_s + onset_ms / 1e3``; that is monotonic in the onset, so the
-    first and last times come from the smallest and largest onsets, and each pulse's time
-    is computed only for the stimulation the window's start falls inside.
-    """
-
-    __slots__ = ("t0_s", "onsets_ms", "channels", "first_s", "last_s")
-
-    def __init__(self, t0_s: float, onsets_ms: list[float], channels: list[int]):
-        if onsets_ms != sorted(onsets_ms):
-            pulses = sorted(zip(onsets_ms, channels, strict=True))
-            onsets_ms, channels = [p[0] for p in pulses], [p[1] for p in pulses]
-        self.t0_s, self.onsets_ms, self.channels = t0_s, onsets_ms, channels
-        self.first_s = t0_s + onsets_ms[0] / 1e3
-        self.last_s = t0_s + onsets_ms[-1] / 1e3
-
-    def forget(self, since_s: float) -> list[int]:
-        """Drop the pulses at or before ``since_s`` (some, not all); their channels."""
-        t0_s = self.t0_s
-        times = [t0_s + onset_ms / 1e3 for onset_ms in self.onsets_ms]
-        end = bisect_right(times, since_s)
-        gone = self.channels[:end]
-        self.onsets_ms, self.channels = self.onsets_ms[end:], self.channels[end:]
-        self.first_s = times[end]
-        return gone
+def _unbounded(limit: float | None) -> float:
+    """A limit for the kernels: None (not checked) is infinite."""
+    return math.inf if limit is None else limit

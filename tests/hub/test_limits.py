@@ -8,6 +8,7 @@ import dataclasses
 import numpy as np
 import pytest
 
+from hub import limits as limits_module
 from hub.limits import RATE_WINDOW_S, StimulationLimits
 from hub.protocol import Stimulation
 from tests.endpoints import EchoCulture
@@ -117,7 +118,30 @@ def test_the_limit_refuses_exactly_what_the_rule_refuses(seed, period_s):
     """Random stimulations, some near the limit, their pulses in any order: each refused by
     the limits iff by the rule written plainly, for the same channel. At a 7 ms period the
     window's start falls inside a step, between the pulses of one stimulation."""
-    rng = np.random.default_rng(seed)
+    refuses_what_the_rule_refuses(np.random.default_rng(seed), period_s)
+
+
+def test_the_delivered_pulses_outgrow_their_first_room_and_count_on(monkeypatch):
+    """The delivered pulses are kept in a buffer that grows as needed, oldest first."""
+    monkeypatch.setattr(limits_module, "_RING_START", 2)
+    refuses_what_the_rule_refuses(np.random.default_rng(11), 0.007)
+
+
+def test_a_stimulation_made_of_strided_arrays_is_checked_like_any_other():
+    """A message may hold views (writable, strided) of a scheme's arrays."""
+    limits = StimulationLimits(CULTURE)
+    every_other = np.full(2 * (ALLOWED + 1), 3, np.uint32)[::2]
+    s = Stimulation(
+        **W(0).stamp,
+        channel=every_other,
+        amplitude_ua=np.full(2 * (ALLOWED + 1), 10.0, np.float32)[::2],
+        width_ms=np.full(ALLOWED + 1, 0.2, np.float32),
+        onset_ms=np.full(ALLOWED + 1, 5.0, np.float32),
+    )
+    assert deliver(limits, s) == f"channel 3: {ALLOWED + 1} pulses in 1 s exceed max_pulse_hz 5"
+
+
+def refuses_what_the_rule_refuses(rng: np.random.Generator, period_s: float) -> None:
     culture = dataclasses.replace(CULTURE, max_pulse_hz=float(rng.choice([3, 8, 25])))
     limits, reference = StimulationLimits(culture), Reference(culture.max_pulse_hz * 1.0)
     refused = 0
