@@ -134,7 +134,13 @@ _SIGNATURES = {
 def ready() -> None:
     """Compile the kernels (or load them from numba's cache) once a process, for arrays of
     any kind: before a run's first step, never during it."""
+    global _ready
+    if _ready:
+        return
     for kernel, signature in _SIGNATURES.items():
-        if not kernel.signatures:
-            kernel.compile(signature)
-            kernel.disable_compile()
+        kernel.compile(signature)
+        kernel.disable_compile()
+    _ready = True
+
+
+_ready = False

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sim_network import kernels
+from sim_network import kernels, pulse_kernels
 from sim_network.config import NetworkConfig, config_from_dict, config_to_dict
 from sim_network.connectivity import Synapses, build_synapses, delay_steps
 from sim_network.layout import EXCITATORY, Layout, build_layout
@@ -53,6 +53,7 @@ class Network:
         self.mea: Mea | None = build_mea(cfg.mea, self.layout) if cfg.channels == "mea" else None
         self._derive()
         self._reset_state()
+        pulse_kernels.ready()  # compiled now, not in the first stimulated step
 
     # ------------------------------------------------------------------ set-up
     def _derive(self) -> np.ndarray | None:
@@ -302,27 +303,20 @@ class Network:
         return n
 
     def _add_pulses(self, pulses: Pulses) -> None:
-        n_channels = self.layout.n if self.mea is None else self.mea.n_electrodes
-        top = int(pulses.channel.max())
-        if top >= n_channels:
+        mea = self.mea
+        n_channels = self.layout.n if mea is None else mea.n_electrodes
+        none = _PendingPulses.NONE
+        pend = self._pending
+        top, arrays = pulse_kernels.scheduled(
+            pend.neuron, pend.current, pend.start, pend.end,
+            pulses.channel, pulses.amplitude_ua, pulses.width_ms, pulses.onset_ms,
+            self.step, self._dt, self._pulse_current_per_ua, n_channels,
+            none if mea is None else mea.stim_indptr, none if mea is None else mea.stim_neuron,
+            mea is not None,
+        )  # fmt: skip
+        if top >= 0:
             raise PulseError(f"pulses.channel {top} out of range (network has {n_channels})")
-        n = len(pulses)
-        times_ms = np.concatenate((pulses.onset_ms, pulses.width_ms)).astype(np.float64)
-        steps = np.rint(times_ms / self._dt).astype(np.int64)
-        start = self.step + steps[:n]
-        end = start + steps[n:]
-        current = pulses.amplitude_ua.astype(np.float64) * self._pulse_current_per_ua
-        channel = pulses.channel.astype(np.int64)
-        if self.mea is not None:
-            counts = np.diff(self.mea.stim_indptr)[channel]
-            idx = np.concatenate(
-                [np.arange(self.mea.stim_indptr[c], self.mea.stim_indptr[c + 1]) for c in channel]
-            )
-            neuron = self.mea.stim_neuron[idx.astype(np.int64)]
-            start, end, current = (np.repeat(a, counts) for a in (start, end, current))
-        else:
-            neuron = channel
-        self._pending = self._pending.merged(_PendingPulses(neuron, current, start, end))
+        self._pending = _PendingPulses.of(arrays)
 
     def _to_electrodes(self, neuron: np.ndarray, t_ms: np.ndarray) -> Spikes:
         mea = self.mea
@@ -466,6 +460,7 @@ class Network:
             net.mea = build_mea(cfg.mea, net.layout) if cfg.channels == "mea" else None
             order = net._derive()
             net._reset_state()
+            pulse_kernels.ready()
             state = {k: data[k] for k in data.files}
             if order is not None:  # saved before rows were kept in kernel order
                 state["weight"] = np.asarray(state["weight"])[order]
@@ -474,9 +469,11 @@ class Network:
 
 
 class _PendingPulses:
-    """Pulses in neuron space on absolute steps [start, end), kept sorted by start."""
+    """Pulses in neuron space on absolute steps [start, end), kept sorted by start (stably:
+    among equal starts, in the order they were added)."""
 
     __slots__ = ("neuron", "current", "start", "end")
+    NONE = np.zeros(0, dtype=np.int64)  # no electrodes' neurons (a culture without a MEA)
 
     def __init__(self, neuron, current, start, end):
         self.neuron = np.ascontiguousarray(neuron, dtype=np.int64)
@@ -485,28 +482,22 @@ class _PendingPulses:
         self.end = np.ascontiguousarray(end, dtype=np.int64)
 
     @classmethod
+    def of(cls, arrays: tuple[np.ndarray, ...]) -> _PendingPulses:
+        """From a kernel's (neuron, current, start, end): contiguous arrays of the dtypes."""
+        pending = cls.__new__(cls)
+        pending.neuron, pending.current, pending.start, pending.end = arrays
+        return pending
+
+    @classmethod
     def empty(cls) -> _PendingPulses:
         z = np.zeros(0, dtype=np.int64)
         return cls(z, np.zeros(0), z, z)
 
     def alive_after(self, k: int) -> _PendingPulses:
         """Drop pulses that ended before step k (keeps the per-step kernel loop short)."""
-        if self.end.size == 0 or self.end.min() > k:
+        if not self.end.size:
             return self
-        keep = self.end > k
-        return _PendingPulses(
-            self.neuron[keep], self.current[keep], self.start[keep], self.end[keep]
+        changed, arrays = pulse_kernels.alive_after(
+            self.neuron, self.current, self.start, self.end, k
         )
-
-    def merged(self, other: _PendingPulses) -> _PendingPulses:
-        """Both sets, stably sorted by start step (older pulses first among equal starts)."""
-        if self.start.size == 0 and (
-            other.start.size < 2 or bool((other.start[1:] >= other.start[:-1]).all())
-        ):
-            return other
-        neuron = np.concatenate([self.neuron, other.neuron])
-        current = np.concatenate([self.current, other.current])
-        start = np.concatenate([self.start, other.start])
-        end = np.concatenate([self.end, other.end])
-        order = np.argsort(start, kind="stable")
-        return _PendingPulses(neuron[order], current[order], start[order], end[order])
+        return _PendingPulses.of(arrays) if changed else self

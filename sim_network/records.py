@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
+
+from sim_network import pulse_kernels
 
 
 class PulseError(ValueError):
@@ -54,16 +55,7 @@ class Pulses:
         n = self.channel.size
         if any(arr.size != n for arr in arrays):
             return False
-        if n == 0:
-            return True
-        times = np.concatenate((self.width_ms, self.onset_ms))
-        # min and max propagate NaN, so the comparisons fail on it
-        return (
-            float(times.min()) >= 0.0
-            and math.isfinite(float(times.max()))
-            and math.isfinite(float(self.amplitude_ua.min()))
-            and math.isfinite(float(self.amplitude_ua.max()))
-        )
+        return n == 0 or pulse_kernels.values_ok(self.amplitude_ua, self.width_ms, self.onset_ms)
 
     def _normalise(self) -> None:
         arrays = {}
