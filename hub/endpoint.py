@@ -35,7 +35,7 @@ from collections.abc import Sequence
 
 import zenoh
 
-from hub import limits_kernels, wire
+from hub import protocol, wire
 from hub.bus import LOOP_PUBLISH, TELEMETRY_PUBLISH, open_session, payload_bytes
 from hub.config import BusSection, ConfigError, EndpointSection, ExperimentConfig
 from hub.limits import StimulationLimits, motor_violation
@@ -164,8 +164,7 @@ class Endpoint(abc.ABC):
         self._telemetry: dict = {}
         self._once = False  # serve(once=True): stop when the first run ends
         self._run_taken_at = -math.inf  # when the current run was taken (monotonic)
-        if self.role == "culture":  # the limits' kernels compiled now, not in a run's start
-            limits_kernels.ready()
+        protocol.kernels()  # the checks of larger arrays compiled now, not in a run
 
     # ------------------------------------------------------------ for subclasses
 

@@ -90,7 +90,6 @@ class StimulationLimits:
         self._checked = (
             self._rate or culture.max_amplitude_ua is not None or (culture.max_width_ms is not None)
         )
-        kernels.ready()
 
     def violation(self, stim: Stimulation) -> str | None:
         """Why ``stim`` may not be delivered, or None. Call :meth:`accept` if delivered."""

@@ -20,6 +20,15 @@ UNKNOWN = 4  # a channel not in ``ids``: add it and call again
 FULL = 5  # the ring has no room for the pulses: grow it and call again
 
 
+# A message's arrays: read-only or not, any layout (the kernels read them only); the
+# kernels are compiled for these (or loaded from numba's cache) when this module is imported.
+_PULSES_U4 = types.Array(types.uint32, 1, "A", readonly=True, aligned=False)
+_PULSES_F4 = types.Array(types.float32, 1, "A", readonly=True, aligned=False)
+_STATE_I8 = types.Array(types.int64, 1, "C")
+_STATE_F8 = types.Array(types.float64, 1, "C")
+_F8 = types.float64
+
+
 @njit(cache=True, inline="always")
 def _slot(ids, channel):
     """Index of ``channel`` in the sorted ``ids``, or -1."""
@@ -35,7 +44,15 @@ def _slot(ids, channel):
     return -1
 
 
-@njit(cache=True)
+@njit(
+    [
+        (
+            _PULSES_U4, _PULSES_F4, _PULSES_F4, _F8, _F8, types.boolean, _F8, _F8,
+            _STATE_I8, _STATE_I8, _STATE_F8, _STATE_I8, _STATE_I8,
+        )
+    ],
+    cache=True,
+)  # fmt: skip
 def check(
     channel, amplitude_ua, width_ms, max_amplitude_ua, max_width_ms,
     rate, since_s, allowed, ids, counts, ring_t, ring_c, pos,
@@ -86,7 +103,10 @@ def check(
     return code, value, index
 
 
-@njit(cache=True)
+@njit(
+    [(_PULSES_U4, _PULSES_F4, _F8, _STATE_I8, _STATE_I8, _STATE_F8, _STATE_I8, _STATE_I8)],
+    cache=True,
+)
 def accept(channel, onset_ms, t0_s, ids, counts, ring_t, ring_c, pos):
     """Count the pulses of a delivered stimulation: ``OK``, or ``UNKNOWN`` / ``FULL``
     with nothing counted. A pulse's time is ``t0_s + onset_ms / 1e3``."""
@@ -114,33 +134,3 @@ def accept(channel, onset_ms, t0_s, ids, counts, ring_t, ring_c, pos):
         counts[slots[i]] += 1
     pos[1] = length
     return OK
-
-
-# A message's arrays: read-only or not, any layout (the kernels read them only).
-_PULSES_U4 = types.Array(types.uint32, 1, "A", readonly=True, aligned=False)
-_PULSES_F4 = types.Array(types.float32, 1, "A", readonly=True, aligned=False)
-_STATE_I8 = types.Array(types.int64, 1, "C")
-_STATE_F8 = types.Array(types.float64, 1, "C")
-_F8 = types.float64
-_SIGNATURES = {
-    check: (
-        _PULSES_U4, _PULSES_F4, _PULSES_F4, _F8, _F8, types.boolean, _F8, _F8,
-        _STATE_I8, _STATE_I8, _STATE_F8, _STATE_I8, _STATE_I8,
-    ),
-    accept: (_PULSES_U4, _PULSES_F4, _F8, _STATE_I8, _STATE_I8, _STATE_F8, _STATE_I8, _STATE_I8),
-}  # fmt: skip
-
-
-def ready() -> None:
-    """Compile the kernels (or load them from numba's cache) once a process, for arrays of
-    any kind: before a run's first step, never during it."""
-    global _ready
-    if _ready:
-        return
-    for kernel, signature in _SIGNATURES.items():
-        kernel.compile(signature)
-        kernel.disable_compile()
-    _ready = True
-
-
-_ready = False

@@ -34,6 +34,20 @@ SMALL_ARRAY = 64
 _FMAX = sys.float_info.max  # a finite bound: ``-_FMAX <= x <= _FMAX`` is False for NaN and inf
 
 
+def kernels():
+    """The compiled checks of larger arrays (``hub/array_kernels.py``), imported on first
+    use: a command that never checks one does not import numba."""
+    global _kernels
+    if _kernels is None:
+        from hub import array_kernels
+
+        _kernels = array_kernels
+    return _kernels
+
+
+_kernels = None
+
+
 class ProtocolError(ValueError):
     """A message that does not satisfy its schema.
 
@@ -302,14 +316,16 @@ def _valid_values(spec: Array) -> Callable[[np.ndarray], bool]:
     if not (is_float or has_min or has_max):
         return lambda arr: length is None or arr.size == length
 
+    lo, hi = float(lo), float(hi)
+
     def valid(arr):
         size = arr.size
         if length is not None and size != length:
             return False
         if not size:
             return True
-        if size > SMALL_ARRAY:  # min and max propagate NaN
-            return lo <= float(arr.min()) and float(arr.max()) <= hi
+        if size > SMALL_ARRAY:  # one compiled pass; NaN fails the comparisons
+            return kernels().within(arr, lo, hi)
         values = arr.tolist()  # plain Python is faster than numpy calls here
         # A sum of floats is finite only if every value is (a float64 sum can also
         # overflow: that array just takes the full check).
@@ -995,7 +1011,7 @@ class SpikeBatch(Message):
                 unsorted = values != sorted(values)
                 last = values[-1]
             else:
-                unsorted = bool((t_ms[1:] < t_ms[:-1]).any())
+                unsorted = not kernels().ascending(t_ms)
                 last = float(t_ms[-1])
             if unsorted:
                 raise ProtocolError("inconsistent", "t_ms must be sorted")

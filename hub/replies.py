@@ -17,6 +17,7 @@ from hub.protocol import (
     Description,
     Message,
     ProtocolError,
+    kernels,
 )
 
 
@@ -38,6 +39,7 @@ class ReplyChecker:
         self._max_range_m = np.inf  # with a hair of tolerance for float32 readings
         self._known_channels: frozenset[int] | None = None
         self._known_channel = np.zeros(0, bool)  # lookup table by channel id
+        kernels()  # the checks of larger arrays compiled before the run, not in it
 
     def take_description(self, desc: Description) -> None:
         """What an endpoint said of itself: what its replies are checked against."""
@@ -95,7 +97,6 @@ class ReplyChecker:
         if channel.size <= SMALL_ARRAY:  # plain Python beats numpy calls here
             ok = self._known_channels.issuperset(channel.tolist())
         else:
-            known = self._known_channel
-            ok = channel.max() < known.size and known[channel].all()
+            ok = kernels().all_known(channel, self._known_channel)
         if not ok:
             raise ProtocolError("range", "spikes on channels the culture does not have")

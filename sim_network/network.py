@@ -53,7 +53,6 @@ class Network:
         self.mea: Mea | None = build_mea(cfg.mea, self.layout) if cfg.channels == "mea" else None
         self._derive()
         self._reset_state()
-        pulse_kernels.ready()  # compiled now, not in the first stimulated step
 
     # ------------------------------------------------------------------ set-up
     def _derive(self) -> np.ndarray | None:
@@ -460,7 +459,6 @@ class Network:
             net.mea = build_mea(cfg.mea, net.layout) if cfg.channels == "mea" else None
             order = net._derive()
             net._reset_state()
-            pulse_kernels.ready()
             state = {k: data[k] for k in data.files}
             if order is not None:  # saved before rows were kept in kernel order
                 state["weight"] = np.asarray(state["weight"])[order]

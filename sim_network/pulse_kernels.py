@@ -2,8 +2,8 @@
 
 A step of a closed loop brings a few dozen pulses; in numpy each of these would be a dozen
 small calls. The kernels take any 1-D arrays of the right dtypes (read-only or not, any
-layout) once :func:`ready` has compiled them (or loaded them from numba's cache); a
-`Network` calls it when built.
+layout): they are compiled for those (or loaded from numba's cache) when this module is
+imported.
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ def _any(dtype):
 _U4, _F4, _I8, _F8 = (_any(t) for t in (types.uint32, types.float32, types.int64, types.float64))
 
 
-@njit(cache=True)
+@njit([(_F4, _F4, _F4)], cache=True)
 def values_ok(amplitude_ua, width_ms, onset_ms):
     """True if every amplitude is finite and every width and onset finite and >= 0."""
     for i in range(amplitude_ua.size):
@@ -41,7 +41,15 @@ def _none():
     )  # fmt: skip
 
 
-@njit(cache=True)
+@njit(
+    [
+        (
+            _I8, _F8, _I8, _I8, _U4, _F4, _F4, _F4, types.int64, types.float64, types.float64,
+            types.int64, _I8, _I8, types.boolean,
+        )
+    ],
+    cache=True,
+)  # fmt: skip
 def scheduled(
     p_neuron, p_current, p_start, p_end, channel, amplitude_ua, width_ms, onset_ms,
     step, dt, current_per_ua, n_channels, stim_indptr, stim_neuron, mea,
@@ -87,7 +95,7 @@ def scheduled(
     return np.int64(-1), (neuron, current, start, end)
 
 
-@njit(cache=True)
+@njit([(_I8, _F8, _I8, _I8, types.int64)], cache=True)
 def alive_after(p_neuron, p_current, p_start, p_end, k):
     """``(changed, pulses)``: the pending pulses that end after step ``k``, in order (none
     when none ended: ``changed`` is then False)."""
@@ -108,28 +116,3 @@ def alive_after(p_neuron, p_current, p_start, p_end, k):
             start[j], end[j] = p_start[i], p_end[i]
             j += 1
     return True, (neuron, current, start, end)
-
-
-_SIGNATURES = {
-    values_ok: (_F4, _F4, _F4),
-    scheduled: (
-        _I8, _F8, _I8, _I8, _U4, _F4, _F4, _F4, types.int64, types.float64, types.float64,
-        types.int64, _I8, _I8, types.boolean,
-    ),
-    alive_after: (_I8, _F8, _I8, _I8, types.int64),
-}  # fmt: skip
-
-
-def ready() -> None:
-    """Compile the kernels for arrays of any kind (or load them from numba's cache), once a
-    process; a call before this compiles for its own arrays' kind."""
-    global _ready
-    if _ready:
-        return
-    for kernel, signature in _SIGNATURES.items():
-        kernel.compile(signature)
-        kernel.disable_compile()
-    _ready = True
-
-
-_ready = False

@@ -378,7 +378,7 @@ def _f4(*values):
     return np.array(values, "<f4").tobytes()
 
 
-LONG = SMALL_ARRAY + 6  # past the plain-Python size: numpy reductions check the values
+LONG = SMALL_ARRAY + 6  # past the plain-Python size: compiled checks (hub/array_kernels.py)
 
 
 @pytest.mark.parametrize(

@@ -53,7 +53,7 @@ def kind_of(role: str, raw: bytes) -> str:
     return err.value.kind
 
 
-@pytest.mark.parametrize("n_spikes", [3, 80])  # checked in plain Python / with numpy
+@pytest.mark.parametrize("n_spikes", [3, 80])  # checked in plain Python / compiled
 def test_spikes_on_channels_the_culture_does_not_have_are_refused(n_spikes):
     known = list(range(10, 10 + 2 * n_spikes, 2))
     assert checker().check("culture", spikes(known)).channel.tolist() == known

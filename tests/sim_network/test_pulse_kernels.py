@@ -81,7 +81,6 @@ def test_a_channel_out_of_range_is_named_and_nothing_scheduled():
 
 
 def test_values_are_checked_in_arrays_of_any_layout():
-    pulse_kernels.ready()
     ok = np.array([1.0, 0.0, 2.0, 0.0], np.float32)
     assert pulse_kernels.values_ok(ok[::2], ok[::2], ok[::2])  # strided, writable
     for bad in (np.nan, np.inf, -1.0):
