@@ -436,7 +436,15 @@ def _emit(text: str) -> None:
 # --------------------------------------------------------------------------- commands
 
 
+def _stop_while_starting(signum, frame) -> None:
+    raise SystemExit(0)
+
+
 def cmd_endpoint(args) -> int:
+    # Asked to stop while still starting (its imports, compiled kernels, its model): a clean
+    # exit, as once it serves (serve() then stops on these signals itself).
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, _stop_while_starting)
     from hub.endpoint import DeviceFault
     from hub.launch import make_endpoint, settings_digest
 
