@@ -286,7 +286,8 @@ class Endpoint(abc.ABC):
             if isinstance(request, RunEnd):
                 if current is None or current.run != request.run:
                     return RunReply(ok=False, run=request.run, reason="not serving that run")
-                self._end_run(f"the hub ended it ({request.outcome})")
+                # with ``once``, serve() stops after the reply has gone (on_run)
+                self._end_run(f"the hub ended it ({request.outcome})", stop=False)
                 return RunReply(ok=True, run=request.run)
             if current is not None:
                 if current.run == request.run:
@@ -308,14 +309,15 @@ class Endpoint(abc.ABC):
             log.info("%s/%s took run %s", self.role, self.id, request.run)
             return RunReply(ok=True, run=request.run)
 
-    def _end_run(self, why: str) -> None:
-        """Back to idle; the device made safe (under the lock). With ``once``: stop."""
+    def _end_run(self, why: str, stop: bool = True) -> None:
+        """Back to idle; the device made safe (under the lock). With ``once``: stop (unless
+        ``stop`` is False: the caller stops once it has answered the hub)."""
         log.info("%s/%s: run %s ended: %s", self.role, self.id, self.run.run, why)
         self.run = None
         self._owed.clear()
         self._inbox.key = None
         self.end_run()
-        if self._once:
+        if self._once and stop:
             self._stop.set()
 
     def on_hub_gone(self) -> None:
@@ -524,6 +526,8 @@ class Endpoint(abc.ABC):
 
         def on_run(query) -> None:
             wire.reply(query, self.take_run_request(payload_bytes(query)).encode())
+            if once and self.runs and self.run is None:  # its run ended, and the hub knows
+                self._stop.set()
 
         def on_hub_alive(sample) -> None:
             if sample.kind == zenoh.SampleKind.DELETE:
