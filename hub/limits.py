@@ -87,9 +87,8 @@ class StimulationLimits:
         self._ring_t = np.zeros(_RING_START, np.float64)
         self._ring_c = np.zeros(_RING_START, np.int64)
         self._pos = np.zeros(2, np.int64)
-        self._checked = (
-            self._rate or culture.max_amplitude_ua is not None or (culture.max_width_ms is not None)
-        )
+        limits = (culture.max_amplitude_ua, culture.max_width_ms, culture.max_pulse_hz)
+        self._checked = any(limit is not None for limit in limits)  # else nothing to check
 
     def violation(self, stim: Stimulation) -> str | None:
         """Why ``stim`` may not be delivered, or None. Call :meth:`accept` if delivered."""
