@@ -20,6 +20,9 @@ from hub.protocol import (
     kernels,
 )
 
+# The largest table of known channels, one byte a channel number: larger numbers go to a set.
+_MAX_TABLE_BYTES = 1 << 20
+
 
 class ReplyChecker:
     """Checks replies of one run against the run and the endpoints' descriptions.
@@ -38,15 +41,19 @@ class ReplyChecker:
         self._n_sensors: int | None = None
         self._max_range_m = np.inf  # with a hair of tolerance for float32 readings
         self._known_channels: frozenset[int] | None = None
-        self._known_channel = np.zeros(0, bool)  # lookup table by channel id
+        self._known_channel: np.ndarray | None = None  # lookup table by channel id
         kernels()  # the checks of larger arrays compiled before the run, not in it
 
     def take_description(self, desc: Description) -> None:
         """What an endpoint said of itself: what its replies are checked against."""
         if desc.role == "culture":
-            self._known_channel = np.zeros(int(desc.channel.max(initial=0)) + 1, bool)
-            self._known_channel[desc.channel] = True
             self._known_channels = frozenset(desc.channel.tolist())
+            top = int(desc.channel.max(initial=0))
+            # a table by channel number, unless the numbers are too large for one (the set
+            # then checks every reply)
+            self._known_channel = None if top >= _MAX_TABLE_BYTES else np.zeros(top + 1, bool)
+            if self._known_channel is not None:
+                self._known_channel[desc.channel] = True
         else:
             self._n_sensors = desc.n_sensors
             self._max_range_m = desc.max_range_m * (1 + 1e-6)
@@ -94,8 +101,8 @@ class ReplyChecker:
     def _check_channels(self, channel: np.ndarray) -> None:
         if self._known_channels is None or not channel.size:
             return
-        if channel.size <= SMALL_ARRAY:  # plain Python beats numpy calls here
-            ok = self._known_channels.issuperset(channel.tolist())
+        if channel.size <= SMALL_ARRAY or self._known_channel is None:
+            ok = self._known_channels.issuperset(channel.tolist())  # plain Python beats numpy
         else:
             ok = kernels().all_known(channel, self._known_channel)
         if not ok:

@@ -3,6 +3,8 @@ described (a body's sensors and range, a culture's channels)."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -59,6 +61,20 @@ def test_spikes_on_channels_the_culture_does_not_have_are_refused(n_spikes):
     assert checker().check("culture", spikes(known)).channel.tolist() == known
     for bad in (known[:-1] + [11], known[:-1] + [9], known[:-1] + [10_000]):
         assert kind_of("culture", spikes(bad)) == "range"
+
+
+def test_channels_of_any_number_are_checked_without_a_table_that_large():
+    """A culture may number its channels up to 2**32 - 1 (a table by number would take
+    4 GB): those are looked up in a set."""
+    numbers = np.array([7, 2**31, 2**32 - 1], np.uint32)
+    c = ReplyChecker(RUN, PERIOD_S)
+    c.take_description(
+        dataclasses.replace(CULTURE, channel=numbers, x_um=[0.0] * 3, y_um=[0.0] * 3)
+    )
+    many = np.repeat(numbers, 30)  # past SMALL_ARRAY
+    assert np.array_equal(c.check("culture", spikes(many)).channel, many)
+    with pytest.raises(ProtocolError, match="channels the culture does not have"):
+        c.check("culture", spikes(np.r_[many[:-1], 8].astype(np.uint32)))
 
 
 def test_sensor_readings_unlike_the_body_described_are_refused():
