@@ -391,6 +391,10 @@ def main(argv: list[str] | None = None) -> int:
         # a command while it starts up as it does once the command's own handler is in.
         signal.signal(signal.SIGINT, signal.default_int_handler)
     args = build_parser().parse_args(argv)
+    if in_main_thread and args.command in ("endpoint", "observe"):
+        # Its runner stops it with SIGTERM, maybe while it starts up (its imports, compiled
+        # kernels, its model): as Ctrl-C then (below), not a death by signal.
+        signal.signal(signal.SIGTERM, signal.default_int_handler)
     # Schemes and endpoint kinds named module:attr may live in the user's own
     # folder, as with `python -m`.
     if "" not in sys.path and os.getcwd() not in sys.path:
@@ -436,15 +440,7 @@ def _emit(text: str) -> None:
 # --------------------------------------------------------------------------- commands
 
 
-def _stop_while_starting(signum, frame) -> None:
-    raise SystemExit(0)
-
-
 def cmd_endpoint(args) -> int:
-    # Asked to stop while still starting (its imports, compiled kernels, its model): a clean
-    # exit, as once it serves (serve() then stops on these signals itself).
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, _stop_while_starting)
     from hub.endpoint import DeviceFault
     from hub.launch import make_endpoint, settings_digest
 
