@@ -35,10 +35,8 @@ _FMAX = sys.float_info.max  # a finite bound: ``-_FMAX <= x <= _FMAX`` is False 
 
 
 def kernels():
-    """The compiled checks of arrays (``hub/array_kernels.py``), imported on first use: a
-    command that never checks an array above ``SMALL_ARRAY`` values does not import numba.
-    Once imported (the hub and every endpoint import them before a run), they check the
-    smaller arrays too: a kernel call beats plain Python from three values up."""
+    """The compiled checks of larger arrays (``hub/array_kernels.py``), imported on first
+    use: a command that never checks one does not import numba."""
     global _kernels
     if _kernels is None:
         from hub import array_kernels
@@ -326,7 +324,7 @@ def _valid_values(spec: Array) -> Callable[[np.ndarray], bool]:
             return False
         if not size:
             return True
-        if size > SMALL_ARRAY or _kernels is not None:  # one compiled pass; NaN fails it
+        if size > SMALL_ARRAY:  # one compiled pass; NaN fails the comparisons
             return kernels().within(arr, lo, hi)
         values = arr.tolist()  # plain Python is faster than numpy calls here
         # A sum of floats is finite only if every value is (a float64 sum can also
@@ -1008,7 +1006,7 @@ class SpikeBatch(Message):
             )
         t_ms = self.t_ms
         if t_ms.size:
-            if t_ms.size <= SMALL_ARRAY and _kernels is None:  # finite: sorted() orders all
+            if t_ms.size <= SMALL_ARRAY:  # values are finite here: sorted() is a full order
                 values = t_ms.tolist()
                 unsorted = values != sorted(values)
                 last = values[-1]

@@ -12,6 +12,7 @@ import numpy as np
 
 from hub.protocol import (
     OUTPUT_TYPE,
+    SMALL_ARRAY,
     WINDOW_TOLERANCE_S,
     Description,
     Message,
@@ -100,8 +101,8 @@ class ReplyChecker:
     def _check_channels(self, channel: np.ndarray) -> None:
         if self._known_channels is None or not channel.size:
             return
-        if self._known_channel is None:
-            ok = self._known_channels.issuperset(channel.tolist())
+        if channel.size <= SMALL_ARRAY or self._known_channel is None:
+            ok = self._known_channels.issuperset(channel.tolist())  # plain Python beats numpy
         else:
             ok = kernels().all_known(channel, self._known_channel)
         if not ok:
