@@ -13,7 +13,7 @@ from __future__ import annotations
 from numba import njit, types
 
 
-def _any(dtype):
+def any_array(dtype):
     """A 1-D array of ``dtype`` as numba types it, whatever its flags and layout: an
     array of any kind is taken by a kernel compiled for this."""
     return types.Array(dtype, 1, "A", readonly=True, aligned=False)
@@ -23,7 +23,7 @@ _BOUNDS = (types.float64, types.float64)
 _BOUNDED = (types.float32, types.float64, types.uint32, types.uint8)  # the schemas' dtypes
 
 
-@njit([(_any(dtype), *_BOUNDS) for dtype in _BOUNDED], cache=True)
+@njit([(any_array(dtype), *_BOUNDS) for dtype in _BOUNDED], cache=True)
 def within(arr, lo, hi):
     """True if every value is in ``[lo, hi]`` (so for floats none is NaN; with finite
     bounds none is infinite)."""
@@ -33,7 +33,7 @@ def within(arr, lo, hi):
     return True
 
 
-@njit([(_any(types.float32),), (_any(types.float64),)], cache=True)
+@njit([(any_array(types.float32),), (any_array(types.float64),)], cache=True)
 def ascending(arr):
     """True if the values never decrease."""
     for i in range(1, arr.size):
@@ -42,7 +42,7 @@ def ascending(arr):
     return True
 
 
-@njit([(_any(types.uint32), _any(types.boolean))], cache=True)
+@njit([(any_array(types.uint32), any_array(types.boolean))], cache=True)
 def all_known(channel, known):
     """True if every channel indexes a True of ``known`` (a table by channel number)."""
     for i in range(channel.size):

@@ -12,6 +12,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, types
 
+from hub.array_kernels import any_array
+
 OK = 0
 AMPLITUDE = 1  # a pulse's absolute amplitude is over the limit
 WIDTH = 2  # a pulse's width is over the limit
@@ -22,8 +24,8 @@ FULL = 5  # the ring has no room for the pulses: grow it and call again
 
 # A message's arrays: read-only or not, any layout (the kernels read them only); the
 # kernels are compiled for these (or loaded from numba's cache) when this module is imported.
-_PULSES_U4 = types.Array(types.uint32, 1, "A", readonly=True, aligned=False)
-_PULSES_F4 = types.Array(types.float32, 1, "A", readonly=True, aligned=False)
+_PULSES_U4 = any_array(types.uint32)
+_PULSES_F4 = any_array(types.float32)
 _STATE_I8 = types.Array(types.int64, 1, "C")
 _STATE_F8 = types.Array(types.float64, 1, "C")
 _F8 = types.float64
