@@ -4,6 +4,7 @@ processes; what it shows, its controls, and `neuvision ctl`."""
 from __future__ import annotations
 
 import json
+import logging
 import threading
 import time
 
@@ -113,8 +114,21 @@ def test_a_hub_that_waits_for_its_dashboard_steps_once_the_dashboard_has_the_sce
         scene_at_first_view: list = []
         done = threading.Event()
 
+        hub_waits = threading.Event()  # the hub said it waits for the dashboard
+
+        class Said(logging.Handler):
+            def emit(self, record):
+                if record.getMessage().startswith("waiting for the dashboard"):
+                    hub_waits.set()
+
+        said, hub_log = Said(), logging.getLogger("hub.loop")
+        hub_log.addHandler(said)
+        level = hub_log.level
+        hub_log.setLevel(logging.INFO)
+
         def page():
-            time.sleep(1.0)  # the dashboard comes a second after the hub
+            hub_waits.wait(30)
+            time.sleep(0.5)  # the dashboard comes half a second after the hub waits for it
             observer.start()
             while not done.is_set():
                 with state.lock:
@@ -131,6 +145,8 @@ def test_a_hub_that_waits_for_its_dashboard_steps_once_the_dashboard_has_the_sce
             done.set()
             thread.join(timeout=10)
             observer.close()
+            hub_log.removeHandler(said)
+            hub_log.setLevel(level)
     (wait,) = [e.payload for e in h.record.events if e.key == "view_wait"]
     assert wait["watched"] and wait["waited_s"] > 0.25  # it did wait
     assert result.outcome == "completed" and scene_at_first_view[0]["culture"] is not None
