@@ -7,7 +7,8 @@ A recorded closed-loop run is fed, step by step, through what the live path does
    (:mod:`hub.wire`) — the part on the loop's own thread;
 2. the dashboard: the frames reassembled, the view decoded and added to the page's state
    (:meth:`dashboard.observer.BusObserver._take`);
-3. the frame for one page: :meth:`dashboard.state.FrameState.frame` and its JSON.
+3. the frame for one page: :meth:`dashboard.state.FrameState.frame` and its JSON
+   (:func:`dashboard.server.page_json`).
 
 ``steps_per_view`` is what a lockstep run at ``--x-realtime`` with ``loop.view_hz`` views
 a second gives (a 10 ms period at 15x real time and 30 views/s: 50 steps). CPU time of this
@@ -38,6 +39,7 @@ from bench import closed_loop  # noqa: E402
 from bench.host import end_children_on_signal  # noqa: E402
 from dashboard.observer import BusObserver  # noqa: E402
 from dashboard.scene import build_scene, world_for  # noqa: E402
+from dashboard.server import page_json  # noqa: E402
 from dashboard.state import FrameState, Reader  # noqa: E402
 from hub import wire  # noqa: E402
 from hub.config import BusSection  # noqa: E402
@@ -111,7 +113,7 @@ def measure(steps: list[tuple], scene: dict, steps_per_view: int) -> dict:
         for payload, attachment in framed:
             observer._take("view", _Sample("hub/view", bytes(payload), attachment))
         t2 = clock()
-        text = json.dumps(state.frame(reader), allow_nan=False)
+        text = page_json(state.frame(reader))
         t3 = clock()
         cpu["hub_view"] += t1 - t0
         cpu["dashboard_take"] += t2 - t1

