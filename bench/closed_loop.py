@@ -98,10 +98,14 @@ class PageClient:
 def dashboard_ab(seconds: float, pairs: int, sets: list[str] = ()) -> dict:
     """Lockstep without (A) and with (B) the dashboard, interleaved A B B A ...; each B run
     with a page connected. Besides the speed, the hub's CPU time per step (the lockstep
-    loop's bound on two cores) and the dashboard process's own CPU share (its log).
+    loop's bound on two cores), the dashboard process's own CPU share (its log), and the
+    CPU per step of the loop's processes, the dashboard's and the page's.
     ``sets``: more ``--set KEY=VALUE`` for the B runs (``dashboard.yield_cpu=false``)."""
     x = {"A": [], "B": []}
     hub_us = {"A": [], "B": []}
+    # CPU per step: the loop's processes (hub, endpoints, burst observer), and with B the
+    # dashboard's process (from its log) and the page (this process, idle but for it)
+    cpu_us = {"A": {"loop": []}, "B": {"loop": [], "dashboard": [], "page": []}}
     fps, dash_cpu, dash_cpu_stepping = [], [], []
     order = [("A", "B") if i % 2 == 0 else ("B", "A") for i in range(pairs)]
     with StealMeter() as steal:
@@ -113,14 +117,22 @@ def dashboard_ab(seconds: float, pairs: int, sets: list[str] = ()) -> dict:
                     extra = ["--dashboard", "--set", f"dashboard.port={port}"]
                     extra += [a for item in sets for a in ("--set", item)]
                     page = PageClient(port)
+                page_cpu = time.process_time()
                 with tempfile.TemporaryDirectory() as tmp:
                     m, _ = run("lockstep", seconds, Path(tmp) / "runs", *extra)
                     log = next(Path(tmp).glob("runs/*/dashboard.log"), None)
                     text = log.read_text() if log else ""
                     share = _dashboard_cpu(text)
                     stepping = _dashboard_cpu(text, since_first_step=True)
+                page_cpu = time.process_time() - page_cpu
+                steps = max(m["timing"]["steps"], 1)
+                cpu_us[which]["loop"].append(_loop_cpu_s(m) / steps * 1e6)
                 if page is not None:
                     page.close()
+                    cpu_us["B"]["page"].append(page_cpu / steps * 1e6)
+                    dashboard_s = _dashboard_cpu_s(text)
+                    if dashboard_s is not None:
+                        cpu_us["B"]["dashboard"].append(dashboard_s / steps * 1e6)
                     fps.append(page.fps)
                     if share is not None:
                         dash_cpu.append(share)
@@ -138,6 +150,7 @@ def dashboard_ab(seconds: float, pairs: int, sets: list[str] = ()) -> dict:
     ha, hb = statistics.median(hub_us["A"]), statistics.median(hub_us["B"])
     ratios = [xb / xa for xa, xb in zip(x["A"], x["B"], strict=True)]
     paired, lo, hi = paired_cost(ratios)
+    cpu = {k: {part: _median(v) for part, v in parts.items()} for k, parts in cpu_us.items()}
     print(
         f"dashboard A/B, {pairs} pairs of {seconds:g} s lockstep: without {a:.2f}x, with "
         f"{b:.2f}x real time (medians; cost {1 - b / a:+.1%}; pairs' ratios "
@@ -147,6 +160,11 @@ def dashboard_ab(seconds: float, pairs: int, sets: list[str] = ()) -> dict:
         f"{statistics.median(dash_cpu) if dash_cpu else float('nan'):.1%} of a core over its life, "
         f"{statistics.median(dash_cpu_stepping) if dash_cpu_stepping else float('nan'):.1%} "
         f"from the first step it showed; CPU steal {steal.share:.1%}"
+    )
+    print(
+        f"CPU per step (medians): the loop's processes {cpu['A']['loop']:.0f} us without, "
+        f"{cpu['B']['loop']:.0f} us with the dashboard, whose process took "
+        f"{cpu['B']['dashboard']:.0f} us and the page {cpu['B']['page']:.0f} us"
     )
     return {
         "x_realtime_lockstep_with_dashboard": round(b, 2),
@@ -162,7 +180,33 @@ def dashboard_ab(seconds: float, pairs: int, sets: list[str] = ()) -> dict:
             round(statistics.median(dash_cpu_stepping), 4) if dash_cpu_stepping else None
         ),
         "dashboard_ab_steal_share": round(steal.share, 4),
+        "dashboard_cpu_us_per_step": {
+            k: {part: round(v, 1) for part, v in parts.items()} for k, parts in cpu.items()
+        },
     }
+
+
+def _median(values: list[float]) -> float:
+    return statistics.median(values) if values else float("nan")
+
+
+def _loop_cpu_s(manifest: dict) -> float:
+    """CPU seconds of the loop's processes over a run: the hub, its endpoints and the burst
+    observer (as the run's manifest says)."""
+    endpoints = manifest.get("endpoints") or {}
+    observer_s = (manifest.get("counts") or {}).get("online_observer_cpu_s") or 0.0
+    return (
+        manifest["timing"]["hub_cpu_s"]
+        + sum(e.get("cpu_s") or 0.0 for e in endpoints.values())
+        + observer_s
+    )
+
+
+def _dashboard_cpu_s(log: str) -> float | None:
+    """The dashboard process's CPU seconds from the first step it showed (its start-up left
+    out; the hub holds its first step until the dashboard watches), from its log."""
+    found = re.search(r"first step shown: ([\d.]+) s of CPU", log)
+    return float(found.group(1)) if found else None
 
 
 def paired_cost(ratios: list[float], resamples: int = 5000) -> tuple[float, float, float]:
