@@ -2,7 +2,7 @@
 
 import pytest
 
-from bench.closed_loop import paired_cost
+from bench.closed_loop import _dashboard_cpu_s, _loop_cpu_s, paired_cost
 
 
 def test_equal_pairs_give_their_cost_with_no_spread():
@@ -23,3 +23,25 @@ def test_the_interval_holds_the_median_cost_and_widens_with_the_spread():
 def test_a_faster_run_with_the_dashboard_is_a_negative_cost():
     cost, _, hi = paired_cost([1.05, 1.04, 1.06])
     assert cost < 0 and hi < 0
+
+
+def test_the_loops_cpu_is_the_hub_its_endpoints_and_the_burst_observer():
+    manifest = {
+        "timing": {"hub_cpu_s": 2.0, "steps": 1000},
+        "endpoints": {"body": {"cpu_s": 0.5}, "culture": {"cpu_s": 1.5}},
+        "counts": {"online_observer_cpu_s": 0.25},
+    }
+    assert _loop_cpu_s(manifest) == pytest.approx(4.25)
+    del manifest["counts"]  # live analysis off
+    assert _loop_cpu_s(manifest) == pytest.approx(4.0)
+
+
+def test_the_dashboards_cpu_is_read_from_the_first_step_it_showed():
+    log = (
+        "2026-11-28 02:00:00,000 dashboard.server INFO: served 300 ticks in 10.0 s; the "
+        "dashboard's process used 1.50 s of CPU (15.0 % of a core)\n"
+        "2026-11-28 02:00:00,001 dashboard.server INFO: from the first step shown: 0.42 s of "
+        "CPU in 8.0 s (5.2 % of a core)\n"
+    )
+    assert _dashboard_cpu_s(log) == pytest.approx(0.42)
+    assert _dashboard_cpu_s("no step was shown") is None
