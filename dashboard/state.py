@@ -44,6 +44,10 @@ MAX_SPIKES_ON_RESET = 250_000
 BURSTS_SEEN_MAX = 256  # network bursts remembered as given (the hub repeats the latest)
 # A bin's sums after its covered ms and its spike count: each channel's share of them
 PER_CHANNEL = ("exc", "inh", "x_um", "y_um")
+# Bins x channels up to which a view's spikes are summed through a count matrix (one
+# bincount and a product: ~2.5x cheaper than a weighted count per sum); past it (many bins
+# of a large culture at once) one weighted count per sum, with no matrix that large
+COUNT_MATRIX_MAX = 1 << 18
 
 
 class Tape:
@@ -283,11 +287,15 @@ class FrameState:
             rel = np.floor(t_ms / BIN_MS).astype(np.int64)
             rel -= b0
             np.clip(rel, 0, n - 1, out=rel)
-            # one gather of every channel's shares (np.take: far cheaper than fancy indexing)
-            shares = np.take(self._per_channel, idx, axis=1)
-            sums = [covered, np.bincount(rel, minlength=n)]
-            sums += [np.bincount(rel, row, minlength=n) for row in shares]
-            rows = np.stack(sums, axis=1).tolist()
+            c = self.n_channels
+            if n * c <= COUNT_MATRIX_MAX:  # each bin's spikes per channel, then one product
+                counts = np.bincount(rel * c + idx, minlength=n * c).reshape(n, c)
+                per_bin = [counts.sum(axis=1), counts @ self._per_channel.T]
+            else:  # one weighted count per sum (np.take: far cheaper than fancy indexing)
+                shares = np.take(self._per_channel, idx, axis=1)
+                per_bin = [np.bincount(rel, minlength=n)]
+                per_bin += [np.bincount(rel, row, minlength=n) for row in shares]
+            rows = np.column_stack([covered, *per_bin]).tolist()
         else:
             rows = [[c, 0.0, 0.0, 0.0, 0.0, 0.0] for c in covered.tolist()]
         bins, closed = self._bins, self._closed

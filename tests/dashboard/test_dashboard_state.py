@@ -76,6 +76,26 @@ def test_rates_and_the_center_of_activity_per_bin_whatever_the_batches():
         assert frame["t_s"] == 0.1
 
 
+def test_a_large_culture_over_many_bins_gets_the_same_rates_and_center_of_activity(
+    monkeypatch,
+):
+    """Past COUNT_MATRIX_MAX bins x channels the sums are taken another way: the same."""
+    rng = np.random.default_rng(3)
+    channel = rng.choice(CULTURE["channel"], 500)
+    t_ms = np.sort(rng.uniform(0.0, 1000.0, 500))
+
+    def shown():
+        state = _state()
+        state.add_spikes(channel, t_ms, 0.0, 1000.0)
+        frame = state.frame(Reader())
+        return frame["rates"], frame["ca"]
+
+    through_the_matrix = shown()
+    monkeypatch.setattr("dashboard.state.COUNT_MATRIX_MAX", 0)
+    assert shown() == through_the_matrix
+    assert len(through_the_matrix[0]) == 20  # every 50 ms bin of the second
+
+
 def test_a_bin_covered_less_than_half_is_left_out_not_shown_as_silence():
     state = _state()
     state.add_spikes([10], [5.0], 0.0, 20.0)  # the first 20 ms of the first bin only
