@@ -163,10 +163,15 @@ class BusObserver:
             state.add_motor(v.step, v.left_mps, v.right_mps)
 
     def _new_run(self, run: str | None) -> None:
+        """A message of ``run``: a run other than the last one seen starts the page afresh
+        with its own scene. The first run seen keeps the scene read while its hub waited
+        (read again, it would empty the histories of the steps shown meanwhile)."""
         if run and run != self.run:
-            if self.run is not None:
+            first, self.run = self.run is None, run
+            if first and self.state.scene is not None:
+                return
+            if not first:
                 self.state.reset()
-            self.run = run
             self._need_scene.set()
 
     # ------------------------------------------------------------------ controls
