@@ -164,7 +164,9 @@ def run_experiment(
             if ended_early:
                 announce(f"the dashboard ended early (status {ended_early}); see {dash.log_path}")
     for role, code in codes.items():
-        if code != 0:
+        if code == -signal.SIGTERM:  # stopped above while still starting, before its handler
+            log.debug("%s endpoint stopped while it was starting up", role)
+        elif code != 0:
             announce(f"{role} endpoint exited with status {code}")
     if result.outcome != "fault":
         try:
