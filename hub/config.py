@@ -120,8 +120,11 @@ class LoopSection:
     # (at most MAX_STEPS).
     period_ms: float = field(default=10.0, metadata=bounds(ge=0.1, le=10_000))
     mode: str = field(default="lockstep", metadata=bounds(choices=("lockstep", "realtime")))
-    # How long to wait for the required endpoints to appear before giving up.
-    wait_timeout_s: float = field(default=30.0, metadata=bounds(gt=0))
+    # How long to wait for the required endpoints to appear before giving up (the hub says
+    # every 5 s what it waits for). A first run in a fresh checkout compiles the simulators'
+    # kernels, the culture's, the arena's and the observer's at once: over 30 s on a busy
+    # 2-vCPU machine.
+    wait_timeout_s: float = field(default=120.0, metadata=bounds(gt=0))
     # Lockstep: a reply not in after this long is counted missing (policy applies).
     reply_timeout_s: float = field(default=5.0, metadata=bounds(gt=0))
     # Realtime: a reply must arrive within this long after its step's start
