@@ -205,7 +205,7 @@ def _loop_cpu_s(manifest: dict) -> float:
 def _dashboard_cpu_s(log: str) -> float | None:
     """The dashboard process's CPU seconds from the first step it showed (its start-up left
     out; the hub holds its first step until the dashboard watches), from its log."""
-    found = re.search(r"first step shown: ([\d.]+) s of CPU", log)
+    found = _STEPPING_CPU.search(log)
     return float(found.group(1)) if found else None
 
 
@@ -222,12 +222,17 @@ def paired_cost(ratios: list[float], resamples: int = 5000) -> tuple[float, floa
     return 1 - float(np.median(r)), 1 - float(hi), 1 - float(lo)
 
 
+# The dashboard's log lines at its end (dashboard/server.py): its CPU over its life, and from
+# the first step it showed (its cost while the run stepped): CPU seconds, then share in %
+_LIFE_CPU = re.compile(r"used ([\d.]+) s of CPU \(([\d.]+) %")
+_STEPPING_CPU = re.compile(r"first step shown: ([\d.]+) s of CPU in [\d.]+ s \(([\d.]+) %")
+
+
 def _dashboard_cpu(log: str, since_first_step: bool = False) -> float | None:
     """The dashboard process's CPU share, from a line it logs when it ends: over its life,
     or from the first step it showed (its cost while the run stepped)."""
-    pattern = r"first step shown: [\d.]+ s of CPU in [\d.]+ s \(([\d.]+) %"
-    found = re.search(pattern if since_first_step else r"used [\d.]+ s of CPU \(([\d.]+) %", log)
-    return float(found.group(1)) / 100 if found else None
+    found = (_STEPPING_CPU if since_first_step else _LIFE_CPU).search(log)
+    return float(found.group(2)) / 100 if found else None
 
 
 def _scheduling(s: dict) -> str:

@@ -135,16 +135,13 @@ class FrameState:
         self._table[ids] = np.arange(ids.size)
         cell = culture.get("cell_type")
         cell = np.asarray(cell) if cell is not None else np.full(ids.size, -1)
+        exc, inh = cell == 0, cell == 1
         # what each channel adds to a bin's sums (PER_CHANNEL), one row per sum
         self._per_channel = np.stack(
-            [cell == 0, cell == 1, np.asarray(culture["x_um"]), np.asarray(culture["y_um"])]
+            [exc, inh, np.asarray(culture["x_um"]), np.asarray(culture["y_um"])]
         ).astype(np.float64)
         # the rates' denominators: every channel, the excitatory ones, the inhibitory ones
-        self._n_all, self._n_exc, self._n_inh = (
-            ids.size,
-            int((cell == 0).sum()),
-            int((cell == 1).sum()),
-        )
+        self._n_all, self._n_exc, self._n_inh = ids.size, int(exc.sum()), int(inh.sum())
 
     def reset(self) -> None:
         """Empty every history (a new run, a jump in a replay); the scene stays."""
