@@ -108,6 +108,15 @@ def _hub_answers(session, keys: Keys, timeout_s: float = 0.5) -> bool:
         return False
 
 
+def _connected(session) -> bool:
+    """Whether this session reaches anyone (a router or a peer): a hub killed takes its
+    router with it, and its clients then hear no liveliness change."""
+    try:
+        return bool(list(session.info.routers_zid()) or list(session.info.peers_zid()))
+    except zenoh.ZError:
+        return False
+
+
 class _StoppedWaiting(Exception):
     """Asked to stop while still waiting for the hub."""
 
@@ -499,7 +508,12 @@ class Endpoint(abc.ABC):
         # Inputs are stepped on in the subscriber's own callback thread (one thread, so in
         # order): handing them to this thread would cost a wake-up per step. This thread
         # only watches for the input timeout and the stop request.
-        state = {"last_input": time.monotonic(), "serving": True, "hub_seen": False}
+        state = {
+            "last_input": time.monotonic(),
+            "serving": True,
+            "hub_seen": False,  # the hub's token seen once, by query or by its PUT
+            "hub_token": False,  # the last news of the hub's token was a PUT
+        }
         status = 0
         failures: list[BaseException] = []
 
@@ -530,10 +544,19 @@ class Endpoint(abc.ABC):
                 self._stop.set()
 
         def on_hub_alive(sample) -> None:
+            state["hub_token"] = sample.kind != zenoh.SampleKind.DELETE
             if sample.kind == zenoh.SampleKind.DELETE:
                 self.on_hub_gone()
             else:
                 state["hub_seen"] = True
+
+        def hub_there() -> bool:
+            """Whether the hub is on the bus: its token answers a liveliness query, or its
+            last news was a PUT and the session still reaches someone. A query alone is not
+            enough: Zenoh answered one with nothing while another participant joined."""
+            if _hub_answers(session, keys):
+                return True
+            return state["hub_token"] and _connected(session)
 
         try:
             # Zenoh undeclares what is garbage-collected: keep every declaration.
@@ -558,9 +581,10 @@ class Endpoint(abc.ABC):
                     # Serving one run, none taken yet: a hub that was there and left (it
                     # refused this endpoint, or ended) will not start it. Asked every second.
                     next_once_check = time.monotonic() + HUB_CHECK_S
-                    there = _hub_answers(session, keys)
+                    there = hub_there()
+                    # a miss counts once the hub was seen: before, it may be starting
+                    once_unanswered = 0 if there else once_unanswered + state["hub_seen"]
                     state["hub_seen"] |= there
-                    once_unanswered = 0 if there else once_unanswered + 1
                     if state["hub_seen"] and once_unanswered >= 2:
                         log.error(
                             "%s/%s: the hub left without starting a run with it (did it "
@@ -588,7 +612,7 @@ class Endpoint(abc.ABC):
                     unanswered = 0
                 elif now >= next_hub_check:
                     next_hub_check = now + HUB_CHECK_S
-                    unanswered = 0 if _hub_answers(session, keys) else unanswered + 1
+                    unanswered = 0 if hub_there() else unanswered + 1
                     if unanswered >= 2:
                         unanswered = 0
                         log.warning(
