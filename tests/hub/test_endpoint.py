@@ -327,3 +327,26 @@ def test_serving_once_it_gives_up_when_its_hub_leaves_without_starting_a_run(ser
     s.thread.join(10)
     assert not s.thread.is_alive()
     assert s.status == UNSERVED and body.closed
+
+
+def test_serving_once_it_stays_while_the_hubs_token_stands_though_a_query_finds_none(
+    served, monkeypatch
+):
+    # Zenoh has answered a liveliness query with nothing as another participant joined,
+    # and a body then left a hub that was starting its run. Here every query finds none.
+    import hub.endpoint
+
+    asked = []
+
+    def finds_none(session, keys, timeout_s=0.5):
+        asked.append(True)
+        return False
+
+    monkeypatch.setattr(hub.endpoint, "_hub_answers", finds_none)
+    body = RecordingBody()
+    s = served(body, once=True)
+    wait_for(lambda: len(asked) >= 3, timeout_s=10)
+    assert s.thread.is_alive() and not body.closed
+    s.hub_token.undeclare()  # the hub leaves: its token's DELETE
+    s.thread.join(10)
+    assert s.status == UNSERVED and body.closed
