@@ -121,10 +121,8 @@ class NetworkEndpoint(Endpoint):
         )
 
     def warm_up(self) -> None:
-        """One stimulated step of 10 ms on a saved state, then the state restored exactly."""
-        state = self.net.get_state()
-        self.net.run(10.0, Pulses.single([int(self.net.channels.channel[0])], 1.0, 1.0))
-        self.net.set_state(state)
+        """The kernels compiled (:meth:`Network.warm_up`: the culture's state unchanged)."""
+        self.net.warm_up()
 
     def start_run(self, run: RunStart) -> None:
         """Back to the culture as built, stepped by the run's period."""

@@ -388,6 +388,14 @@ class Network:
             np.asarray(state["pulse_end"], np.int64),
         )
 
+    def warm_up(self) -> None:
+        """Compile the kernels: one stimulated run of 10 ms on a saved state, then the state
+        restored exactly. A first call of a kernel compiles it (seconds, or a cache read):
+        whatever runs the network in real time calls this before its clock starts."""
+        state = self.get_state()
+        self.run(10.0, Pulses.single([int(self.channels.channel[0])], 1.0, 1.0))
+        self.set_state(state)
+
     def save(self, path: str | Path) -> None:
         """Write config, seed, connectivity and state to one file.
 

@@ -4,6 +4,8 @@ stimulation that evokes a response, the instrument's clock, and safety."""
 from __future__ import annotations
 
 import os
+import subprocess
+import sys
 import threading
 import time
 from collections import Counter
@@ -133,6 +135,27 @@ def test_each_trigger_fires_exactly_its_electrodes_and_only_changes_are_written(
 
 
 @needs_fifo
+def test_the_emulators_culture_is_compiled_when_built_and_starts_as_built(emulator):
+    # Compiled at the run's first chunk instead, the culture fell seconds behind real time
+    # and a first hybrid run had every tenth step late (each pulse's command waited).
+    code = (
+        "from adapters.mea.emulator import IntanEmulator; from sim_network import kernels, "
+        "pulse_kernels; IntanEmulator(seed=1).stop(); "
+        "print(len(kernels.advance.signatures), len(pulse_kernels.scheduled.signatures))"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert [int(n) > 0 for n in done.stdout.split()] == [True, True]
+    from adapters.mea.emulator import DEFAULT_CULTURE
+    from sim_network import Network
+    from sim_network.config import load_config as load_culture
+
+    fresh = Network(load_culture(DEFAULT_CULTURE, ['channels="mea"']), seed=1)
+    a, b = emulator.net.run(200.0), fresh.run(200.0)
+    assert a.channel.size > 0
+    assert np.array_equal(a.channel, b.channel) and np.array_equal(a.t_ms, b.t_ms)
+
+
 def test_the_emulator_may_run_its_threads_at_a_real_time_priority():
     """So that a realtime run's raised threads do not starve it (an instrument has a
     machine of its own)."""
