@@ -581,10 +581,10 @@ class Endpoint(abc.ABC):
                     # Serving one run, none taken yet: a hub that was there and left (it
                     # refused this endpoint, or ended) will not start it. Asked every second.
                     next_once_check = time.monotonic() + HUB_CHECK_S
-                    there = hub_there()
-                    # a miss counts once the hub was seen: before, it may be starting
-                    once_unanswered = 0 if there else once_unanswered + state["hub_seen"]
-                    state["hub_seen"] |= there
+                    if hub_there():
+                        state["hub_seen"], once_unanswered = True, 0
+                    elif state["hub_seen"]:  # before it was seen, it may be starting
+                        once_unanswered += 1
                     if state["hub_seen"] and once_unanswered >= 2:
                         log.error(
                             "%s/%s: the hub left without starting a run with it (did it "

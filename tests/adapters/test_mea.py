@@ -14,13 +14,15 @@ import numpy as np
 import pytest
 
 from adapters.mea.driver import ClockMap
-from adapters.mea.emulator import IntanEmulator
+from adapters.mea.emulator import DEFAULT_CULTURE, IntanEmulator
 from adapters.mea.endpoint import MeaEndpoint
 from adapters.mea.layout import ElectrodeLayout
 from adapters.mea.rhx import RhxDriver, RhxError, spike_record, spike_record_bytes, spike_records
 from adapters.mea.safety import BiphasicPulse, PulseLimits, SafetyGate
 from hub import conformance
 from hub.config import ConfigError, load_config
+from sim_network import Network
+from sim_network.config import load_config as load_culture
 from tests.harness import needs_fifo, wait_for
 
 HYBRID = "configs/hybrid_mea.toml"
@@ -146,10 +148,6 @@ def test_the_emulators_culture_is_compiled_when_built_and_starts_as_built(emulat
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert done.returncode == 0, done.stderr[-2000:]
     assert [int(n) > 0 for n in done.stdout.split()] == [True, True]
-    from adapters.mea.emulator import DEFAULT_CULTURE
-    from sim_network import Network
-    from sim_network.config import load_config as load_culture
-
     fresh = Network(load_culture(DEFAULT_CULTURE, ['channels="mea"']), seed=1)
     a, b = emulator.net.run(200.0), fresh.run(200.0)
     assert a.channel.size > 0
