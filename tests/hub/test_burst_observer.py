@@ -39,6 +39,10 @@ def observed(bus_overrides):
     observer = BurstObserver(observer_session, bus.keys)
     thread = threading.Thread(target=observer.serve, args=(stop,), daemon=True)
     thread.start()
+    # its token is declared after its queryable: seen by the router, the queryable is too
+    # (queried at once, the router once did not know of it yet: no reply, no refusal)
+    alive = bus.keys.alive("observer", NAME)
+    wait_for(lambda: any(r.ok is not None for r in hub.liveliness().get(alive, timeout=1.0)), 10)
     yield hub, bus.keys
     stop.set()
     thread.join(5)
