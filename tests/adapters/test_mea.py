@@ -136,7 +136,6 @@ def test_each_trigger_fires_exactly_its_electrodes_and_only_changes_are_written(
         d.close()
 
 
-@needs_fifo
 def test_the_emulators_culture_is_compiled_when_built_and_starts_as_built(emulator):
     # Compiled at the run's first chunk instead, the culture fell seconds behind real time
     # and a first hybrid run had every tenth step late (each pulse's command waited).
@@ -154,6 +153,7 @@ def test_the_emulators_culture_is_compiled_when_built_and_starts_as_built(emulat
     assert np.array_equal(a.channel, b.channel) and np.array_equal(a.t_ms, b.t_ms)
 
 
+@needs_fifo
 def test_the_emulator_may_run_its_threads_at_a_real_time_priority():
     """So that a realtime run's raised threads do not starve it (an instrument has a
     machine of its own)."""
