@@ -5,11 +5,11 @@ a few milliseconds for a CPU that busy endpoints hold (seen here: a step start
 2.5–4 ms late about once a minute on two cores). A ``SCHED_FIFO`` thread takes a
 CPU the moment it wakes. The hub raises its own threads — the loop's and the
 Zenoh threads that carry replies to it — for the steps of a realtime run only,
-and puts them back afterwards. Its live burst analysis runs one priority below
-(it holds the interpreter the loop needs at times, so it must not wait behind the
-endpoints), and endpoints started for a realtime run one below that
-(:func:`endpoint_priority`): a step's reply is then not held up by other work on
-the machine, and the hub still takes a CPU first.
+and puts them back afterwards. Endpoints started for a realtime run take two below
+it (:func:`endpoint_priority`): a step's reply is then not held up by other work on
+the machine, and the hub still takes a CPU first. The live burst analysis, a bus
+observer of its own (``hub/burst_observer.py``), stays under the ordinary scheduler,
+niced: it takes what CPU the loop leaves.
 
 Needs ``CAP_SYS_NICE`` or an ``RLIMIT_RTPRIO`` of at least the priority asked
 for; without either the run goes on under the ordinary scheduler and the
