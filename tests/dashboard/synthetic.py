@@ -21,10 +21,16 @@ BURST = {"start_ms": 500.0, "end_ms": 560.0, "n_channels": 3, "core_start_ms": 5
          "core_end_ms": 530.0}  # fmt: skip
 
 
-def write_run(run_dir, *, steps: int = N_STEPS, bursts: tuple[dict, ...] = (BURST,)) -> None:
-    """A closed loop of ``steps`` steps: a reading, a spike, a pulse and a command a step,
-    ``bursts`` (a network burst at 500-560 ms), a late body reply (step 50) and a missing
-    culture reply (step 70)."""
+def write_run(
+    run_dir,
+    *,
+    steps: int = N_STEPS,
+    bursts: tuple[dict, ...] = (BURST,),
+    spike_channel=lambda k: k % 4,
+) -> None:
+    """A closed loop of ``steps`` steps: a reading, a spike (5 ms into step ``k``, on
+    ``spike_channel(k)``), a pulse and a command a step, ``bursts`` (a network burst at
+    500-560 ms), a late body reply (step 50) and a missing culture reply (step 70)."""
     run_dir.mkdir(parents=True, exist_ok=True)
     rec = Recorder(run_dir)
     body = Description(
@@ -69,7 +75,7 @@ def write_run(run_dir, *, steps: int = N_STEPS, bursts: tuple[dict, ...] = (BURS
         )
         rec.message("late" if k == 50 else "rx", "nv/s/body/0/sensors", reading.encode())
         if k != 70:
-            spikes = SpikeBatch(**window.stamp, channel=[k % 4], t_ms=[5.0])
+            spikes = SpikeBatch(**window.stamp, channel=[spike_channel(k)], t_ms=[5.0])
             rec.message("rx", "nv/s/culture/0/spikes", spikes.encode())
     for burst in bursts:
         rec.event("network_burst", **burst, at_step=int(burst["end_ms"] // PERIOD_MS) + 1)

@@ -3,11 +3,12 @@ with `neuvision run --dashboard`, then through the replay of the run's folder.
 
 Checked: the robot moves across frames, the raster fills, Pause stops the step counter and
 Resume restarts it, Stop ends the run with outcome `stopped`, and the replay shows the same
-trajectory as the record and as the live page. Measured and printed: the page's frame rate
-and its lag behind the hub (from the hub's receipt of a step's reading, as the record
-stamps it, to the page drawing that step). Screenshots stay in the test's folder;
-NEUVISION_SCREENSHOTS=DIR also copies the live one there as dashboard.png (the picture of
-docs/dashboard.md and the README: NEUVISION_SCREENSHOTS=docs/img).
+trajectory as the record and as the live page; the raster, drawn frame by frame, shows
+every spike the page keeps and no stale one. Measured and printed: the page's frame rate
+(frames received and drawn) and its lag behind the hub (from the hub's receipt of a step's
+reading, as the record stamps it, to the page drawing that step). Screenshots stay in the
+test's folder; NEUVISION_SCREENSHOTS=DIR also copies the live one there as dashboard.png
+(the picture of docs/dashboard.md and the README: NEUVISION_SCREENSHOTS=docs/img).
 
 Chromium: Debian's `chromium` package (what .ci/run installs), or Playwright's own if
 `python -m playwright install chromium` was run; the test is skipped without either.
@@ -29,6 +30,7 @@ import pytest
 from hub.bus import free_tcp_port
 from hub.protocol import SensorReading
 from hub.record import read_run
+from tests.dashboard.synthetic import write_run
 
 pytestmark = [pytest.mark.bus, pytest.mark.browser]
 
@@ -42,6 +44,47 @@ RASTER_PIXELS = """() => {
   let n = 0;
   for (let k = 0; k < d.length; k += 4) if (d[k + 3] > 0 && Math.abs(d[k] - d[k + 2]) > 60) n++;
   return n;
+}"""
+
+# The raster's spikes against the page's own list of them (nv.spikes): each spike kept that
+# falls in the window shown is painted its type's colour at its column and row, and no
+# spike-coloured pixel stands where no kept spike is (a column not cleared when time came
+# round to it again). The geometry is the page's: a column per device pixel of the raster,
+# RASTER_S seconds across, rows from 12 px below the top to 16 px above the bottom.
+RASTER_AGAINST_SPIKES = """() => {
+  const c = document.getElementById("raster"), w = c.width, h = c.height;
+  const d = c.getContext("2d").getImageData(0, 0, w, h).data;
+  const ratio = window.devicePixelRatio || 1, top = 12 * ratio, bottom = h - 16 * ratio;
+  const cul = nv.scene.culture, n = cul.channel.length, rowH = (bottom - top) / n;
+  const colMs = RASTER_S * 1000 / w, now = Math.floor(nv.t_s * 1000 / colMs);
+  const oldest = now - w + 1, dotW = Math.max(1, Math.round(1.2 * ratio));
+  const colours = [[192, 57, 43], [46, 111, 216]];  // excitatory, inhibitory
+  const rowY = (i) => Math.floor(top + (i + 0.5) * rowH);
+  const colourAt = (x, y) => {
+    const k = 4 * (y * w + x);
+    return colours.findIndex((col) => col.every((v, j) => Math.abs(d[k + j] - v) <= 3));
+  };
+  const expected = new Set(), wrong = [];
+  let shown = 0;
+  for (const chunk of nv.spikes) {
+    for (let k = 0; k < chunk.t.length; k++) {
+      const col = Math.floor((chunk.t0 + chunk.t[k]) / colMs), i = chunk.i[k];
+      if (col < oldest || col > now) continue;
+      const type = cul.cell_type && cul.cell_type[i] === 1 ? 1 : 0;
+      const x0 = col - oldest;
+      for (let x = x0; x < Math.min(x0 + dotW, w); x++) expected.add(`${x},${i}`);
+      shown += 1;
+      if (colourAt(col - oldest, rowY(i)) !== type) wrong.push([col - oldest, i]);
+    }
+  }
+  const stray = [];
+  for (let i = 0; i < n; i++) {
+    for (let x = 0; x < w; x++) {
+      if (colourAt(x, rowY(i)) >= 0 && !expected.has(`${x},${i}`)) stray.push([x, i]);
+    }
+  }
+  return { shown, nWrong: wrong.length, nStray: stray.length,
+           wrong: wrong.slice(0, 10), stray: stray.slice(0, 10) };
 }"""
 
 
@@ -135,10 +178,14 @@ def test_a_run_watched_paused_resumed_and_stopped_in_a_browser_then_replayed(
             page.wait_for_function("nv.stats.rasterSpikes > 200", timeout=TIMEOUT_MS)
             painted = page.evaluate(RASTER_PIXELS)
             # the page's frame rate over three seconds of the run
-            r0, w0 = page.evaluate("[nv.stats.received, performance.now()]")
+            # (frames received from the dashboard, and drawn: a page busier than the
+            # frames' period draws fewer than it receives)
+            count = "[nv.stats.received, nv.stats.drawn, performance.now()]"
+            r0, d0, w0 = page.evaluate(count)
             page.wait_for_function(f"performance.now() > {w0} + 3000", timeout=TIMEOUT_MS)
-            r1, w1 = page.evaluate("[nv.stats.received, performance.now()]")
+            r1, d1, w1 = page.evaluate(count)
             fps = (r1 - r0) / ((w1 - w0) / 1e3)
+            drawn_fps = (d1 - d0) / ((w1 - w0) / 1e3)
             shots["dashboard.png"] = tmp_path / "dashboard.png"
             page.screenshot(path=shots["dashboard.png"], full_page=True)
             # pause: the step counter stops while the hub's statuses go on
@@ -235,9 +282,61 @@ def test_a_run_watched_paused_resumed_and_stopped_in_a_browser_then_replayed(
     _keep(shots["dashboard.png"])
     with capsys.disabled():
         print(
-            f"\ndashboard in Chromium: {fps:.1f} frames/s; lag behind the hub (its receipt of a "
+            f"\ndashboard in Chromium: {fps:.1f} frames/s received, {drawn_fps:.1f} drawn; lag "
+            f"behind the hub (its receipt of a "
             f"step's reading to the page drawing it) median {np.median(lags):.0f} ms, p95 "
             f"{np.percentile(lags, 95):.0f} ms, max {lags.max():.0f} ms over {lags.size} steps; "
             f"replay: {len(replayed)} steps drawn, {len(shared)} also drawn live, all at the "
             f"record's poses; screenshots in {tmp_path}"
         )
+
+
+def test_the_raster_drawn_frame_by_frame_shows_every_spike_kept_and_nothing_stale(
+    tmp_path, chromium
+):
+    """The raster draws each spike once, onto a ring of columns, and copies the ring each
+    frame: after playing past the raster's width (the ring has wrapped), and after a jump
+    back (drawn anew), it shows exactly the spikes the page keeps."""
+    from playwright.sync_api import sync_playwright
+
+    # 8 s, a spike and a pulse every 10 ms; the spikes' channels repeat every 280 ms, so
+    # what a column held 3 s before differs from what it holds now
+    write_run(tmp_path / "run", steps=800, spike_channel=lambda k: (k // 7) % 4)
+    port = free_tcp_port()
+    replay = subprocess.Popen(
+        [sys.executable, "-m", "hub.cli", "dashboard", "--replay", str(tmp_path / "run")]
+        + ["--speed", "2", "--port", str(port)],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        cwd=ROOT,
+    )
+    checks = {}
+    try:
+        _serving(f"http://127.0.0.1:{port}/", replay)
+        with sync_playwright() as pw:
+            browser = pw.chromium.launch(executable_path=chromium, headless=True)
+            page = browser.new_page(viewport={"width": 1400, "height": 1150})
+            errors: list[str] = []
+            page.on("pageerror", lambda e: errors.append(str(e)))
+            page.goto(f"http://127.0.0.1:{port}/")
+            page.wait_for_function("nv.replay && nv.t_s > 5.0", timeout=TIMEOUT_MS)
+            page.click("#btn-play")  # pause: the page then draws the same time frame after frame
+            page.wait_for_function("nv.replay && !nv.replay.playing", timeout=TIMEOUT_MS)
+            drawn = page.evaluate("nv.stats.drawn")
+            page.wait_for_function(f"nv.stats.drawn > {drawn + 3}", timeout=TIMEOUT_MS)
+            checks["after playing"] = page.evaluate(RASTER_AGAINST_SPIKES)
+            page.eval_on_selector(
+                "#slider", "(el) => { el.value = 3.5; el.dispatchEvent(new Event('change')); }"
+            )
+            page.wait_for_function("Math.abs(nv.t_s - 3.5) < 0.05", timeout=TIMEOUT_MS)
+            drawn = page.evaluate("nv.stats.drawn")
+            page.wait_for_function(f"nv.stats.drawn > {drawn + 3}", timeout=TIMEOUT_MS)
+            checks["after a jump back"] = page.evaluate(RASTER_AGAINST_SPIKES)
+            browser.close()
+    finally:
+        _stop(replay)
+    assert errors == []
+    for when, got in checks.items():
+        # a 3 s window of a spike every 10 ms, less the step without one
+        assert got["shown"] >= 290, (when, got)
+        assert got["nWrong"] == 0 and got["nStray"] == 0, (when, got)
