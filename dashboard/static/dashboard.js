@@ -324,6 +324,7 @@ function heat(level) {  // 0-255 -> dark grey, red, orange, yellow, white
   const b = Math.round(60 + 195 * Math.max(0, t * 3 - 2));
   return `rgb(${r},${g},${b})`;
 }
+const HEAT = Array.from({ length: 256 }, (_, level) => heat(level));  // its 256 styles
 
 function drawCulture() {
   const [ctx, w, h, ratio] = canvas2d("culture");
@@ -337,7 +338,7 @@ function drawCulture() {
   const dot = Math.max(1.2 * ratio, Math.min(8 * ratio, 0.42 * f.s * span / Math.sqrt(n)));
   const act = nv.activity;
   for (let k = 0; k < n; k++) {
-    ctx.fillStyle = heat(act ? act[k] : 0);
+    ctx.fillStyle = HEAT[act ? act[k] : 0];
     const px = f.x(xs[k]), py = f.y(ys[k]);
     if (cul.cell_type && cul.cell_type[k] === 1) ctx.fillRect(px - dot * 0.8, py - dot * 0.8, dot * 1.6, dot * 1.6);
     else { ctx.beginPath(); ctx.arc(px, py, dot, 0, 2 * Math.PI); ctx.fill(); }
@@ -370,13 +371,15 @@ function timeAxis(ctx, w, h, ratio, t0, t1, x, stepS) {
   }
 }
 
-// The raster's spikes and pulses are drawn once each, onto a ring of columns: one per
-// device pixel of the raster's width, a column's run time modulo RASTER_S. A frame draws only
-// what came since the last one and copies the ring onto the raster in two pieces; the ring is
-// drawn again whole after a reset (a new run, a jump in a replay), a new scene or a new size.
-// Drawing every spike of the last 3 s each frame took ~40 ms a frame in headless Chromium on
-// a 2-vCPU machine (~20,000 spikes): the page then drew ~11 of its 30 frames a second.
-const ring = { canvas: document.createElement("canvas"), key: "", cleared: 0 };
+// The raster's spikes and pulses are drawn once each, into a ring of columns: one per
+// device pixel of the raster's width, a column's run time modulo RASTER_S, its pixels kept
+// in an ImageData. A frame writes only what came since the last one (a few pixels a spike)
+// and copies the ring onto the raster in two pieces; the ring is drawn again whole after a
+// reset (a new run, a jump in a replay), a new scene or a new size. Drawing every spike of
+// the last 3 s each frame took ~40 ms a frame in headless Chromium on a 2-vCPU machine
+// (~20,000 spikes): the page then drew ~11 of its 30 frames a second.
+const ring = { canvas: document.createElement("canvas"), key: "", cleared: 0, image: null };
+const PULSE_RGBA = [23, 163, 74, 0.28], SPIKE_RGB = [[192, 57, 43], [46, 111, 216]];
 
 function drawRaster() {
   const [ctx, w, h, ratio] = canvas2d("raster");
@@ -410,43 +413,72 @@ function updateRing(cul, w, rh, rowH, ratio) {
   const colMs = (RASTER_S * 1000) / w, now = Math.floor((nv.t_s * 1000) / colMs);
   const rc = ring.canvas.getContext("2d");
   const key = `${w}x${rh}:${cul.channel.length}:${nv.stats.resets}:${nv.sceneVersion}`;
+  let dirtyFrom = now + 1;  // the columns written (absolute numbers), to copy to the canvas
   if (ring.key !== key) {  // start again: every spike and pulse kept is drawn anew
     ring.key = key;
-    ring.canvas.width = w; ring.canvas.height = rh;  // (which also clears it)
+    ring.canvas.width = w; ring.canvas.height = rh;
+    ring.image = rc.createImageData(w, rh);
     ring.cleared = now;
+    dirtyFrom = now - w + 1;
     for (const c of nv.spikes) c.drawn = false;
     for (const c of nv.pulses) c.drawn = false;
   } else if (now > ring.cleared) {  // the columns time entered since: their old contents go
-    const from = (ring.cleared + 1) % w, count = now - ring.cleared;
-    if (count >= w) rc.clearRect(0, 0, w, rh);
-    else {
-      rc.clearRect(from, 0, Math.min(count, w - from), rh);
-      if (from + count > w) rc.clearRect(0, 0, from + count - w, rh);
-    }
+    dirtyFrom = Math.max(ring.cleared + 1, now - w + 1);
+    clearColumns(ring.image, dirtyFrom, now);
     ring.cleared = now;
   }
-  const oldest = now - w + 1;
-  const dotH = Math.max(rowH, ratio), dotW = Math.max(1, Math.round(1.2 * ratio));
-  const paint = (chunks, keep) => {
+  const d = ring.image.data, oldest = now - w + 1;
+  const dotW = Math.max(1, Math.round(1.2 * ratio)), least = Math.max(1, Math.round(ratio));
+  const paint = (chunks, keep, rgba) => {
+    const [r, g, b, a] = rgba;
     for (const c of chunks) {
       for (let k = 0; k < c.t.length; k++) {
         const col = Math.floor((c.t0 + c.t[k]) / colMs), i = c.i[k];
-        if (col >= oldest && col <= now && keep(i)) rc.fillRect(col % w, i * rowH, dotW, dotH);
+        if (col < oldest || col > now || !keep(i)) continue;
+        if (col < dirtyFrom) dirtyFrom = col;
+        const x0 = col % w, x1 = Math.min(x0 + Math.min(dotW, now - col + 1), w);
+        const y0 = Math.floor(i * rowH);
+        const y1 = Math.min(Math.max(Math.ceil((i + 1) * rowH), y0 + least), rh);
+        for (let y = y0; y < y1; y++) {
+          for (let x = x0; x < x1; x++) {
+            const p = 4 * (y * w + x);
+            if (a >= 1) { d[p] = r; d[p + 1] = g; d[p + 2] = b; d[p + 3] = 255; continue; }
+            const under = d[p + 3] / 255, out = a + under * (1 - a);  // a over what is there
+            d[p] = (r * a + d[p] * under * (1 - a)) / out;
+            d[p + 1] = (g * a + d[p + 1] * under * (1 - a)) / out;
+            d[p + 2] = (b * a + d[p + 2] * under * (1 - a)) / out;
+            d[p + 3] = out * 255;
+          }
+        }
       }
     }
   };
   const pulses = nv.pulses.filter((c) => !c.drawn), spikes = nv.spikes.filter((c) => !c.drawn);
   const types = cul.cell_type, inhibitory = (i) => !!types && types[i] === 1;
   // pulses under the spikes, light: a closed loop stimulates its sites every step
-  rc.fillStyle = "rgba(23, 163, 74, 0.28)";
-  paint(pulses, () => true);
-  rc.fillStyle = "#c0392b";
-  paint(spikes, (i) => !inhibitory(i));
-  rc.fillStyle = "#2e6fd8";
-  paint(spikes, inhibitory);
+  paint(pulses, () => true, PULSE_RGBA);
+  paint(spikes, (i) => !inhibitory(i), [...SPIKE_RGB[0], 1]);
+  paint(spikes, inhibitory, [...SPIKE_RGB[1], 1]);
   for (const c of pulses) c.drawn = true;
   for (const c of spikes) c.drawn = true;
+  for (const [x, n] of ringSpans(dirtyFrom, now, w)) rc.putImageData(ring.image, 0, 0, x, 0, n, rh);
   return (now + 1) % w;
+}
+
+// The ring's columns [from, to] (absolute numbers) as at most two spans [x, width] of it.
+function ringSpans(from, to, w) {
+  const count = to - from + 1;
+  if (count <= 0) return [];
+  if (count >= w) return [[0, w]];
+  const x = ((from % w) + w) % w;
+  return x + count <= w ? [[x, count]] : [[x, w - x], [0, x + count - w]];
+}
+
+function clearColumns(image, from, to) {
+  const d = image.data, w = image.width;
+  for (const [x, n] of ringSpans(from, to, w)) {
+    for (let y = 0; y < image.height; y++) d.fill(0, 4 * (y * w + x), 4 * (y * w + x + n));
+  }
 }
 
 // Network bursts [start_ms, end_ms, n, core_start_ms, core_end_ms]: the extent (first to last
