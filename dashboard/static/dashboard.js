@@ -375,9 +375,8 @@ function timeAxis(ctx, w, h, ratio, t0, t1, x, stepS) {
 // device pixel of the raster's width, a column's run time modulo RASTER_S, its pixels kept
 // in an ImageData. A frame writes only what came since the last one (a few pixels a spike)
 // and copies the ring onto the raster in two pieces; the ring is drawn again whole after a
-// reset (a new run, a jump in a replay), a new scene or a new size. Drawing every spike of
-// the last 3 s each frame took ~40 ms a frame in headless Chromium on a 2-vCPU machine
-// (~20,000 spikes): the page then drew ~11 of its 30 frames a second.
+// reset (a new run, a jump in a replay), a new scene or a new size. Drawing all of the last
+// 3 s (~20,000 spikes) each frame took longer than a frame's period on a slow machine.
 const ring = { canvas: document.createElement("canvas"), key: "", cleared: 0, image: null };
 const PULSE_RGBA = [23, 163, 74, 0.28], SPIKE_RGB = [[192, 57, 43], [46, 111, 216]];
 
