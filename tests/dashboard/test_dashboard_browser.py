@@ -121,6 +121,16 @@ def _serving(url: str, proc: subprocess.Popen, timeout_s: float = 90.0) -> None:
             time.sleep(0.1)
 
 
+def _open_page(pw, chromium: str, port: int, errors: list[str]):
+    """A headless Chromium showing the dashboard served on ``port``; the page's script
+    errors go to ``errors``. Returns the browser (to close) and the page."""
+    browser = pw.chromium.launch(executable_path=chromium, headless=True)
+    page = browser.new_page(viewport={"width": 1400, "height": 1150})
+    page.on("pageerror", lambda e: errors.append(str(e)))
+    page.goto(f"http://127.0.0.1:{port}/")
+    return browser, page
+
+
 def _stop(proc: subprocess.Popen) -> None:
     if proc.poll() is None:
         proc.terminate()
@@ -160,11 +170,8 @@ def test_a_run_watched_paused_resumed_and_stopped_in_a_browser_then_replayed(
     try:
         _serving(f"http://127.0.0.1:{port}/", run)
         with sync_playwright() as pw:
-            browser = pw.chromium.launch(executable_path=chromium, headless=True)
-            page = browser.new_page(viewport={"width": 1400, "height": 1150})
             errors: list[str] = []
-            page.on("pageerror", lambda e: errors.append(str(e)))
-            page.goto(f"http://127.0.0.1:{port}/")
+            browser, page = _open_page(pw, chromium, port, errors)
             page.wait_for_function(
                 "nv.stats.connected && nv.scene && nv.scene.culture && nv.step >= 100",
                 timeout=TIMEOUT_MS,
@@ -248,10 +255,7 @@ def test_a_run_watched_paused_resumed_and_stopped_in_a_browser_then_replayed(
     try:
         _serving(f"http://127.0.0.1:{rport}/", replay)
         with sync_playwright() as pw:
-            browser = pw.chromium.launch(executable_path=chromium, headless=True)
-            page = browser.new_page(viewport={"width": 1400, "height": 1150})
-            page.on("pageerror", lambda e: errors.append(str(e)))
-            page.goto(f"http://127.0.0.1:{rport}/")
+            browser, page = _open_page(pw, chromium, rport, errors)
             page.wait_for_function("nv.replay && nv.trace.length > 40", timeout=TIMEOUT_MS)
             # a jump with the slider, to the middle of the run
             middle = float(t_s[len(t_s) // 2])
@@ -314,11 +318,8 @@ def test_the_raster_drawn_frame_by_frame_shows_every_spike_kept_and_nothing_stal
     try:
         _serving(f"http://127.0.0.1:{port}/", replay)
         with sync_playwright() as pw:
-            browser = pw.chromium.launch(executable_path=chromium, headless=True)
-            page = browser.new_page(viewport={"width": 1400, "height": 1150})
             errors: list[str] = []
-            page.on("pageerror", lambda e: errors.append(str(e)))
-            page.goto(f"http://127.0.0.1:{port}/")
+            browser, page = _open_page(pw, chromium, port, errors)
             page.wait_for_function("nv.replay && nv.t_s > 5.0", timeout=TIMEOUT_MS)
             page.click("#btn-play")  # pause: the page then draws the same time frame after frame
             page.wait_for_function("nv.replay && !nv.replay.playing", timeout=TIMEOUT_MS)
