@@ -378,6 +378,7 @@ function timeAxis(ctx, w, h, ratio, t0, t1, x, stepS) {
 // reset (a new run, a jump in a replay), a new scene or a new size. Drawing all of the last
 // 3 s (~20,000 spikes) each frame took longer than a frame's period on a slow machine.
 const ring = { canvas: document.createElement("canvas"), key: "", cleared: 0, image: null };
+// excitatory and inhibitory spikes (the rates' curves too; the legend's are dashboard.css's)
 const PULSE_RGBA = [23, 163, 74, 0.28], SPIKE_RGB = [[192, 57, 43], [46, 111, 216]];
 
 function drawRaster() {
@@ -522,7 +523,7 @@ function drawRates() {
   ctx.fillStyle = "#6b7380"; ctx.font = `${11 * ratio}px system-ui, sans-serif`;
   ctx.fillText(`${peak.toFixed(0)} Hz`, 2 * ratio, top + 10 * ratio);
   ctx.fillText("0", 2 * ratio, bottom);
-  const colours = [null, "#222", "#c0392b", "#2e6fd8"];
+  const colours = [null, "#222", ...SPIKE_RGB.map((c) => `rgb(${c.join(",")})`)];
   for (let k = 1; k < 4; k++) {
     ctx.strokeStyle = colours[k]; ctx.lineWidth = 1.4 * ratio;
     ctx.beginPath();
