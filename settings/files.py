@@ -33,6 +33,8 @@ MAX_FILE_BYTES = 4 * 1024 * 1024
 # Tables whose contents belong to the scheme or kind named beside them; a scheme's are not
 # inherited by another scheme even when the extending file gives none.
 OWNED_TABLE, OWNER_KEYS, SCHEME_KEY = "params", ("scheme", "kind"), "scheme"
+# The checkout the code runs from (an editable install): its configs/ are the shipped ones.
+PROJECT_ROOT = Path(__file__).resolve().parents[1]
 
 
 def read_toml(path: str | Path, what: str = "config file") -> dict[str, Any]:
@@ -52,7 +54,7 @@ def read_toml(path: str | Path, what: str = "config file") -> dict[str, Any]:
     """
     path = Path(path)
     if not path.exists():
-        raise ConfigError(f"{what} {path} not found")
+        raise ConfigError(f"{what} {path} not found{_shipped_hint(path)}")
     if path.is_dir():
         raise ConfigError(f"{what} {path} is a folder, not a TOML file")
     try:
@@ -77,6 +79,17 @@ def read_toml(path: str | Path, what: str = "config file") -> dict[str, Any]:
     if not data:
         raise ConfigError(f"{what} {path} is empty (no settings in it)")
     return data
+
+
+def _shipped_hint(path: Path) -> str:
+    """For a relative path that names one of the project's own files (``configs/...``)
+    from another folder: where that file is."""
+    if path.is_absolute():
+        return ""
+    shipped = PROJECT_ROOT / path
+    if not shipped.is_file():
+        return ""
+    return f" (relative to the current folder {Path.cwd()}); the project's own is {shipped}"
 
 
 def load(path: str | Path, what: str = "config file", paths: Iterable[str] = ()) -> dict[str, Any]:

@@ -70,6 +70,16 @@ def test_a_folder_or_a_missing_file_as_the_config_is_refused(capsys, tmp_path, n
     assert "nope.toml not found" in refused_run(capsys, tmp_path, tmp_path / "nope.toml")
 
 
+def test_a_shipped_config_named_from_another_folder_is_refused_with_where_it_is(
+    capsys, tmp_path, no_process, monkeypatch
+):
+    monkeypatch.chdir(tmp_path)
+    err = refused_run(capsys, tmp_path, "configs/closed_loop.toml")
+    assert "configs/closed_loop.toml not found (relative to the current folder" in err
+    shipped = Path(__file__).resolve().parents[2] / "configs" / "closed_loop.toml"
+    assert f"the project's own is {shipped}" in err
+
+
 @pytest.mark.parametrize(
     "override, message",
     [
