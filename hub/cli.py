@@ -355,8 +355,8 @@ def _add_dashboard_commands(sub) -> None:
         "rates, the loop's timing and each endpoint; with pause, resume and stop. It observes "
         "the bus and may run on another machine than the hub (--connect). With --replay it "
         "plays a recorded run through the same page, with a time slider.",
-        epilog="A hub started by 'neuvision run' listens on a port of its own: give "
-        "'neuvision run --dashboard' instead, or --connect the address it prints.",
+        epilog="Without --connect, the hub of the session (--session) that a 'neuvision run' "
+        "on this machine started is found where that run says it listens.",
     )
     _add_config_args(p, shortcuts=False)
     p.add_argument("--session", help="bus.session")
@@ -374,6 +374,8 @@ def _add_dashboard_commands(sub) -> None:
         "reply's state is the one the command leads to (paused, running, stopping). Exit "
         "status 0 when the hub "
         "took the command, 2 when it refused it or no hub answered.",
+        epilog="Without --connect, the hub of the session (--session) that a 'neuvision run' "
+        "on this machine started is found where that run says it listens.",
     )
     p.add_argument("cmd", choices=("status", "pause", "resume", "stop"))
     _add_config_args(p, shortcuts=False)
@@ -777,8 +779,8 @@ def cmd_dashboard(args) -> int:
         raise InputError(
             f"the dashboard needs its web server: pip install 'neuvision[dashboard]' ({exc})"
         ) from None
-    cfg = load_config(args.config, _overrides(args))
     replay = _run_folder(args.replay) if args.replay else None
+    cfg = load_config(args.config, _overrides(args)) if replay else _hub_config(args)[0]
     try:
         run_dashboard(
             cfg,
@@ -796,14 +798,45 @@ def cmd_dashboard(args) -> int:
     return EXIT_OK
 
 
+def _hub_config(args):
+    """The config of a command that reaches a running hub (``ctl``, ``dashboard``), and
+    what to add to a message that none answered. With no address given (``--connect``,
+    ``bus.connect``), a hub of the session running on this machine is found where
+    ``neuvision run`` says it listens (:mod:`hub.local_hubs`)."""
+    from hub import local_hubs
+
+    cfg = load_config(args.config, _overrides(args))
+    if cfg.bus.connect:
+        return cfg, ""
+    try:
+        found = local_hubs.find(cfg.bus.session)
+    except local_hubs.AmbiguousSession as exc:
+        raise InputError(str(exc)) from None
+    if found is None:
+        return cfg, (
+            f" (no 'neuvision run' on this machine runs session {cfg.bus.session!r}; "
+            "for a hub elsewhere give --connect HOST[:PORT])"
+        )
+    print(
+        f"neuvision: the hub of session {cfg.bus.session!r} on this machine listens on "
+        f"{', '.join(found.locators)} (run folder {found.run_dir})",
+        file=sys.stderr,
+    )
+    connect = f"bus.connect={json.dumps(list(found.locators))}"
+    return load_config(args.config, [*_overrides(args), connect]), ""
+
+
 def cmd_ctl(args) -> int:
     from hub.ctl import ctl
 
-    cfg = load_config(args.config, _overrides(args))
-    reply = ctl(cfg.bus, args.cmd, timeout_s=args.timeout_s, timeout_name="--timeout-s")
+    cfg, not_found = _hub_config(args)
+    try:
+        reply = ctl(cfg.bus, args.cmd, timeout_s=args.timeout_s, timeout_name="--timeout-s")
+    except BusError as exc:
+        raise BusError(f"{exc}{not_found}") from None
     if reply is None:
         where = ", ".join(cfg.bus.connect or cfg.bus.listen)
-        print(f"neuvision: no hub answered on session {cfg.bus.session!r} at {where}",
+        print(f"neuvision: no hub answered on session {cfg.bus.session!r} at {where}{not_found}",
               file=sys.stderr)  # fmt: skip
         return EXIT_FAULT
     out = {"ok": reply.ok, "state": reply.state, "reason": reply.reason, "data": reply.data}

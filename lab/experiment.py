@@ -24,6 +24,7 @@ import logging
 import signal
 import threading
 from collections.abc import Callable
+from contextlib import nullcontext
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -118,12 +119,6 @@ def run_experiment(
     check_security_files(cfg, started_here)
     dash_host, dash_port = dashboard_address(cfg) if dashboard else (None, None)
     run_dir = new_run_dir(cfg.experiment.runs_dir, cfg.experiment.name)
-    if local and port is not None:  # a port of its own: say where, for ctl and dashboards
-        announce(
-            f"the hub listens on 127.0.0.1:{port}, session {cfg.bus.session!r} "
-            f"(neuvision ctl status|pause|resume|stop --connect 127.0.0.1:{port} "
-            f"--session {cfg.bus.session})"
-        )
     announce(f"run folder {run_dir}")
     awaited = [r for r in ("body", "culture") if cfg.endpoint(r).launch == "local"]
     if not local and awaited:  # `neuvision hub` on a file whose endpoints are "local"
@@ -148,21 +143,24 @@ def run_experiment(
             for sig in (signal.SIGINT, signal.SIGTERM)
         }
     watching = watch_local_endpoints(procs, hub.request_stop)
-    try:
-        result = hub.run()
-    finally:
-        watching.set()
-        if signals:
-            for sig, handler in previous.items():
-                signal.signal(sig, handler)
-        if progress is not None:
-            progress.close()
-        codes = stop_local_endpoints(procs)
-        if dash is not None:
-            ended_early = dash.popen.poll()
-            stop_local_endpoints([dash])
-            if ended_early:
-                announce(f"the dashboard ended early (status {ended_early}); see {dash.log_path}")
+    with _said_where(cfg, port, run_dir, announce):
+        try:
+            result = hub.run()
+        finally:
+            watching.set()
+            if signals:
+                for sig, handler in previous.items():
+                    signal.signal(sig, handler)
+            if progress is not None:
+                progress.close()
+            codes = stop_local_endpoints(procs)
+            if dash is not None:
+                ended_early = dash.popen.poll()
+                stop_local_endpoints([dash])
+                if ended_early:
+                    announce(
+                        f"the dashboard ended early (status {ended_early}); see {dash.log_path}"
+                    )
     for role, code in codes.items():
         if code == -signal.SIGTERM:  # stopped above while still starting, before its handler
             log.debug("%s endpoint stopped while it was starting up", role)
@@ -178,6 +176,21 @@ def run_experiment(
             for failure in summary.get("failures", []):
                 announce(f"summary: {failure['part']} failed: {failure['error']}")
     return result
+
+
+def _said_where(cfg: ExperimentConfig, port: int | None, run_dir: Path, announce):
+    """A hub on a port of its own (``port``) says where it listens, to the user and, while
+    it runs, to ``neuvision ctl`` and ``neuvision dashboard`` on this machine."""
+    from hub.local_hubs import announced
+
+    if port is None:
+        return nullcontext()
+    session = cfg.bus.session
+    announce(
+        f"the hub listens on 127.0.0.1:{port}, session {session!r} (neuvision ctl "
+        f"status|pause|resume|stop --session {session}; neuvision dashboard likewise)"
+    )
+    return announced(session, cfg.bus.listen, run_dir)
 
 
 def check_hub_sections(cfg: ExperimentConfig) -> None:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import os
 import secrets
+import tempfile
 from pathlib import Path
 
 import pytest
@@ -58,6 +59,11 @@ TEST_ENDPOINTS = [
 # Endpoint subprocesses import the test fixtures (tests.endpoints) from the repo root.
 ROOT = str(Path(__file__).resolve().parent.parent)
 os.environ["PYTHONPATH"] = os.pathsep.join(p for p in (ROOT, os.environ.get("PYTHONPATH", "")) if p)
+
+# Hubs that `neuvision run` starts say where they listen in a folder of the user's
+# (hub/local_hubs.py): the tests' hubs in one of their own, never seen by a user's commands.
+RUNTIME_DIR = tempfile.TemporaryDirectory(prefix="nv-test-hubs-")
+os.environ["NEUVISION_RUNTIME_DIR"] = RUNTIME_DIR.name
 
 # LSL (adapters/mea/lsl.py) finds streams by multicast: every test, and every endpoint a
 # test starts, keeps it on this machine's loopback.
