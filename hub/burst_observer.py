@@ -39,7 +39,7 @@ from dataclasses import dataclass, field
 
 import zenoh
 
-from hub import wire
+from hub import stopping, wire
 from hub.analysis.bursts import BurstParams
 from hub.analysis.network_bursts import NetworkBurstParams
 from hub.analysis.online import OnlineBurstDetector
@@ -384,6 +384,8 @@ def main(bus: BusSection, *, once: bool = False) -> int:
     stop = StopFlag()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
+    if stopping.signalled_while_starting():  # and its KeyboardInterrupt was lost
+        return 0
     # Zenoh's thread hands queries over through the interpreter: never wait long for it.
     sys.setswitchinterval(0.001)
     where = ", ".join(bus.connect or bus.listen)

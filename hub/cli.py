@@ -24,6 +24,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
+from hub import stopping
 from hub.bus import BusError
 from hub.config import ConfigError, LoopSection, load_config
 from hub.logs import install_log_cap
@@ -388,15 +389,20 @@ def _add_dashboard_commands(sub) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     in_main_thread = threading.current_thread() is threading.main_thread()
-    if in_main_thread and signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
-        # Left ignored by the parent (a shell does so for a background job): Ctrl-C stops
-        # a command while it starts up as it does once the command's own handler is in.
-        signal.signal(signal.SIGINT, signal.default_int_handler)
+    stopping.starting()
+    if in_main_thread and signal.getsignal(signal.SIGINT) in (
+        signal.SIG_IGN,
+        signal.default_int_handler,
+    ):
+        # Ctrl-C stops a command while it starts up as it does once the command's own
+        # handler is in; even when the parent left it ignored (a shell does so for a
+        # background job), and remembered where a library swallows its KeyboardInterrupt.
+        signal.signal(signal.SIGINT, stopping.interrupt_while_starting)
     args = build_parser().parse_args(argv)
     if in_main_thread and args.command in ("endpoint", "observe"):
         # Its runner stops it with SIGTERM, maybe while it starts up (its imports, compiled
         # kernels, its model): as Ctrl-C then (below), not a death by signal.
-        signal.signal(signal.SIGTERM, signal.default_int_handler)
+        signal.signal(signal.SIGTERM, stopping.interrupt_while_starting)
     # Schemes and endpoint kinds named module:attr may live in the user's own
     # folder, as with `python -m`.
     if "" not in sys.path and os.getcwd() not in sys.path:
@@ -423,7 +429,14 @@ def main(argv: list[str] | None = None) -> int:
         # building its model): one line. An endpoint asked to stop exits 0, as it does once
         # serving (docs/contract.md); any other command 130.
         print("neuvision: interrupted", file=sys.stderr)
+        # CPython 3.11 notes a KeyboardInterrupt that ends an exec() of a string (a
+        # dataclass's generated methods, as numba's imports make them) as unhandled even
+        # once caught, and the process then kills itself by SIGINT at exit; the next
+        # exec of a string clears that note.
+        exec("pass")
         return EXIT_OK if args.command in ("endpoint", "observe") else EXIT_INTERRUPTED
+    finally:
+        stopping.starting()  # for a command run after this one in the same process
 
 
 def _one_line(exc: BaseException) -> str:

@@ -35,7 +35,7 @@ from collections.abc import Sequence
 
 import zenoh
 
-from hub import protocol, wire
+from hub import protocol, stopping, wire
 from hub.bus import LOOP_PUBLISH, TELEMETRY_PUBLISH, open_session, payload_bytes
 from hub.config import BusSection, ConfigError, EndpointSection, ExperimentConfig
 from hub.limits import StimulationLimits, motor_violation
@@ -480,6 +480,8 @@ class Endpoint(abc.ABC):
         if install_signals:
             for sig in (signal.SIGINT, signal.SIGTERM):
                 signal.signal(sig, lambda *_: self.request_stop())
+            if stopping.signalled_while_starting():  # and its KeyboardInterrupt was lost
+                self.request_stop()
         keys = self.keys = Keys(bus.session)
         placement = place_threads(f"{self.role}.cpus", cpus)
         if placement.reason:
@@ -487,6 +489,8 @@ class Endpoint(abc.ABC):
         try:
             self._description()  # described once: what inputs are checked against
             self.warm_up()  # so that the first realtime steps are not late
+            if self._stop.is_set():
+                raise _StoppedWaiting
             where = ", ".join(bus.connect or bus.listen)
             log.info("%s/%s: connecting to the hub at %s", self.role, self.id, where)
             session = self._session = open_session(

@@ -49,3 +49,30 @@ class StopFlag:
             # Never drained: once set, the pipe stays readable for every waiting thread.
             select.select([self._read_fd], [], [], left)
         return True
+
+
+# A stop signal (Ctrl-C, or the runner's SIGTERM) that came while a command was starting up,
+# before its own handler was in. The KeyboardInterrupt raised for it stops the start-up
+# where it is, unless third-party code swallows it: one raised inside a ctypes callback
+# (numba loading its cache through llvmlite) is printed as "ignored" and lost, and the
+# endpoint would go on to serve. The command's own handler, once in, looks here.
+_signalled_while_starting = False
+
+
+def interrupt_while_starting(signum, frame) -> None:
+    """Signal handler for a command's start-up: remember the signal, raise KeyboardInterrupt."""
+    global _signalled_while_starting
+    _signalled_while_starting = True
+    raise KeyboardInterrupt
+
+
+def signalled_while_starting() -> bool:
+    """Whether a stop signal came during this command's start-up (even one swallowed)."""
+    return _signalled_while_starting
+
+
+def starting() -> None:
+    """Forget any such signal: a command starts, or ended (``neuvision`` may be called more
+    than once in one process)."""
+    global _signalled_while_starting
+    _signalled_while_starting = False

@@ -31,6 +31,7 @@ from typing import Any
 
 import numpy as np
 
+from hub import stopping
 from hub.config import ConfigError, ExperimentConfig, load_config
 from hub.protocol import MotorCommand, SensorReading, Stimulation
 from hub.record import MANIFEST_FILE, RunRecord, read_run
@@ -142,6 +143,8 @@ def run_experiment(
             sig: signal.signal(sig, lambda *_: hub.request_stop("interrupted"))
             for sig in (signal.SIGINT, signal.SIGTERM)
         }
+        if stopping.signalled_while_starting():  # and its KeyboardInterrupt was lost
+            hub.request_stop("interrupted")
     watching = watch_local_endpoints(procs, hub.request_stop)
     with _said_where(cfg, port, run_dir, announce):
         try:

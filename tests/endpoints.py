@@ -8,7 +8,10 @@ what they produce. So a record shows which step's output fed which step's input.
 
 from __future__ import annotations
 
+import ctypes
 import dataclasses
+import os
+import signal
 import time
 
 import numpy as np
@@ -95,6 +98,37 @@ class DeviceBody(EchoBody):
 
     def describe(self):
         return dataclasses.replace(super().describe(), realtime_only=True, cycle_ms=80.0)
+
+
+class BodyStoppedWhileBuilding(EchoBody):
+    """An EchoBody whose model building gets SIGTERM inside a ctypes callback: the
+    KeyboardInterrupt raised for it there is printed as ignored and lost (as when numba
+    loads its cache through llvmlite), and the building goes on."""
+
+    def __init__(self, id="0"):
+        def signal_self():
+            os.kill(os.getpid(), signal.SIGTERM)
+            sum(range(1000))  # the handler runs here, inside the callback
+
+        ctypes.CFUNCTYPE(None)(signal_self)()
+        super().__init__(id)
+
+    @classmethod
+    def from_config(cls, section, cfg):
+        return cls(section.id)
+
+
+class BodyStoppedInExec(EchoBody):
+    """An EchoBody whose model building gets SIGTERM inside an exec() of a string (as a
+    dataclass's generated methods are made): the KeyboardInterrupt leaves the exec."""
+
+    def __init__(self, id="0"):
+        exec("os.kill(os.getpid(), signal.SIGTERM); sum(range(1000))")
+        super().__init__(id)
+
+    @classmethod
+    def from_config(cls, section, cfg):
+        return cls(section.id)
 
 
 class EchoCulture(Endpoint):

@@ -11,6 +11,7 @@ from pathlib import Path
 import pytest
 
 import hub.launch
+from hub import stopping
 from hub.cli import EXIT_CONFIG, main
 
 CLOSED_LOOP = Path(__file__).resolve().parents[2] / "configs" / "closed_loop.toml"
@@ -291,7 +292,12 @@ def sigint_ignored():
 
 def test_ctrl_c_is_taken_again_when_the_parent_left_it_ignored(capsys, tmp_path, sigint_ignored):
     main(["record-info", str(tmp_path / "nothing")])
-    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    handler = signal.getsignal(signal.SIGINT)
+    assert handler is stopping.interrupt_while_starting
+    with pytest.raises(KeyboardInterrupt):  # as Python's own handler, remembered
+        handler(signal.SIGINT, None)
+    assert stopping.signalled_while_starting()
+    stopping.starting()
 
 
 def test_a_command_called_from_another_thread_leaves_the_signals_alone(
