@@ -414,7 +414,12 @@ def main(argv: list[str] | None = None) -> int:
     )
     install_log_cap()  # a stranger's payload must not make a 500 kB log line
     try:
-        return COMMANDS[args.command](args)
+        try:
+            return COMMANDS[args.command](args)
+        except Exception as exc:
+            if stopping.signalled_while_starting():  # a library made the interrupt its error
+                return _interrupted(args, exc)
+            raise
     except ConfigError as exc:
         print(f"neuvision: config error: {_one_line(exc)}", file=sys.stderr)
         return EXIT_CONFIG
@@ -425,18 +430,22 @@ def main(argv: list[str] | None = None) -> int:
         print(f"neuvision: {_one_line(exc)}", file=sys.stderr)
         return EXIT_FAULT
     except KeyboardInterrupt:
-        # Ctrl-C before a command's own handler is in place (its imports, an endpoint
-        # building its model): one line. An endpoint asked to stop exits 0, as it does once
-        # serving (docs/contract.md); any other command 130.
-        print("neuvision: interrupted", file=sys.stderr)
-        # CPython 3.11 notes a KeyboardInterrupt that ends an exec() of a string (a
-        # dataclass's generated methods, as numba's imports make them) as unhandled even
-        # once caught, and the process then kills itself by SIGINT at exit; the next
-        # exec of a string clears that note.
-        exec("pass")
-        return EXIT_OK if args.command in ("endpoint", "observe") else EXIT_INTERRUPTED
+        return _interrupted(args)
     finally:
         stopping.starting()  # for a command run after this one in the same process
+
+
+def _interrupted(args, exc: BaseException | None = None) -> int:
+    """Ctrl-C (or the runner's SIGTERM) before a command's own handler is in place (its
+    imports, an endpoint building its model): one line. An endpoint asked to stop exits 0,
+    as it does once serving (docs/contract.md); any other command 130."""
+    why = f" ({type(exc).__name__}: {_one_line(exc)})" if exc is not None else ""
+    print(f"neuvision: interrupted{why}", file=sys.stderr)
+    # CPython 3.11 notes a KeyboardInterrupt that ends an exec() of a string (a dataclass's
+    # generated methods, as numba's imports make them) as unhandled even once caught, and
+    # the process then kills itself by SIGINT at exit; the next exec of a string clears it.
+    exec("pass")
+    return EXIT_OK if args.command in ("endpoint", "observe") else EXIT_INTERRUPTED
 
 
 def _one_line(exc: BaseException) -> str:
