@@ -389,7 +389,7 @@ def _add_dashboard_commands(sub) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     in_main_thread = threading.current_thread() is threading.main_thread()
-    stopping.starting()
+    stopping.forget_start_signal()
     if in_main_thread and signal.getsignal(signal.SIGINT) in (
         signal.SIG_IGN,
         signal.default_int_handler,
@@ -432,7 +432,7 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         return _interrupted(args)
     finally:
-        stopping.starting()  # for a command run after this one in the same process
+        stopping.forget_start_signal()  # for a command run after this one in the same process
 
 
 def _interrupted(args, exc: BaseException | None = None) -> int:

@@ -489,7 +489,7 @@ class Endpoint(abc.ABC):
         try:
             self._description()  # described once: what inputs are checked against
             self.warm_up()  # so that the first realtime steps are not late
-            if self._stop.is_set():
+            if self._stop.is_set():  # stopped while it started: nothing opened yet
                 raise _StoppedWaiting
             where = ", ".join(bus.connect or bus.listen)
             log.info("%s/%s: connecting to the hub at %s", self.role, self.id, where)

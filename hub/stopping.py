@@ -71,7 +71,7 @@ def signalled_while_starting() -> bool:
     return _signalled_while_starting
 
 
-def starting() -> None:
+def forget_start_signal() -> None:
     """Forget any such signal: a command starts, or ended (``neuvision`` may be called more
     than once in one process)."""
     global _signalled_while_starting

@@ -297,7 +297,7 @@ def test_ctrl_c_is_taken_again_when_the_parent_left_it_ignored(capsys, tmp_path,
     with pytest.raises(KeyboardInterrupt):  # as Python's own handler, remembered
         handler(signal.SIGINT, None)
     assert stopping.signalled_while_starting()
-    stopping.starting()
+    stopping.forget_start_signal()
 
 
 def test_a_command_called_from_another_thread_leaves_the_signals_alone(
