@@ -60,6 +60,9 @@ PERIOD_MS = 10.0
 N_STEPS = 20
 INPUT_TIMEOUT_S = 0.3  # the suite shortens the endpoint's input timeout to this
 REPLY_TIMEOUT_S = 10.0  # a step of a slow model on a busy machine still answers within this
+# Coming up includes a simulator's warm-up, which compiles its kernels when numba's cache
+# is cold (a fresh clone): tens of seconds on a busy two-core machine.
+START_TIMEOUT_S = 90.0
 WINDOW_TOLERANCE_S = 1e-9
 
 
@@ -125,8 +128,8 @@ class FakeHub:
         self.status: int | None = None
         self.thread = threading.Thread(target=self._serve, daemon=True)
         self.thread.start()
-        if not self.alive.wait(REPLY_TIMEOUT_S):
-            self.close()
+        if not self.alive.wait(START_TIMEOUT_S):
+            self.close(wait_s=START_TIMEOUT_S)  # it may still be warming up
             raise AssertionError(f"{type(endpoint).__name__} did not come up on the bus")
         self.description = self.describe()
         # the mode runs are announced in: a real device takes realtime runs only
@@ -270,10 +273,11 @@ class FakeHub:
         """The hub's liveliness token goes away (as when the hub dies)."""
         self.hub_token.undeclare()
 
-    def close(self) -> None:
-        """Stop the endpoint (it must return from serve) and close the hub's session."""
+    def close(self, wait_s: float = REPLY_TIMEOUT_S) -> None:
+        """Stop the endpoint (it must return from serve within ``wait_s``) and close the
+        hub's session."""
         self.endpoint.request_stop()
-        self.thread.join(REPLY_TIMEOUT_S)
+        self.thread.join(wait_s)
         self.session.close()
         assert not self.thread.is_alive(), "serve() did not return after request_stop()"
 
