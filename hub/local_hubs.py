@@ -38,7 +38,8 @@ class AmbiguousSession(LookupError):
 
 
 def folder() -> Path:
-    """This user's folder of hub files (made, private to the user, if missing):
+    """This user's folder of hub files (made, private to the user, if missing; refused,
+    with ``PermissionError``, if another user owns it or others may write in it):
     ``$NEUVISION_RUNTIME_DIR``, else ``$XDG_RUNTIME_DIR/neuvision``, else a folder in the
     system's temporary one named for the user."""
     path = os.environ.get(FOLDER_ENV)
@@ -51,6 +52,10 @@ def folder() -> Path:
         )
     path = Path(path)
     path.mkdir(mode=0o700, parents=True, exist_ok=True)
+    st = path.stat()
+    if st.st_uid != os.getuid() or st.st_mode & 0o022:
+        # someone else's, or writable by others: what it says of hubs cannot be trusted
+        raise PermissionError(f"{path} is not a folder of this user's alone")
     return path
 
 

@@ -37,6 +37,16 @@ def test_the_folder_is_private_to_the_user(hub_files):
     assert local_hubs.folder().stat().st_mode & 0o077 == 0
 
 
+def test_a_folder_others_may_write_in_is_not_trusted(hub_files, tmp_path):
+    hub_files.mkdir(mode=0o777)
+    hub_files.chmod(0o777)
+    with pytest.raises(PermissionError, match="not a folder of this user's alone"):
+        local_hubs.folder()
+    with local_hubs.announced("s1", ["tcp/127.0.0.1:5000"], tmp_path) as path:
+        assert path is None  # the hub runs unannounced
+        assert local_hubs.find("s1") is None
+
+
 def test_a_file_left_by_a_process_that_ended_is_not_a_hub_and_is_removed(hub_files, tmp_path):
     ended = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
                            capture_output=True, text=True, check=True)  # fmt: skip
