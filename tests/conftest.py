@@ -5,10 +5,7 @@ from __future__ import annotations
 import json
 import os
 import secrets
-import subprocess
-import sys
 import tempfile
-import time
 from pathlib import Path
 
 import pytest
@@ -71,25 +68,3 @@ os.environ["NEUVISION_RUNTIME_DIR"] = RUNTIME_DIR.name
 # LSL (adapters/mea/lsl.py) finds streams by multicast: every test, and every endpoint a
 # test starts, keeps it on this machine's loopback.
 os.environ["LSLAPICFG"] = str(Path(ROOT) / "adapters" / "mea" / "lsl_loopback.cfg")
-
-
-def pytest_sessionstart(session: pytest.Session) -> None:
-    """On several workers (``pytest -n 2``, pytest-xdist), numba's kernels are compiled once
-    before the workers start: a short closed-loop run, as a user would start it. A fresh clone
-    has no compiled kernels, and a test that starts the loop's processes beside the other
-    worker would otherwise spend its own time limits compiling them (docs/tests.md)."""
-    if not session.config.pluginmanager.has_plugin("dsession"):
-        return  # one process: the first test that needs a kernel compiles it
-    report = session.config.pluginmanager.get_plugin("terminalreporter")
-    say = report.write_line if report is not None else print
-    say("compiling numba's kernels before the workers start (a 0.2 s closed-loop run) ...")
-    t0_s = time.monotonic()
-    with tempfile.TemporaryDirectory(prefix="nv-warm-") as runs_dir:
-        done = subprocess.run(
-            [sys.executable, "-m", "hub.cli", "run", str(Path(ROOT, "configs", "closed_loop.toml")),
-             "--duration-s", "0.2", "--quiet", "--runs-dir", runs_dir],
-            capture_output=True, text=True, timeout=600, cwd=runs_dir,
-        )  # fmt: skip
-    if done.returncode != 0:  # the tests that run the loop will say what is wrong
-        say(f"that run failed (status {done.returncode}): {done.stderr.strip()[-500:]}")
-    say(f"... done in {time.monotonic() - t0_s:.0f} s")

@@ -29,6 +29,7 @@ def test_the_papers_closed_loop_against_its_control(tmp_path, monkeypatch):
     assert all(len(runs) == 1 and runs[0]["distance_m"] > 0 for runs in results.values())
 
 
+@pytest.mark.slow  # a whole run
 def test_a_coding_scheme_written_in_the_script(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     run = load("custom_coding").main(duration_s=2.0, runs_dir=tmp_path)

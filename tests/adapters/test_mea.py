@@ -208,6 +208,7 @@ def test_spikes_come_by_channel_and_the_clock_offset_is_within_a_sample(emulator
         d.close()
 
 
+@pytest.mark.slow  # seconds of the emulated culture
 def test_stimulation_evokes_a_response_peaking_10_to_100_ms_later(emulator):
     d = driver_for(emulator)
     d.open()

@@ -35,6 +35,7 @@ def _check(paths):
         assert p.stat().st_size > 500
 
 
+@pytest.mark.slow  # every figure, twice
 def test_all_figures_write_png_and_svg(tmp_path, record):
     ch, t, res = record
     _check(figures.plot_raster(ch, t, tmp_path / "raster", CELL_TYPE, res.network_bursts))

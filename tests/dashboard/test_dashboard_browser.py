@@ -302,6 +302,7 @@ def test_a_run_watched_paused_resumed_and_stopped_in_a_browser_then_replayed(
         )
 
 
+@pytest.mark.slow  # a browser through a replay
 def test_the_raster_drawn_frame_by_frame_shows_every_spike_kept_and_nothing_stale(
     tmp_path, chromium
 ):

@@ -77,7 +77,10 @@ def _policies(pid: int) -> set[int]:
     return {os.sched_getscheduler(int(tid)) for tid in os.listdir(f"/proc/{pid}/task")}
 
 
-@pytest.mark.parametrize("yield_cpu, policy", [("true", "SCHED_IDLE"), ("false", "SCHED_OTHER")])
+@pytest.mark.parametrize(
+    "yield_cpu, policy",
+    [("true", "SCHED_IDLE"), pytest.param("false", "SCHED_OTHER", marks=pytest.mark.slow)],
+)
 def test_a_live_dashboard_takes_the_cpu_only_when_the_run_leaves_it_idle(
     bus_overrides, yield_cpu, policy
 ):

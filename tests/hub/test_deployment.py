@@ -72,6 +72,7 @@ def test_endpoints_wait_for_their_hub_then_serve_run_after_run(tmp_path, bus_ove
     assert codes == [0, 0]
 
 
+@pytest.mark.slow  # a whole run
 def test_an_endpoint_with_once_exits_when_its_run_ends(tmp_path, bus_overrides):
     items = [*bus_overrides, *EXTERNAL]
     endpoints = [

@@ -26,6 +26,7 @@ def _content(record, kind, direction):
     return out
 
 
+@pytest.mark.slow  # three hosts' runs
 def test_a_lockstep_run_across_three_hosts_is_the_same_run_step_for_step(tmp_path):
     here, _ = closed_loop(tmp_path, "one-host", None)
     with hosts(["body", "culture"]) as places:

@@ -306,7 +306,10 @@ def _spray(bus, keys, rounds=3):
         session.close()
 
 
-@pytest.mark.parametrize("mode", ["lockstep", "realtime"])
+@pytest.mark.parametrize(
+    "mode",
+    ["lockstep", pytest.param("realtime", marks=pytest.mark.slow)],  # slow: a second run
+)
 def test_a_stranger_on_the_bus_is_never_taken_for_the_hub_or_an_endpoint(
     tmp_path, bus_overrides, mode
 ):

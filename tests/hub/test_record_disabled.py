@@ -8,6 +8,8 @@ import json
 import subprocess
 import sys
 
+import pytest
+
 from hub.cli import EXIT_CONFIG, EXIT_OK
 from tests.conftest import TEST_ENDPOINTS
 
@@ -18,6 +20,7 @@ def neuvision(*args: str) -> subprocess.CompletedProcess:
     )
 
 
+@pytest.mark.slow  # a whole run
 def test_a_run_without_its_record_keeps_its_manifest_and_says_nothing_was_recorded(
     tmp_path, bus_overrides
 ):

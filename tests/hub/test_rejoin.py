@@ -37,7 +37,10 @@ def _kill_at(step, h, tmp_path, out, *, restart=True):
     return progress
 
 
-@pytest.mark.parametrize("mode", ["lockstep", "realtime"])
+@pytest.mark.parametrize(
+    "mode",
+    ["lockstep", pytest.param("realtime", marks=pytest.mark.slow)],  # slow: a second run
+)
 def test_a_body_killed_and_restarted_within_rejoin_s_rejoins_the_run(tmp_path, bus_overrides, mode):
     out: dict = {}
     with harness(

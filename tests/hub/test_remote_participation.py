@@ -170,6 +170,7 @@ def test_ctrl_c_while_an_endpoint_builds_its_model_is_one_line(
     assert p.returncode == 0  # an endpoint asked to stop exits 0 (docs/contract.md)
 
 
+@pytest.mark.slow  # waits out the hub's wait
 def test_an_endpoint_on_another_session_is_named_by_the_hub_waiting_for_it(tmp_path, bus_overrides):
     """An endpoint started with another --session reaches the hub's router but not its run:
     the hub waited and said only that body/0 did not appear on its session. Now it says
@@ -198,6 +199,7 @@ def test_an_endpoint_on_another_session_is_named_by_the_hub_waiting_for_it(tmp_p
         log.close()
 
 
+@pytest.mark.slow  # two hubs in turn
 def test_endpoints_end_the_run_of_a_killed_hub_and_serve_the_next_one(tmp_path, bus_overrides):
     """The hub killed mid-run (SIGKILL, a crash): its router goes with it, and its clients
     got no word that its liveliness had gone. The endpoints stayed busy with the dead run
@@ -328,6 +330,7 @@ def test_ctl_asks_again_a_router_whose_hub_is_not_answering_yet(bus_overrides):
     assert len(asked) == 2
 
 
+@pytest.mark.slow  # a whole run's start-up
 def test_a_burst_observer_that_cannot_start_fails_the_hub_at_once(tmp_path, bus_overrides):
     """Under mTLS the hub starts the burst observer with the observer's certificate from its
     own certs folder. One that Zenoh cannot load ended the observer at once, saying so in
@@ -371,6 +374,7 @@ def test_a_hub_says_it_starts_no_endpoint(tmp_path, bus_overrides):
     assert "neuvision run" in said[0]
 
 
+@pytest.mark.slow  # a whole run's start-up
 def test_a_burst_observer_started_before_its_hub_says_so_and_stops_on_ctrl_c(
     tmp_path, bus_overrides
 ):
@@ -410,6 +414,7 @@ def test_an_endpoint_says_when_its_run_is_paused_and_when_resumed(caplog):
     assert f"body/0: run {run} resumed" in said
 
 
+@pytest.mark.slow  # three mTLS set-ups
 @pytest.mark.parametrize("case", ["hub name", "another CA", "no hub"])
 def test_an_endpoint_refused_under_mtls_says_which_side_refused(tmp_path, bus_overrides, case):
     """An endpoint that could not join a TLS hub said "or the hub refused the body's

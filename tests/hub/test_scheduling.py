@@ -134,6 +134,13 @@ def _affinities() -> dict[int, set[int]]:
     return out
 
 
+def _kept(before: dict[int, set[int]]) -> bool:
+    """Every thread of ``before`` still alive has the CPUs it had then (a thread of the
+    test runner's may end meanwhile: pytest-xdist's worker runs its own)."""
+    now = _affinities()
+    return all(now[tid] == cpus for tid, cpus in before.items() if tid in now)
+
+
 @needs_affinity
 def test_placed_threads_and_those_they_start_stay_on_the_cpus_until_put_back():
     cpu = min(available_cpus())
@@ -151,7 +158,7 @@ def test_placed_threads_and_those_they_start_stay_on_the_cpus_until_put_back():
     finally:
         restore_placement(got)
         release.set()
-    assert all(os.sched_getaffinity(tid) == cpus for tid, cpus in before.items())
+    assert _kept(before)
     earlier.join()
     later.join()
 
@@ -159,7 +166,7 @@ def test_placed_threads_and_those_they_start_stay_on_the_cpus_until_put_back():
 def test_no_cpus_asked_for_leaves_placement_to_the_os():
     before = _affinities()
     got = place_threads("loop.cpus", [])
-    assert got.cpus == () and _affinities() == before
+    assert got.cpus == () and _kept(before)
 
 
 @needs_affinity
@@ -170,4 +177,4 @@ def test_a_cpu_this_process_may_not_use_is_a_config_error_naming_the_key():
         place_threads("body.cpus", [missing])
     with pytest.raises(ConfigError, match=r"loop\.cpus"):
         check_cpus("loop.cpus", [missing])
-    assert _affinities() == before
+    assert _kept(before)

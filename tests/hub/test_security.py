@@ -169,6 +169,7 @@ def test_the_access_policy_lets_each_role_put_only_on_its_own_keys():
 # ------------------------------------------------------------------ on the bus
 
 
+@pytest.mark.slow  # a run's start-up under TLS
 def test_no_valid_password_no_connection(tmp_path, password, certs):
     cfg = load_config(None, password)
     hub = open_session(cfg.bus, listener=True)

@@ -58,6 +58,7 @@ def test_spikes_pulses_poses_and_commands_round_trip(exported):
         assert '"sites_per_sensor": 4' in f.protocol  # ... and the config resolved
 
 
+@pytest.mark.slow  # a run and its export
 def test_the_protocol_is_the_file_that_ran_not_the_file_as_it_is_now(tmp_path):
     configs = ROOT / "configs"
     experiment = tmp_path / "exp.toml"

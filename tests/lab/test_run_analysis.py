@@ -126,6 +126,7 @@ def test_a_recorded_run_gives_metrics_figures_and_a_report(tmp_path):
     assert "wall_s" in html and "period_ms" in html and "handmade" in html
 
 
+@pytest.mark.slow  # a run and its analysis
 def test_analyze_uses_the_analysis_table_the_run_recorded(tmp_path):
     # the evoked bursts take 10 of 20 channels: a network burst by the paper's 30 %, none
     # when the run's experiment asked for 60 %

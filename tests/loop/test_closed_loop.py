@@ -75,6 +75,7 @@ def test_the_closed_loop_run_leaves_a_record_a_summary_and_pictures(tmp_path, bu
     assert len([e for e in rec.events if e.key == "network_burst"]) == len(network)
 
 
+@pytest.mark.slow  # a whole run
 def test_a_blind_run_sends_no_stimulation(tmp_path, bus_overrides):
     run_dir, _ = _run(tmp_path, "configs/closed_loop_blind.toml", bus_overrides)
     rec = read_run(run_dir)
@@ -115,6 +116,7 @@ def test_a_bad_config_names_the_key_and_starts_nothing(tmp_path, override, messa
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.slow  # a whole run
 def test_record_info_summarises_a_run(tmp_path, bus_overrides):
     run_dir, _ = _run(tmp_path, "configs/closed_loop_blind.toml", bus_overrides)
     proc = neuvision("record-info", str(run_dir))

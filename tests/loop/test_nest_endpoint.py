@@ -48,6 +48,7 @@ def test_the_closed_loop_file_takes_the_nest_culture_with_two_overrides():
     assert params["config"]["layout"]["rows"] == 32  # the culture file, resolved
 
 
+@pytest.mark.slow  # NEST in the loop, run after run
 @needs_nest
 @pytest.mark.bus
 def test_the_nest_endpoint_answers_a_pulse_in_step_windows_run_after_run(tmp_path, bus_overrides):

@@ -117,6 +117,7 @@ def test_a_nest_without_mpi_started_as_several_ranks_refuses(monkeypatch):
     assert nb.mpi_world(SimpleNamespace(num_processes=1)) == (None, 0, 1)
 
 
+@pytest.mark.slow  # seconds of both simulators' noise
 def test_the_noise_replayed_is_the_culture_s_own():
     # the windows _NoiseReplay draws are the currents sim_network draws, window by window
     net = Network(SMALL, seed=3)
@@ -334,6 +335,7 @@ def test_a_follower_does_what_rank_0_sends_until_it_stops():
 # ------------------------------------------------------------------ NeuVision's NEST module
 
 
+@pytest.mark.slow  # NeuVision's NEST module, built on first use
 def test_the_module_s_neuron_is_nest_s_izhikevich_when_its_currents_are_off(module_built):
     def spikes(model: str):
         def simulate():
@@ -381,6 +383,7 @@ def potentials_every_step(net, pulse: Pulses, n_steps: int) -> tuple[np.ndarray,
     return np.array(potentials), Spikes.concat(spikes)
 
 
+@pytest.mark.slow  # NEST module
 def test_the_adaptation_current_spaces_a_driven_cell_s_spikes_as_in_sim_network(module_built):
     # 30 ms of 100 units into one regular-spiking cell of a quiet culture: its spikes
     cfg = dataclasses.replace(QUIET, adaptation=AdaptationConfig())
@@ -397,6 +400,7 @@ def test_the_adaptation_current_spaces_a_driven_cell_s_spikes_as_in_sim_network(
     assert len(nest) == len(sim) and np.abs(nest - sim).max() <= 1.0
 
 
+@pytest.mark.slow  # NEST module
 def test_the_slow_current_follows_a_jump_as_in_sim_network(module_built):
     # one spike of one cell in a quiet culture; the potentials of all cells for 30 ms after:
     # what the slow current changes in them is what it changes in sim_network (the two
@@ -415,6 +419,7 @@ def test_the_slow_current_follows_a_jump_as_in_sim_network(module_built):
     assert difference < 0.05 * np.abs(in_sim)[:, reached].mean()
 
 
+@pytest.mark.slow  # NEST module
 def test_the_default_culture_builds_in_nest_with_each_neuron_s_increment(module_built):
     cfg = dataclasses.replace(load_config("configs/culture_1024.toml"), layout=LayoutConfig(8, 8))
     ref = Network(cfg, seed=2)
@@ -432,6 +437,7 @@ def test_the_default_culture_builds_in_nest_with_each_neuron_s_increment(module_
     assert len(net.run(200.0)) > 0
 
 
+@pytest.mark.slow  # NEST module
 def test_the_module_s_neurons_draw_the_culture_s_noise_value_for_value(module_built):
     # no current generator per neuron: each neuron's own generator, seeded and drawn as
     # sim_network seeds and draws it, window after window
@@ -444,6 +450,7 @@ def test_the_module_s_neurons_draw_the_culture_s_noise_value_for_value(module_bu
         assert np.array_equal(np.asarray(drawn, dtype=np.float32), ref.noise_cur)
 
 
+@pytest.mark.slow  # NEST module
 def test_the_module_s_noise_changes_nothing_with_nest_s_threads(module_built):
     cfg = dataclasses.replace(load_config("configs/culture_1024.toml"), layout=LayoutConfig(8, 8))
     one = nb.NestNetwork(cfg, seed=2, threads=1).run(500.0)

@@ -67,6 +67,7 @@ def test_an_external_nest_culture_is_checked_where_it_runs_not_by_the_hub(tmp_pa
         NestEndpoint.from_config(cfg.culture, cfg)  # the culture's own machine
 
 
+@pytest.mark.slow  # builds the NEST module
 @needs_nest
 def test_it_is_built_once_and_then_taken_from_the_cache():
     try:
