@@ -490,6 +490,7 @@ def test_status_is_published_at_status_hz_in_lockstep_too(tmp_path, bus_override
     assert 14 <= rate_hz <= 26  # 20 Hz asked, on a shared machine
 
 
+@pytest.mark.slow  # waits out the hub's wait
 def test_a_missing_endpoint_is_named_after_the_wait(tmp_path, bus_overrides):
     with harness(
         tmp_path, bus_overrides, 'culture.launch="external"', "loop.wait_timeout_s=5"

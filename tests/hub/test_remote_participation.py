@@ -49,7 +49,10 @@ def _serve(role: str, items: list[str], log) -> subprocess.Popen:
 @pytest.mark.parametrize(
     "other",
     [
-        ["body.params.arena.radius_m=2.0", "body.params.obstacles=[]"],  # another world
+        pytest.param(  # another world (slow: the seed's case is the same path)
+            ["body.params.arena.radius_m=2.0", "body.params.obstacles=[]"],
+            marks=pytest.mark.slow,
+        ),
         ["experiment.seed=7"],  # the culture and the arena seeded otherwise
     ],
     ids=["world", "seed"],
@@ -107,6 +110,7 @@ def test_endpoints_with_the_hubs_settings_record_them(tmp_path, bus_overrides):
         assert isinstance(digest, str) and len(digest) == 64
 
 
+@pytest.mark.slow  # three endpoints and a hub
 def test_two_endpoints_answering_as_one_role_are_refused(tmp_path, bus_overrides):
     """A body left running in another terminal and a new one started: both took the run and
     stepped, and the hub took whichever reply came first each step (the other dropped as

@@ -52,6 +52,7 @@ def test_a_run_gives_the_records_data_as_arrays_in_time_order(tmp_path):
     assert run.summary["outcome"] == "completed"
 
 
+@pytest.mark.slow  # a whole run
 @pytest.mark.bus
 def test_an_experiment_copied_elsewhere_runs_from_any_folder(tmp_path, monkeypatch):
     import shutil

@@ -125,6 +125,7 @@ def test_record_info_summarises_a_run(tmp_path, bus_overrides):
     assert any(k.endswith("/spikes") for k in info["messages"])
 
 
+@pytest.mark.slow  # a whole run's start-up
 def test_an_endpoint_that_cannot_start_ends_the_run_at_once_with_its_reason(tmp_path):
     proc = neuvision(
         "run",
