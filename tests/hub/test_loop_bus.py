@@ -308,7 +308,10 @@ def _spray(bus, keys, rounds=3):
 
 @pytest.mark.parametrize(
     "mode",
-    ["lockstep", pytest.param("realtime", marks=pytest.mark.slow)],  # slow: a second run
+    [
+        "lockstep",
+        pytest.param("realtime", marks=pytest.mark.slow),  # the lockstep case is the same path
+    ],
 )
 def test_a_stranger_on_the_bus_is_never_taken_for_the_hub_or_an_endpoint(
     tmp_path, bus_overrides, mode

@@ -39,7 +39,10 @@ def _kill_at(step, h, tmp_path, out, *, restart=True):
 
 @pytest.mark.parametrize(
     "mode",
-    ["lockstep", pytest.param("realtime", marks=pytest.mark.slow)],  # slow: a second run
+    [
+        "lockstep",
+        pytest.param("realtime", marks=pytest.mark.slow),  # the lockstep case takes the same path
+    ],
 )
 def test_a_body_killed_and_restarted_within_rejoin_s_rejoins_the_run(tmp_path, bus_overrides, mode):
     out: dict = {}

@@ -135,8 +135,8 @@ def _affinities() -> dict[int, set[int]]:
 
 
 def _kept(before: dict[int, set[int]]) -> bool:
-    """Every thread of ``before`` still alive has the CPUs it had then (a thread of the
-    test runner's may end meanwhile: pytest-xdist's worker runs its own)."""
+    """Every thread of ``before`` still alive has the CPUs it had then (a thread an earlier
+    test or the test runner started may end meanwhile)."""
     now = _affinities()
     return all(now[tid] == cpus for tid, cpus in before.items() if tid in now)
 
