@@ -329,6 +329,7 @@ def test_serving_once_it_gives_up_when_its_hub_leaves_without_starting_a_run(ser
     assert s.status == UNSERVED and body.closed
 
 
+@pytest.mark.slow  # seconds of waiting
 def test_serving_once_it_stays_while_the_hubs_token_stands_though_a_query_finds_none(
     served, monkeypatch
 ):

@@ -29,7 +29,13 @@ def _processes_naming(text: str) -> list[str]:
     return found
 
 
-@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+@pytest.mark.parametrize(
+    "sig",
+    [
+        pytest.param(signal.SIGINT, id="SIGINT"),
+        pytest.param(signal.SIGTERM, id="SIGTERM", marks=pytest.mark.slow),  # SIGINT's path
+    ],
+)
 def test_a_signal_while_waiting_for_the_endpoints_interrupts_the_run(tmp_path, bus_overrides, sig):
     # The culture is started elsewhere and never comes: the hub waits for it.
     sets = [*TEST_ENDPOINTS, *bus_overrides, "culture.launch=external"]

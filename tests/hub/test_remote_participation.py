@@ -87,6 +87,7 @@ def test_an_endpoint_started_with_other_settings_than_its_hub_is_refused(
         log.close()
 
 
+@pytest.mark.slow  # three processes a run
 def test_endpoints_with_the_hubs_settings_record_them(tmp_path, bus_overrides):
     """The same file and the same --set items on both sides: the run goes, and the manifest
     records each endpoint's settings digest, equal to the hub's."""
@@ -272,6 +273,7 @@ def test_connect_and_listen_addresses_become_zenoh_locators(given, locator):
     assert _address(given, Namespace(config=None, set=None)) == locator
 
 
+@pytest.mark.slow  # a whole run
 def test_a_hub_on_ipv6_loopback_answers_ctl(tmp_path, bus_overrides):
     try:
         with socket.socket(socket.AF_INET6, socket.SOCK_STREAM) as s:
@@ -362,6 +364,7 @@ def test_a_burst_observer_that_cannot_start_fails_the_hub_at_once(tmp_path, bus_
     assert "observer.log" in last, last  # where the observer said why
 
 
+@pytest.mark.slow  # a whole run's start-up
 def test_a_hub_says_it_starts_no_endpoint(tmp_path, bus_overrides):
     """`neuvision hub CONFIG` on the paper's file (endpoints `launch = "local"`), as
     docs/dashboard.md showed it: the hub starts no endpoint and waited in silence for those

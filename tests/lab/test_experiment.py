@@ -31,6 +31,7 @@ def test_a_folder_that_is_not_a_run_is_named(tmp_path):
         Run.open(tmp_path)
 
 
+@pytest.mark.slow  # a whole run
 @pytest.mark.bus
 def test_a_run_gives_the_records_data_as_arrays_in_time_order(tmp_path):
     run = Experiment(CONFIG, {"experiment.duration_s": 1.0}).run(runs_dir=tmp_path)
