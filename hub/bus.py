@@ -70,6 +70,10 @@ def zenoh_config(bus: BusSection, *, listener: bool, role: str | None = None) ->
     put("scouting/multicast/enabled", bus.scouting)
     put("scouting/gossip/enabled", bus.scouting)
     put("transport/link/tx/lease", bus.lease_ms)
+    # A Zenoh router stamps every message it routes with its own clock (an HLC time). No
+    # part of NeuVision reads those stamps (the hub's clocks time the loop), and stamping
+    # cost the trivial lockstep loop 7 % placed by the OS (docs/benchmarks.md).
+    put("timestamping/enabled", False)
     put("transport/unicast/lowlatency", bus.low_latency)
     put("transport/unicast/qos/enabled", not bus.low_latency)
     # Zenoh moves payloads over ~3 kB through shared memory between local processes and
