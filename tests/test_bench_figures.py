@@ -1,8 +1,13 @@
 """The figures a benchmark derives from its runs (no run here: hand-built inputs)."""
 
+import os
+import subprocess
+import time
+
 import pytest
 
 from bench.closed_loop import _dashboard_cpu_s, _loop_cpu_s, paired_cost
+from bench.page import browser_cpu_s
 
 
 def test_equal_pairs_give_their_cost_with_no_spread():
@@ -45,3 +50,18 @@ def test_the_dashboards_cpu_is_read_from_the_first_step_it_showed():
     )
     assert _dashboard_cpu_s(log) == pytest.approx(0.42)
     assert _dashboard_cpu_s("no step was shown") is None
+
+
+def test_the_browsers_cpu_is_that_of_the_named_processes_under_this_one():
+    busy = subprocess.Popen(["sh", "-c", "while :; do :; done"])
+    try:
+        deadline = time.monotonic() + 30.0
+        while browser_cpu_s(os.getpid(), "sh") < 0.2:
+            assert time.monotonic() < deadline, "a busy child's CPU time was not counted"
+            time.sleep(0.05)
+        assert browser_cpu_s(os.getpid(), "no-such-name") == 0.0
+        assert browser_cpu_s(busy.pid, "sh") >= 0.2  # the root itself counts
+        assert browser_cpu_s(busy.pid, "python") == 0.0  # this process is not under it
+    finally:
+        busy.kill()
+        busy.wait()

@@ -37,6 +37,10 @@ pytestmark = [pytest.mark.bus, pytest.mark.browser]
 ROOT = Path(__file__).resolve().parents[2]
 TIMEOUT_MS = 60_000
 
+# Frames received and drawn, the page's clock, and its time taking and drawing frames.
+PAGE_COUNTS = (
+    "[nv.stats.received, nv.stats.drawn, performance.now(), nv.stats.takeMs, nv.stats.drawMs]"
+)
 # Coloured pixels of the raster's canvas (spikes are red or blue dots on white).
 RASTER_PIXELS = """() => {
   const c = document.getElementById("raster");
@@ -186,13 +190,15 @@ def test_a_run_watched_paused_resumed_and_stopped_in_a_browser_then_replayed(
             painted = page.evaluate(RASTER_PIXELS)
             # the page's frame rate over three seconds of the run
             # (frames received from the dashboard, and drawn: a page busier than the
-            # frames' period draws fewer than it receives)
-            count = "[nv.stats.received, nv.stats.drawn, performance.now()]"
-            r0, d0, w0 = page.evaluate(count)
+            # frames' period draws fewer than it receives), and its time taking and drawing
+            count = PAGE_COUNTS
+            r0, d0, w0, take0, draw0 = page.evaluate(count)
             page.wait_for_function(f"performance.now() > {w0} + 3000", timeout=TIMEOUT_MS)
-            r1, d1, w1 = page.evaluate(count)
+            r1, d1, w1, take1, draw1 = page.evaluate(count)
             fps = (r1 - r0) / ((w1 - w0) / 1e3)
             drawn_fps = (d1 - d0) / ((w1 - w0) / 1e3)
+            take_ms = (take1 - take0) / max(r1 - r0, 1)
+            draw_ms = (draw1 - draw0) / max(d1 - d0, 1)
             shots["dashboard.png"] = tmp_path / "dashboard.png"
             page.screenshot(path=shots["dashboard.png"], full_page=True)
             # pause: the step counter stops while the hub's statuses go on
@@ -293,8 +299,9 @@ def test_a_run_watched_paused_resumed_and_stopped_in_a_browser_then_replayed(
     _keep(shots["dashboard.png"])
     with capsys.disabled():
         print(
-            f"\ndashboard in Chromium: {fps:.1f} frames/s received, {drawn_fps:.1f} drawn; lag "
-            f"behind the hub (its receipt of a "
+            f"\ndashboard in Chromium: {fps:.1f} frames/s received, {drawn_fps:.1f} drawn "
+            f"(the page's time a frame: {take_ms:.2f} ms taking it, {draw_ms:.2f} ms drawing "
+            f"it); lag behind the hub (its receipt of a "
             f"step's reading to the page drawing it) median {np.median(lags):.0f} ms, p95 "
             f"{np.percentile(lags, 95):.0f} ms, max {lags.max():.0f} ms over {lags.size} steps; "
             f"replay: {len(replayed)} steps drawn, {len(shared)} also drawn live, all at the "
