@@ -191,10 +191,9 @@ def test_a_run_watched_paused_resumed_and_stopped_in_a_browser_then_replayed(
             # the page's frame rate over three seconds of the run
             # (frames received from the dashboard, and drawn: a page busier than the
             # frames' period draws fewer than it receives), and its time taking and drawing
-            count = PAGE_COUNTS
-            r0, d0, w0, take0, draw0 = page.evaluate(count)
+            r0, d0, w0, take0, draw0 = page.evaluate(PAGE_COUNTS)
             page.wait_for_function(f"performance.now() > {w0} + 3000", timeout=TIMEOUT_MS)
-            r1, d1, w1, take1, draw1 = page.evaluate(count)
+            r1, d1, w1, take1, draw1 = page.evaluate(PAGE_COUNTS)
             fps = (r1 - r0) / ((w1 - w0) / 1e3)
             drawn_fps = (d1 - d0) / ((w1 - w0) / 1e3)
             take_ms = (take1 - take0) / max(r1 - r0, 1)

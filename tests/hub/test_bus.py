@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import queue
+import secrets
 import time
 
 import pytest
@@ -28,26 +29,29 @@ def test_the_hub_listens_and_an_endpoint_connects_to_where_it_listens():
 
 
 def test_the_hub_does_not_stamp_the_messages_it_routes():
-    # Nothing reads Zenoh's timestamps; making them cost the loop (hub/bus.py).
+    # Nothing reads Zenoh's timestamps, and making them cost the loop (hub/bus.py).
     bus = BusSection(listen=(f"tcp/127.0.0.1:{free_tcp_port()}",), scouting=False)
     hub = open_session(bus, listener=True)
     endpoint = open_session(bus, listener=False)
     try:
         got = queue.Queue()
-        hub.declare_subscriber("nv-test/stamps/to-hub", got.put)
-        endpoint.declare_subscriber("nv-test/stamps/to-endpoint", got.put)
+        prefix = f"nv-test-{secrets.token_hex(4)}"
+        to_hub, to_endpoint = f"{prefix}/to-hub", f"{prefix}/to-endpoint"
+        hub.declare_subscriber(to_hub, got.put)
+        endpoint.declare_subscriber(to_endpoint, got.put)
         deadline = time.monotonic() + 10.0
         samples = []
-        while len(samples) < 2 and time.monotonic() < deadline:
-            endpoint.put("nv-test/stamps/to-hub", b"x")
-            hub.put("nv-test/stamps/to-endpoint", b"y")
+        while {str(s.key_expr) for s in samples} != {to_hub, to_endpoint}:
+            assert time.monotonic() < deadline, "the two puts did not both arrive"
+            endpoint.put(to_hub, b"x")
+            hub.put(to_endpoint, b"y")
             try:
                 while True:
                     samples.append(got.get(timeout=0.1))
             except queue.Empty:
                 pass
         routed = {str(s.key_expr): s.timestamp for s in samples}
-        assert routed == {"nv-test/stamps/to-hub": None, "nv-test/stamps/to-endpoint": None}
+        assert routed == {to_hub: None, to_endpoint: None}
     finally:
         endpoint.close()
         hub.close()
