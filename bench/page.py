@@ -12,6 +12,7 @@ drawing them (a browser may run on another machine); this script measures the br
 
     python bench/page.py
     python bench/page.py --mode realtime --measure-s 20
+    python bench/page.py --mode realtime --set dashboard.fps=10
 
 The last line printed is one JSON object.
 """
@@ -88,6 +89,13 @@ def main() -> dict:
     ap.add_argument("--mode", choices=("lockstep", "realtime"), default="lockstep")
     ap.add_argument("--measure-s", type=float, default=10.0, help="wall seconds measured")
     ap.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="a setting of the run (e.g. dashboard.fps=10); may be given again",
+    )
+    ap.add_argument(
         "--chromium", default=shutil.which("chromium") or shutil.which("chromium-browser")
     )
     args = ap.parse_args()
@@ -101,6 +109,7 @@ def main() -> dict:
         cmd = [sys.executable, "-m", "hub.cli", "run", "configs/closed_loop.toml", "--quiet"]
         cmd += ["--mode", args.mode, "--duration-s", "3600", "--runs-dir", runs, "--dashboard"]
         cmd += ["--set", f"dashboard.port={port}"]
+        cmd += [a for item in args.set for a in ("--set", item)]
         run = child_popen(cmd, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         try:
             wait_serving(f"http://127.0.0.1:{port}/", run)
@@ -126,6 +135,7 @@ def main() -> dict:
     received, drawn = max(r1 - r0, 1), max(d1 - d0, 1)
     out = {
         "mode": args.mode,
+        "sets": args.set,
         "page_take_ms_per_frame": round((take1 - take0) / received, 3),
         "page_draw_ms_per_frame": round((draw1 - draw0) / drawn, 3),
         "page_fps_received": round((r1 - r0) / wall_s, 1),
