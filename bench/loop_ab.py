@@ -3,9 +3,11 @@
 Each side is a tree of this project (a ``git worktree`` of another commit, or this one)
 and runs its *own* ``bench/loop.py``: ``run_once("lockstep", 10.0, STEPS)``, the hub and
 two trivial endpoints placed by the OS, in a fresh process per run. The runs alternate
-A B B A A B ... so that the host's drift over the session falls on both sides alike; each
+A B, B A, B A, A B, ... so that the host's drift over the session falls on both sides alike; each
 pair's ratio B/A gives the cost with a 90 % interval (``bench/closed_loop.py``'s
 :func:`paired_cost`). A side may add ``--set`` items to its runs (``TREE|KEY=VALUE;...``).
+More sides (``A B C ...``) run in rounds, one run of each side a round, the order rotated
+and reversed from round to round; each side's cost is against A, from the rounds' ratios.
 
 With ``--closed-loop SECONDS`` each run is instead the tree's own ``neuvision run
 configs/closed_loop.toml --mode lockstep`` (the 1024-neuron culture and the arena: what
@@ -18,6 +20,7 @@ cached).
     python bench/loop_ab.py . ".|online.enabled=false" --pairs 4
     python bench/loop_ab.py /tmp/before . --pairs 6 --closed-loop 60
     python bench/loop_ab.py /tmp/before . --pairs 6 --placed
+    python bench/loop_ab.py /tmp/before /tmp/previous . --pairs 8   # three sides
 
 Placement matters: with ``--placed`` both sides run as ``bench/loop.py``'s first figure
 does, the hub on a CPU of its own and the endpoints on the others (``loop.cpus``,
@@ -107,6 +110,7 @@ def main(argv: list[str] | None = None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("a", help="the side measured against (TREE or TREE|KEY=VALUE;...)")
     ap.add_argument("b", help="the side whose cost is measured")
+    ap.add_argument("more", nargs="*", help="more sides, each measured against A")
     ap.add_argument("--pairs", type=int, default=4)
     ap.add_argument("--steps", type=int, default=10_000)
     ap.add_argument(
@@ -126,7 +130,10 @@ def main(argv: list[str] | None = None) -> dict:
     if args.closed_loop is not None and args.closed_loop <= 0:
         ap.error("--closed-loop must be > 0")
     end_children_on_signal()
-    sides = {"a": side(args.a), "b": side(args.b)}
+    if len(args.more) > 24:
+        ap.error("at most 26 sides")
+    specs = {"a": args.a, "b": args.b, **{chr(ord("c") + k): m for k, m in enumerate(args.more)}}
+    sides = {name: side(spec) for name, spec in specs.items()}
     if args.placed:
         overrides, where = placement()
         if not overrides:
@@ -143,38 +150,64 @@ def main(argv: list[str] | None = None) -> dict:
         def measure(name):
             return run_closed_loop(*sides[name], args.closed_loop)
 
-        for name in ("a", "b"):  # kernels compiled and cached, unmeasured
+        for name in sides:  # kernels compiled and cached, unmeasured
             print(f"warming up {name}: a {min(args.closed_loop, 2.0):g} s run", flush=True)
             run_closed_loop(*sides[name], min(args.closed_loop, 2.0))
-    figures: dict[str, list[float]] = {"a": [], "b": []}
+    figures: dict[str, list[float]] = {name: [] for name in sides}
     with StealMeter() as steal:
         for i in range(args.pairs):
-            for name in ("a", "b") if i % 2 == 0 else ("b", "a"):
+            for name in run_order(list(sides), i):
                 figures[name].append(measure(name))
                 print(f"pair {i + 1}, {name}: {figures[name][-1]:,.0f} steps/s", flush=True)
-    ratios = [b / a for a, b in zip(figures["a"], figures["b"], strict=True)]
-    cost, lo, hi = paired_cost(ratios)
-    a, b = statistics.median(figures["a"]), statistics.median(figures["b"])
-    print(
-        f"{args.pairs} interleaved pairs of {what}"
-        f"{' (hub on a CPU of its own)' if args.placed else ''}: A {a:,.0f}, "
-        f"B {b:,.0f} steps/s (medians); B's cost {100 * cost:+.1f} % from the pairs' ratios "
-        f"(90 % interval {100 * lo:+.1f} to {100 * hi:+.1f} %); CPU steal {100 * steal.share:.2f} %"
-    )
+    median = {name: statistics.median(runs) for name, runs in figures.items()}
+    costs = {
+        name: paired_cost([x / a for a, x in zip(figures["a"], runs, strict=True)])
+        for name, runs in figures.items()
+        if name != "a"
+    }
+    placed = " (hub on a CPU of its own)" if args.placed else ""
+    for name, (cost, lo, hi) in costs.items():
+        print(
+            f"{args.pairs} interleaved {'pairs' if len(sides) == 2 else 'rounds'} of {what}"
+            f"{placed}: A {median['a']:,.0f}, {name.upper()} {median[name]:,.0f} steps/s "
+            f"(medians); {name.upper()}'s cost {100 * cost:+.1f} % from the ratios (90 % "
+            f"interval {100 * lo:+.1f} to {100 * hi:+.1f} %); CPU steal {100 * steal.share:.2f} %"
+        )
+    cost, lo, hi = costs["b"]
     out = {
         "a": args.a,
         "b": args.b,
         "bench": "closed_loop" if args.closed_loop else "loop",
         "placed": args.placed,
-        "steps_per_s_a": round(a, 1),
-        "steps_per_s_b": round(b, 1),
+        "steps_per_s_a": round(median["a"], 1),
+        "steps_per_s_b": round(median["b"], 1),
         "runs_steps_per_s": {k: [round(v, 1) for v in vs] for k, vs in figures.items()},
         "cost_share_paired": round(cost, 4),
         "cost_share_interval_90": [round(lo, 4), round(hi, 4)],
         "steal_share": round(steal.share, 4),
     }
+    if args.more:  # each further side, as B's figures above
+        out["more"] = {
+            name: {
+                "side": specs[name],
+                "steps_per_s": round(median[name], 1),
+                "cost_share_paired": round(costs[name][0], 4),
+                "cost_share_interval_90": [round(costs[name][1], 4), round(costs[name][2], 4)],
+            }
+            for name in costs
+            if name != "b"
+        }
     print(json.dumps(out))
     return out
+
+
+def run_order(names: list[str], round_index: int) -> list[str]:
+    """The sides' order in one round: A B, B A, B A, A B, ... for two sides (each side as
+    often first as last over every two rounds); with more, rotated every two rounds and
+    reversed every other one."""
+    k = (round_index // 2) % len(names)
+    order = names[k:] + names[:k]
+    return order[::-1] if round_index % 2 else order
 
 
 if __name__ == "__main__":

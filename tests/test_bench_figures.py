@@ -7,6 +7,7 @@ import time
 import pytest
 
 from bench.closed_loop import _dashboard_cpu_s, _loop_cpu_s, paired_cost
+from bench.loop_ab import run_order
 from bench.page import browser_cpu_s
 
 
@@ -65,3 +66,12 @@ def test_the_browsers_cpu_is_that_of_the_named_processes_under_this_one():
     finally:
         busy.kill()
         busy.wait()
+
+
+@pytest.mark.parametrize("names", [list("ab"), list("abc"), list("abcd")])
+def test_an_ab_runs_each_side_as_often_at_each_place_in_a_round(names):
+    rounds = [run_order(names, i) for i in range(2 * len(names))]
+    assert all(sorted(order) == names for order in rounds)
+    for place in range(len(names)):
+        at_place = [order[place] for order in rounds]
+        assert all(at_place.count(name) == 2 for name in names)
