@@ -253,7 +253,11 @@ def test_a_stop_is_not_undone_by_a_speed_the_serial_thread_was_about_to_send(emu
         cycles = len(driver.cycles_s)
         wait_for(lambda: len(driver.cycles_s) >= cycles + 2, 5.0)  # two cycles since
         sent = [line for _, line in motor_commands(emulator)[n:]]
-        assert sent == [b"D,12,12", b"D,0,0"], sent  # 0.1 m/s: 12 units of 8 mm/s
+        # 0.1 m/s: 12 units of 8 mm/s; then the stop, and nothing but stops. The serial
+        # thread's next cycle may take the motor lock before the stopper does and send the
+        # new target (0, 0) itself: the stop then goes twice, never a speed after it.
+        assert sent[0] == b"D,12,12" and sent[1] == b"D,0,0", sent
+        assert set(sent[1:]) == {b"D,0,0"} and len(sent) <= 3, sent
         assert emulator.speed_units == (0, 0)
     finally:
         go.set()
