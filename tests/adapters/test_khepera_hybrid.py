@@ -15,6 +15,8 @@ from tests.stall_witness import StallWitness
 
 pytestmark = pytest.mark.bus
 HYBRID = "configs/hybrid_khepera.toml"
+# The late replies per role that a 20 s realtime run may have with no host stall seen.
+UNEXPLAINED_LATE_SHARE = 0.001
 
 
 def hybrid_run(tmp_path, bus_overrides, *, baud, period_ms, duration_s):
@@ -48,18 +50,26 @@ def test_a_short_hybrid_run_completes_with_fresh_readings(tmp_path, bus_override
 
 @pytest.mark.slow
 @pytest.mark.parametrize("baud, period_ms", [(9600, 50.0), (115200, 10.0)])
-def test_a_20_s_hybrid_run_has_no_late_step_but_where_the_host_stalled(
+def test_a_20_s_hybrid_run_keeps_time_but_where_the_host_stalls(
     tmp_path, bus_overrides, baud, period_ms
 ):
     # A CI host once held a CPU long enough to make one culture reply of 2000 late; the
-    # stall witness tells such steps from the code's own (tests/stall_witness.py).
+    # stall witness tells such steps from the code's own (tests/stall_witness.py). It does
+    # not see every slowing of the host: in 3 of 5 fresh-clone CI runs one reply of 4000
+    # was late with no stall seen, and the same comes after the guest touched and freed
+    # 10 GB (the hub, the body and the culture all slow for ~10 ms at once, each process
+    # without a major page fault, the witnesses on time). Up to one in a thousand
+    # unexplained per role is the host's; the code's own lateness shows as many more.
     with StallWitness() as witness:
         record = hybrid_run(tmp_path, bus_overrides, baud=baud, period_ms=period_ms,
                             duration_s=20.0)  # fmt: skip
     m = record.manifest
     assert m["outcome"] == "completed" and m["steps"] == round(20_000 / period_ms)
     print(witness.summary(), "; late:", m["counts"]["late"])
-    assert witness.unexcused(record) == {}, (m["counts"], witness.summary())
+    unexplained = witness.unexcused(record)
+    allowed = int(UNEXPLAINED_LATE_SHARE * m["steps"])
+    assert all(len(steps) <= allowed for steps in unexplained.values()), (
+        unexplained, m["counts"], witness.summary())  # fmt: skip
     summary = json.loads((record.run_dir / "summary.json").read_text())
     assert {"trajectory.png", "raster.png"} <= set(summary["figures"])
     assert summary["behaviour"]["distance_m"] > 0.1  # the culture drove the robot
