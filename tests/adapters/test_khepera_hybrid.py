@@ -53,13 +53,10 @@ def test_a_short_hybrid_run_completes_with_fresh_readings(tmp_path, bus_override
 def test_a_20_s_hybrid_run_keeps_time_but_where_the_host_stalls(
     tmp_path, bus_overrides, baud, period_ms
 ):
-    # A CI host once held a CPU long enough to make one culture reply of 2000 late; the
-    # stall witness tells such steps from the code's own (tests/stall_witness.py). It does
-    # not see every slowing of the host: in 3 of 5 fresh-clone CI runs one reply of 4000
-    # was late with no stall seen, and the same comes after the guest touched and freed
-    # 10 GB (the hub, the body and the culture all slow for ~10 ms at once, each process
-    # without a major page fault, the witnesses on time). Up to one in a thousand
-    # unexplained per role is the host's; the code's own lateness shows as many more.
+    # The stall witness excuses the steps in which the host held a CPU
+    # (tests/stall_witness.py); the host also slows the guest in ways it cannot see, one
+    # reply in a few thousand (docs/khepera.md), while the code's own lateness would show
+    # as many more.
     with StallWitness() as witness:
         record = hybrid_run(tmp_path, bus_overrides, baud=baud, period_ms=period_ms,
                             duration_s=20.0)  # fmt: skip
