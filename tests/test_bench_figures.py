@@ -75,3 +75,22 @@ def test_an_ab_runs_each_side_as_often_at_each_place_in_a_round(names):
     for place in range(len(names)):
         at_place = [order[place] for order in rounds]
         assert all(at_place.count(name) == 2 for name in names)
+
+
+def test_a_window_counts_the_steps_completed_from_its_start_up_to_its_end():
+    from bench.dashboard_within import Window, steps_in
+
+    w = Window("without", os.getpid())
+    w.t0_ns, w.t1_ns = 1_000, 2_000
+    assert steps_in([999, 1_000, 1_500, 1_999, 2_000, 2_500], w) == 3
+
+
+def test_a_window_measures_the_cpu_a_process_used_over_it():
+    from bench.dashboard_within import Window
+
+    with Window("with", os.getpid(), os.getpid()) as w:
+        end = time.process_time() + 0.2
+        while time.process_time() < end:
+            pass
+    assert 0.1 <= w.hub_cpu_s <= 1.0 and 0.1 <= w.dashboard_cpu_s <= 1.0
+    assert w.seconds >= 0.15 and w.hub_faults >= 0

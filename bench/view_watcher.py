@@ -1,0 +1,47 @@
+"""A bare watcher of the hub's views, for benchmarks: it subscribes to ``hub/view`` of a
+session's hub on this machine, as the dashboard does, and takes each view off its ring
+without decoding it (``bench/dashboard_within.py --watcher bare``): what the views cost
+the loop with no dashboard's work on them.
+
+    python bench/view_watcher.py SESSION
+"""
+
+from __future__ import annotations
+
+import json
+import signal
+import sys
+import threading
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+import zenoh  # noqa: E402
+
+from hub import local_hubs  # noqa: E402
+from hub.bus import open_session  # noqa: E402
+from hub.config import load_config  # noqa: E402
+
+
+def main() -> None:
+    session_name = sys.argv[1]
+    found = local_hubs.find(session_name)
+    if found is None:
+        raise SystemExit(f"no hub of session {session_name!r} on this machine")
+    connect = f"bus.connect={json.dumps(list(found.locators))}"
+    cfg = load_config(None, [f"bus.session={json.dumps(session_name)}", connect])
+    session = open_session(cfg.bus, listener=False, role="observer")
+    ring = zenoh.handlers.RingChannel(4)
+    sub = session.declare_subscriber(cfg.bus.keys.hub_view, ring)
+    done = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: done.set())
+    taken = 0
+    while not done.wait(1 / 30):
+        while sub.try_recv() is not None:
+            taken += 1
+    print(f"views taken: {taken}", flush=True)
+    session.close()
+
+
+if __name__ == "__main__":
+    main()
