@@ -16,7 +16,7 @@ from tests.stall_witness import StallWitness
 pytestmark = pytest.mark.bus
 HYBRID = "configs/hybrid_khepera.toml"
 # The late replies per role that a 20 s realtime run may have with no host stall seen.
-UNEXPLAINED_LATE_SHARE = 0.001
+UNEXPLAINED_LATE_SHARE = 0.002
 
 
 def hybrid_run(tmp_path, bus_overrides, *, baud, period_ms, duration_s):
@@ -55,7 +55,7 @@ def test_a_20_s_hybrid_run_keeps_time_but_where_the_host_stalls(
 ):
     # The stall witness excuses the steps in which the host held a CPU
     # (tests/stall_witness.py); the host also slows the guest in ways it cannot see, one
-    # reply in a few thousand (docs/khepera.md), while the code's own lateness would show
+    # reply in a thousand or so (docs/khepera.md), while the code's own lateness would show
     # as many more.
     with StallWitness() as witness:
         record = hybrid_run(tmp_path, bus_overrides, baud=baud, period_ms=period_ms,
