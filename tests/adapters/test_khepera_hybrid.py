@@ -16,7 +16,7 @@ from tests.stall_witness import StallWitness
 pytestmark = pytest.mark.bus
 HYBRID = "configs/hybrid_khepera.toml"
 # The late replies per role that a 20 s realtime run may have with no host stall seen.
-UNEXPLAINED_LATE_SHARE = 0.002
+UNEXPLAINED_LATE_SHARE = 0.001
 
 
 def hybrid_run(tmp_path, bus_overrides, *, baud, period_ms, duration_s):
@@ -55,8 +55,8 @@ def test_a_20_s_hybrid_run_keeps_time_but_where_the_host_stalls(
 ):
     # The stall witness excuses the steps in which the host held a CPU
     # (tests/stall_witness.py); the host also slows the guest in ways it cannot see, one
-    # reply in a thousand or so (docs/khepera.md), while the code's own lateness would show
-    # as many more.
+    # reply in a thousand, more on a host seen stalling often (docs/khepera.md), while the
+    # code's own lateness would show as many more.
     with StallWitness() as witness:
         record = hybrid_run(tmp_path, bus_overrides, baud=baud, period_ms=period_ms,
                             duration_s=20.0)  # fmt: skip
@@ -64,7 +64,7 @@ def test_a_20_s_hybrid_run_keeps_time_but_where_the_host_stalls(
     assert m["outcome"] == "completed" and m["steps"] == round(20_000 / period_ms)
     print(witness.summary(), "; late:", m["counts"]["late"])
     unexplained = witness.unexcused(record)
-    allowed = int(UNEXPLAINED_LATE_SHARE * m["steps"])
+    allowed = int(UNEXPLAINED_LATE_SHARE * m["steps"]) + witness.unseen
     assert all(len(steps) <= allowed for steps in unexplained.values()), (
         unexplained, m["counts"], witness.summary())  # fmt: skip
     summary = json.loads((record.run_dir / "summary.json").read_text())
