@@ -7,7 +7,13 @@ import pytest
 
 from sim_robot import Arena, ir_value, load_world, trajectory_metrics, world_from_dict
 from sim_robot.ir import KHEPERA2_IR_TABLE
-from sim_robot.render import draw_world, save_trajectory, trajectory_figure
+from sim_robot.render import (
+    PATH_STEP_M,
+    draw_world,
+    path_points,
+    save_trajectory,
+    trajectory_figure,
+)
 
 
 def record(arena, wheels, dt=0.01):
@@ -78,6 +84,29 @@ def test_pictures_png_and_svg(tmp_path, worlds_dir):
     n_obstacle_patches = len(arena.world.obstacles)
     assert len(ax.patches) >= 1 + n_obstacle_patches + 1  # wall, obstacles, robot
     assert len(ax.collections) == 1  # the time-coloured path
+
+
+def test_the_path_is_drawn_through_a_point_per_path_step_travelled():
+    # 1 m in 100,000 steps of 10 um: ~1 / PATH_STEP_M points, the first and last kept
+    x = np.linspace(0.0, 1.0, 100_001)
+    xy = np.column_stack([x, np.zeros_like(x)])
+    keep = path_points(xy, PATH_STEP_M)
+    assert keep[0] == 0 and keep[-1] == len(xy) - 1
+    assert abs(len(keep) - 1 / PATH_STEP_M) <= 2
+    assert np.all(np.diff(xy[keep, 0]) <= PATH_STEP_M + 1e-5)  # no gap wider than a step
+    # steps wider than PATH_STEP_M: every point; at rest: the first and the last
+    wide = np.column_stack([np.arange(10) * 2 * PATH_STEP_M, np.zeros(10)])
+    assert path_points(wide, PATH_STEP_M).tolist() == list(range(10))
+    assert path_points(np.zeros((50, 2)), PATH_STEP_M).tolist() == [0, 49]
+
+
+def test_a_long_runs_picture_stays_small(tmp_path, worlds_dir):
+    arena = Arena.from_toml(worlds_dir / "paper.toml")
+    t, poses = record(arena, [(0.01, 0.011)] * 20_000)  # 200 s at 10 ms, ~0.1 mm a step
+    svg = save_trajectory(arena.world, t, poses, tmp_path / "run.svg")
+    segments = trajectory_figure(arena.world, t, poses).axes[0].collections[0]
+    assert len(segments.get_segments()) < len(t) / 3
+    assert svg.stat().st_size < 2_000_000
 
 
 def test_draw_world_with_sensor_rays(worlds_dir):
