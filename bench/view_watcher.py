@@ -4,6 +4,8 @@ without decoding it (``bench/dashboard_within.py --watcher bare``): what the vie
 the loop with no dashboard's work on them.
 
     python bench/view_watcher.py SESSION
+    python bench/view_watcher.py SESSION --toggled   # subscribed only between SIGUSR1
+                                                     # and SIGUSR2 (bench/dashboard_toggle.py)
 """
 
 from __future__ import annotations
@@ -31,13 +33,23 @@ def main() -> None:
     connect = f"bus.connect={json.dumps(list(found.locators))}"
     cfg = load_config(None, [f"bus.session={json.dumps(session_name)}", connect])
     session = open_session(cfg.bus, listener=False, role="observer")
-    ring = zenoh.handlers.RingChannel(4)
-    sub = session.declare_subscriber(cfg.bus.keys.hub_view, ring)
+    subscribed = threading.Event()
+    if "--toggled" in sys.argv[2:]:
+        signal.signal(signal.SIGUSR1, lambda *_: subscribed.set())
+        signal.signal(signal.SIGUSR2, lambda *_: subscribed.clear())
+    else:
+        subscribed.set()
     done = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: done.set())
-    taken = 0
+    sub, taken = None, 0
     while not done.wait(1 / 30):
-        while sub.try_recv() is not None:
+        if subscribed.is_set() and sub is None:
+            ring = zenoh.handlers.RingChannel(4)
+            sub = session.declare_subscriber(cfg.bus.keys.hub_view, ring)
+        elif not subscribed.is_set() and sub is not None:
+            sub.undeclare()
+            sub = None
+        while sub is not None and sub.try_recv() is not None:
             taken += 1
     print(f"views taken: {taken}", flush=True)
     session.close()

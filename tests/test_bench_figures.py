@@ -1,14 +1,20 @@
 """The figures a benchmark derives from its runs (no run here: hand-built inputs)."""
 
+import json
 import os
+import signal
 import subprocess
+import sys
 import time
+from pathlib import Path
 
 import pytest
 
 from bench.closed_loop import _dashboard_cpu_s, _loop_cpu_s, paired_cost
 from bench.loop_ab import run_order
 from bench.page import browser_cpu_s
+
+BENCH = Path(__file__).resolve().parent.parent / "bench"
 
 
 def test_equal_pairs_give_their_cost_with_no_spread():
@@ -94,3 +100,40 @@ def test_a_window_measures_the_cpu_a_process_used_over_it():
             pass
     assert 0.1 <= w.hub_cpu_s <= 1.0 and 0.1 <= w.dashboard_cpu_s <= 1.0
     assert w.seconds >= 0.15 and w.hub_faults >= 0
+
+
+def test_a_toggled_cost_pools_every_window_of_each_kind():
+    from bench.dashboard_toggle import pooled_cost
+
+    # steps and seconds per pair, without then with: 10 % fewer steps with, at any pace
+    steps = [[100, 90], [200, 180], [50, 45], [120, 108]]
+    spans = [[0.5, 0.5]] * 4
+    cost, lo, hi = pooled_cost(steps, spans)
+    assert cost == pytest.approx(0.10) and lo == pytest.approx(0.10) and hi == pytest.approx(0.10)
+    # a window's pace counts by its length, and a faster loop with is a negative cost
+    cost, lo, hi = pooled_cost([[100, 330], [100, 110]], [[1.0, 3.0], [1.0, 1.0]])
+    assert cost == pytest.approx(1 - (440 / 4) / (200 / 2))
+    assert lo <= cost <= hi
+
+
+def test_a_toggled_page_says_how_many_frames_it_took_when_asked_and_at_its_end():
+    from hub.bus import free_tcp_port
+
+    # no dashboard there: the page keeps trying to connect, and has taken no frame
+    page = subprocess.Popen(
+        [sys.executable, str(BENCH / "dashboard_toggle.py"), "--page-port", str(free_tcp_port())],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert json.loads(page.stdout.readline()) == {"frames": 0, "bytes": 0}  # ready
+        page.send_signal(signal.SIGUSR1)
+        assert json.loads(page.stdout.readline())["frames"] == 0
+        page.send_signal(signal.SIGSTOP)
+        page.send_signal(signal.SIGCONT)
+        page.terminate()
+        out, _ = page.communicate(timeout=10)
+    finally:
+        page.kill()
+    assert json.loads(out.strip().splitlines()[-1])["frames"] == 0
+    assert page.returncode == 0
