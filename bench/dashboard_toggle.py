@@ -17,10 +17,13 @@ pairs in a few minutes. ``--side`` says what is switched:
   browser would be, takes every frame or is stopped (``SIGSTOP``). A stopped page takes
   none, and the dashboard builds and sends none for it while its last one is unread: the
   frames' cost, the page's side included. The dashboard's taking of the views goes on.
-- ``frozen``: the dashboard and its page both run or are stopped — not a cost but a
-  hazard: over Zenoh's low-latency transport a put waits until its bytes are in the
-  receiver's socket, congestion control or not, so a frozen dashboard holds the hub up
-  once its socket is full (docs/dashboard.md, "A frozen dashboard").
+- ``idle-cpu``: a process that only burns ``--cpu-share`` of a core (the dashboard's
+  ~6 %) under ``SCHED_IDLE``, in 30 bursts a second, runs or is stopped: what CPU at
+  idle priority alone costs the loop.
+- ``frozen``: the dashboard and its page both run or are stopped; the hub sends its views
+  throughout, dropped for the frozen dashboard: the cost of the dashboard's process and
+  its page — and a check that a frozen dashboard does not hold the hub up (over Zenoh's
+  low-latency transport one did: docs/dashboard.md, "A frozen dashboard").
 
 Per window, from the run's record and ``/proc``: the steps completed, the watcher's CPU.
 The cost is ``1 - r``, ``r`` the pace of all windows with over that of all windows
@@ -42,6 +45,7 @@ import signal
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 
@@ -63,16 +67,17 @@ from bench.host import StealMeter, child_popen, end_children_on_signal  # noqa: 
 def page_main(port: int) -> None:
     """A page process: take every frame; print how many came so far when ready, at
     SIGUSR1, and at SIGTERM before it ends."""
-    signals = {signal.SIGUSR1, signal.SIGTERM}
-    signal.pthread_sigmask(signal.SIG_BLOCK, signals)  # before the page's thread: it inherits
     page = PageClient(port)
+    done = threading.Event()
 
-    def say() -> None:
+    def say(*_) -> None:
         print(json.dumps({"frames": page.frames, "bytes": page.bytes}), flush=True)
 
+    signal.signal(signal.SIGUSR1, say)  # Python runs handlers in this thread, between waits
+    signal.signal(signal.SIGTERM, lambda *_: done.set())
     say()  # ready: the signals are taken from here on
-    while signal.sigwait(signals) != signal.SIGTERM:
-        say()
+    while not done.wait(0.1):
+        pass
     say()  # and end: the page's thread is a daemon, left in its read of the next frame
 
 
@@ -130,7 +135,7 @@ class PageSide:
         self.page.terminate()
         out, _ = self.page.communicate(timeout=15)
         lines = out.strip().splitlines()
-        if not lines:  # seen once in a few runs: the page ended without its last word
+        if not lines:  # the page ended without its last word (killed)
             print(f"  the page said nothing at its end (exit status {self.page.returncode})")
             return None
         return json.loads(lines[-1])["frames"] - self.frames0
@@ -138,15 +143,51 @@ class PageSide:
 
 class FrozenSide(PageSide):
     """The dashboard and its page both stopped (``SIGSTOP``, as a debugger, a swap storm or
-    a suspended machine would) or let go on: not what the dashboard costs, but what a
-    frozen one does to the loop. Over Zenoh's low-latency transport a put waits until its
-    bytes are in the receiver's socket, congestion control or not, so once the frozen
-    dashboard's socket is full the hub's next put to it (a view, a reply routed to it)
-    waits until it reads again (docs/dashboard.md, "A frozen dashboard")."""
+    a suspended machine would) or let go on. The hub sends its views throughout; while the
+    dashboard is frozen Zenoh drops them for it (its observer joins over the queued
+    transport): the cost of the dashboard's process and its page, and a check that a
+    frozen dashboard does not hold the loop up (over the low-latency transport it did:
+    docs/dashboard.md, "A frozen dashboard")."""
 
     def __init__(self, session: str, tmp: Path, sets: list[str]):
         super().__init__(session, tmp, sets)
         self.frozen = [self.dash, self.page]
+
+
+class IdleCpuSide:
+    """A process that only burns CPU under ``SCHED_IDLE``, ``--cpu-share`` of a core in 30
+    bursts a second (as the dashboard's pump), stopped (``SIGSTOP``) or let go on: what
+    CPU at idle priority alone costs the loop, without sockets or memory traffic."""
+
+    lag_s = 0.0
+
+    def __init__(self, session: str, tmp: Path, sets: list[str], cpu_share: float):
+        cmd = [sys.executable, __file__, "--burn", str(cpu_share)]
+        self.dash = child_popen(cmd, cwd=ROOT)
+        self.procs = [self.dash]
+
+    def started(self) -> None:
+        pass
+
+    def on(self, on: bool) -> None:
+        os.kill(self.dash.pid, signal.SIGCONT if on else signal.SIGSTOP)
+
+    def frames(self) -> None:
+        return None
+
+
+def burn_main(cpu_share: float, hz: float = 30.0) -> None:
+    """Burn ``cpu_share`` of a core in ``hz`` bursts a second under ``SCHED_IDLE``."""
+    from hub.scheduling import yield_cpu
+
+    yield_cpu()
+    burst_s, next_s = cpu_share / hz, time.monotonic()
+    while True:
+        end = time.thread_time() + burst_s
+        while time.thread_time() < end:
+            sum(range(200))
+        next_s = max(next_s + 1 / hz, time.monotonic())  # after a stop: no catching up
+        time.sleep(next_s - time.monotonic())
 
 
 class HubSide:
@@ -171,7 +212,7 @@ class HubSide:
         return None
 
 
-SIDES = {"hub": HubSide, "page": PageSide, "frozen": FrozenSide}
+SIDES = {"hub": HubSide, "page": PageSide, "frozen": FrozenSide, "idle-cpu": IdleCpuSide}
 
 
 def measure(args, tmp: Path) -> tuple[list[dict], Path, float | None]:
@@ -188,7 +229,8 @@ def measure(args, tmp: Path) -> tuple[list[dict], Path, float | None]:
     pairs, fps, side = [], None, None
     try:
         wait_for_steps(session, run)
-        side = SIDES[args.side](session, tmp, args.set)
+        extra = (args.cpu_share,) if args.side == "idle-cpu" else ()
+        side = SIDES[args.side](session, tmp, args.set, *extra)
         time.sleep(args.settle_s)  # the watcher's imports, its scene, the page's first frames
         side.started()
         with_s = 0.0
@@ -241,10 +283,15 @@ def main() -> None:
                     help="after the dashboard starts, before the first window")  # fmt: skip
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                     help="config for the dashboard (e.g. dashboard.fps=20)")  # fmt: skip
+    ap.add_argument("--cpu-share", type=float, default=0.06,
+                    help="idle-cpu: the share of a core burnt (the dashboard: ~0.06)")  # fmt: skip
     ap.add_argument("--page-port", type=int, help=argparse.SUPPRESS)  # the page's process
+    ap.add_argument("--burn", type=float, help=argparse.SUPPRESS)  # idle-cpu's process
     args = ap.parse_args()
     if args.page_port is not None:
         return page_main(args.page_port)
+    if args.burn is not None:
+        return burn_main(args.burn)
     end_children_on_signal()
     import numpy as np
 
@@ -270,6 +317,7 @@ def main() -> None:
         "hub": "the hub's views (a bare watcher subscribed or not)",
         "page": "the dashboard's page (taking frames or stopped)",
         "frozen": "the dashboard and its page (running or frozen)",
+        "idle-cpu": f"{args.cpu_share:.0%} of a core burnt under SCHED_IDLE (or stopped)",
     }[args.side]
     page = f", its page ~{fps:.0f} frames/s" if fps is not None else ""
     print(

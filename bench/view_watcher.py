@@ -31,7 +31,10 @@ def main() -> None:
     if found is None:
         raise SystemExit(f"no hub of session {session_name!r} on this machine")
     connect = f"bus.connect={json.dumps(list(found.locators))}"
-    cfg = load_config(None, [f"bus.session={json.dumps(session_name)}", connect])
+    # as the dashboard's observer: Zenoh's queued transport (dashboard/observer.py)
+    cfg = load_config(
+        None, [f"bus.session={json.dumps(session_name)}", connect, "bus.low_latency=false"]
+    )
     session = open_session(cfg.bus, listener=False, role="observer")
     subscribed = threading.Event()
     if "--toggled" in sys.argv[2:]:

@@ -67,7 +67,11 @@ class BusObserver:
     not give it."""
 
     def __init__(self, bus: BusSection, state: FrameState, config: dict | None = None):
-        self.bus = dataclasses.replace(bus, connect_timeout_s=QUERY_TIMEOUT_S)
+        # Zenoh's queued transport for this session, whatever the loop's: over the
+        # low-latency one a put waits for the receiver's socket, congestion control or not,
+        # so a frozen dashboard would hold the hub up (docs/dashboard.md, "A frozen
+        # dashboard"); Zenoh agrees the transport link by link, the loop's stay low-latency.
+        self.bus = dataclasses.replace(bus, connect_timeout_s=QUERY_TIMEOUT_S, low_latency=False)
         self.config = config
         self.role = _role(bus)
         self.keys = bus.keys

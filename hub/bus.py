@@ -35,7 +35,8 @@ LOOP_PUBLISH = dict(
 # Telemetry: newest wins. Over Zenoh's queued transport (bus.low_latency = false) a put
 # to a congested receiver is dropped; over the low-latency transport (the default) Zenoh
 # applies no congestion control, and a put waits until its bytes are in the receiver's
-# socket: a frozen subscriber holds the putter up (docs/dashboard.md, "A frozen dashboard").
+# socket: a frozen subscriber holds the putter up. Zenoh agrees the transport link by link:
+# the dashboard joins over the queued one (docs/dashboard.md, "A frozen dashboard").
 TELEMETRY_PUBLISH = dict(congestion_control=zenoh.CongestionControl.DROP)
 
 

@@ -290,3 +290,13 @@ def test_a_dashboard_that_cannot_join_says_why(tmp_path, caplog):
         observer.close()
     said = [r for r in caplog.records if "no certificate file" in r.getMessage()]
     assert len(said) == 1  # ... and says it once
+
+
+def test_the_observer_joins_over_zenohs_queued_transport_whatever_the_loops(bus_overrides):
+    # over the low-latency transport a put waits for the receiver's socket, so a frozen
+    # dashboard would hold the hub up; Zenoh agrees the transport link by link
+    from hub.config import load_config
+
+    cfg = load_config(None, [*bus_overrides, "bus.low_latency=true"])
+    observer = BusObserver(cfg.bus, FrameState())
+    assert cfg.bus.low_latency and not observer.bus.low_latency
