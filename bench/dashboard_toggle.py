@@ -198,8 +198,9 @@ class HubSide:
     lag_s = 0.3  # the hub's next look, and Zenoh's news of the (un)subscription
 
     def __init__(self, session: str, tmp: Path, sets: list[str]):
-        self.dash, _ = start_watcher("bare", session, tmp / "watcher.log", [])
-        self.dash.args.append("--toggled")  # (for the record: the command it was given)
+        cmd = [sys.executable, "bench/view_watcher.py", session, "--toggled"]
+        with open(tmp / "watcher.log", "w") as out:
+            self.dash = child_popen(cmd, cwd=ROOT, stdout=out, stderr=subprocess.STDOUT)
         self.procs = [self.dash]
 
     def started(self) -> None:
@@ -248,6 +249,8 @@ def measure(args, tmp: Path) -> tuple[list[dict], Path, float | None]:
             pairs.append(pair)
             if (i + 1) % 50 == 0 or i + 1 == args.pairs:
                 print(f"  {i + 1}/{args.pairs} pairs measured", flush=True)
+            if any(proc.poll() is not None for proc in side.procs):
+                raise SystemExit(f"the watcher ended early (see {tmp}/*.log)")
             if run.poll() is not None:
                 raise SystemExit(f"the run ended early:\n{(tmp / 'run.err').read_text()[-2000:]}")
         frames = side.frames()
