@@ -8,10 +8,11 @@ interval of +-7 %. Here what is measured runs throughout and is switched on and 
 ``--toggle-s``, in pairs of windows in alternating order (A B, B A, ...): hundreds of
 pairs in a few minutes. ``--side`` says what is switched:
 
-- ``hub``: a bare watcher of the hub's views (``bench/view_watcher.py --toggled``)
-  subscribes or not. The hub gathers, builds and sends its views only while someone
-  subscribes (it looks four times a second, so each window starts 0.3 s after the
-  switch): the hub's side of the dashboard.
+- ``hub``: a bare watcher of the hub's views (``bench/view_watcher.py --toggled``,
+  under ``SCHED_IDLE`` as the dashboard unless ``--watcher normal``) subscribes or not.
+  The hub gathers, builds and sends its views only while someone subscribes (it looks
+  four times a second, so each window starts 0.3 s after the switch): the hub's side of
+  the dashboard.
 - ``page``: a dashboard (``neuvision dashboard --session S``, under ``SCHED_IDLE`` as by
   default) runs throughout; its page, a process of its own at normal priority as a
   browser would be, takes every frame or is stopped (``SIGSTOP``). A stopped page takes
@@ -197,8 +198,9 @@ class HubSide:
 
     lag_s = 0.3  # the hub's next look, and Zenoh's news of the (un)subscription
 
-    def __init__(self, session: str, tmp: Path, sets: list[str]):
+    def __init__(self, session: str, tmp: Path, sets: list[str], idle: bool = True):
         cmd = [sys.executable, "bench/view_watcher.py", session, "--toggled"]
+        cmd += ["--idle"] if idle else []
         with open(tmp / "watcher.log", "w") as out:
             self.dash = child_popen(cmd, cwd=ROOT, stdout=out, stderr=subprocess.STDOUT)
         self.procs = [self.dash]
@@ -230,7 +232,7 @@ def measure(args, tmp: Path) -> tuple[list[dict], Path, float | None]:
     pairs, fps, side = [], None, None
     try:
         wait_for_steps(session, run)
-        extra = (args.cpu_share,) if args.side == "idle-cpu" else ()
+        extra = {"idle-cpu": (args.cpu_share,), "hub": (args.watcher == "idle",)}.get(args.side, ())
         side = SIDES[args.side](session, tmp, args.set, *extra)
         time.sleep(args.settle_s)  # the watcher's imports, its scene, the page's first frames
         side.started()
@@ -288,6 +290,9 @@ def main() -> None:
                     help="config for the dashboard (e.g. dashboard.fps=20)")  # fmt: skip
     ap.add_argument("--cpu-share", type=float, default=0.06,
                     help="idle-cpu: the share of a core burnt (the dashboard: ~0.06)")  # fmt: skip
+    ap.add_argument("--watcher", choices=("idle", "normal"), default="idle",
+                    help="hub: the watcher under SCHED_IDLE as the dashboard (default), or "
+                    "the ordinary scheduler")  # fmt: skip
     ap.add_argument("--page-port", type=int, help=argparse.SUPPRESS)  # the page's process
     ap.add_argument("--burn", type=float, help=argparse.SUPPRESS)  # idle-cpu's process
     args = ap.parse_args()
@@ -317,7 +322,7 @@ def main() -> None:
         for kind in ("without", "with")
     }
     what = {
-        "hub": "the hub's views (a bare watcher subscribed or not)",
+        "hub": f"the hub's views (a bare watcher, {args.watcher} priority, subscribed or not)",
         "page": "the dashboard's page (taking frames or stopped)",
         "frozen": "the dashboard and its page (running or frozen)",
         "idle-cpu": f"{args.cpu_share:.0%} of a core burnt under SCHED_IDLE (or stopped)",
@@ -342,6 +347,7 @@ def main() -> None:
                 "watcher_cpu_share": {k: round(v, 4) for k, v in share.items()},
                 "page_fps": round(fps, 1) if fps is not None else None,
                 "side": args.side,
+                "watcher_priority": args.watcher if args.side == "hub" else None,
                 "pairs": len(pairs),
                 "toggle_s": args.toggle_s,
                 "dashboard_set": args.set,

@@ -6,6 +6,7 @@ the loop with no dashboard's work on them.
     python bench/view_watcher.py SESSION
     python bench/view_watcher.py SESSION --toggled   # subscribed only between SIGUSR1
                                                      # and SIGUSR2 (bench/dashboard_toggle.py)
+    python bench/view_watcher.py SESSION --idle      # under SCHED_IDLE, as the dashboard
 """
 
 from __future__ import annotations
@@ -27,6 +28,10 @@ from hub.config import load_config  # noqa: E402
 
 def main() -> None:
     session_name = sys.argv[1]
+    if "--idle" in sys.argv[2:]:  # before Zenoh starts its threads: they inherit it
+        from hub.scheduling import yield_cpu
+
+        yield_cpu()
     found = local_hubs.find(session_name)
     if found is None:
         raise SystemExit(f"no hub of session {session_name!r} on this machine")
