@@ -108,6 +108,8 @@ VIEW_GUARD_S = 1e-3
 # endpoint awaited). Woken at the view rate, it took the loop's lock from the replies
 # thirty times a second (docs/dashboard.md, "Measured").
 VIEW_STALL_S = 0.1
+# How often the hub looks whether anyone watches ``hub/view`` (a query of Zenoh's routes).
+LOOK_S = 0.25
 # The longest a thread holds the interpreter while another wants it during the steps.
 # Python's default, 5 ms, would let the recorder or a status hold up a step start
 # (realtime) or keep Zenoh's callback from handing the loop a reply (both modes).
@@ -228,6 +230,7 @@ class Hub:
         # What live displays get on hub/view (hub/view.py), while anyone subscribes.
         self.view = ObserverView(self.run_id)
         self._next_view = 0.0
+        self._next_look = 0.0  # when the hub next looks whether anyone watches hub/view
         n = cfg.n_steps
         self.times = LoopTimes.for_run(cfg.loop.mode, cfg.loop.period_ms, n)
         self.recorder: Recorder | None = None
@@ -1215,11 +1218,13 @@ class Hub:
         if not last and self.state == "running" and self.cfg.loop.mode == "realtime":
             if self.scheduler.start_of(self.k_done) - now < VIEW_GUARD_S:
                 return  # the tick after this step tries again
-        self.view.watch(self.link.view_observed())
+        if now >= self._next_look:  # a look is a query of Zenoh's routes: ~30 us in the loop
+            self.view.watch(self.link.view_observed())
+            self._next_look = now + LOOK_S
         for part in self.ledger.stranded:  # of steps that went missing: shown as late
             self.view.took(part)
         self.ledger.stranded.clear()
-        self._next_view = now + (1.0 / hz if self.view.observed else 0.25)
+        self._next_view = now + (1.0 / hz if self.view.observed else LOOK_S)
         view = self.view.build(self.k_done)
         if view is not None:
             self.link.publish_view(view.encode())

@@ -37,6 +37,7 @@ class ObserverView:
         self._trail: deque[tuple[float, float]] = deque(maxlen=MAX_HELD)
         self._sensors: SensorReading | None = None
         self._motor: MotorCommand | None = None
+        self._n_spikes = 0  # in _spikes (more than it holds once it let the oldest go)
         self._fresh = False  # anything since the last view
 
     def took(self, message: Message) -> None:
@@ -45,6 +46,7 @@ class ObserverView:
             return
         if isinstance(message, SpikeBatch):
             self._spikes.append(message)
+            self._n_spikes += message.channel.size
         else:
             self._trail.append((message.pose[0], message.pose[1]))
             if self._sensors is None or message.step >= self._sensors.step:
@@ -56,7 +58,7 @@ class ObserverView:
         if not self.observed:
             return
         if isinstance(message, Stimulation):
-            if message.n_pulses:
+            if message.channel.size:
                 self._stims.append(message)
         else:
             self._motor = message
@@ -66,6 +68,7 @@ class ObserverView:
         if observed != self.observed:
             self.observed = observed
             self._spikes.clear()
+            self._n_spikes = 0
             self._stims.clear()
             self._trail.clear()
             self._fresh = False
@@ -75,15 +78,19 @@ class ObserverView:
         fresh start for the next."""
         if not self._fresh:
             return None
-        spikes, stims = _newest(self._spikes), list(self._stims)
+        spikes = self._spikes
+        spikes = list(spikes) if self._n_spikes <= MAX_VIEW_SPIKES else _newest(spikes)
+        stims = list(self._stims)
         self._spikes.clear()
+        self._n_spikes = 0
         self._stims.clear()
         fields = {"step": steps_done, "run": self.run}
         if spikes:
-            fields["from_s"] = min(b.t0_s for b in spikes)
-            fields["to_s"] = max(b.t1_s for b in spikes)
+            t0_s = [b.t0_s for b in spikes]
+            fields["from_s"] = min(t0_s)
+            fields["to_s"] = max([b.t1_s for b in spikes])
             fields["spike_channel"] = np.concatenate([b.channel for b in spikes])
-            fields["spike_t_ms"] = _run_ms([b.t0_s for b in spikes], [b.t_ms for b in spikes])
+            fields["spike_t_ms"] = _run_ms(t0_s, [b.t_ms for b in spikes])
         else:
             t = self._sensors.t_s if self._sensors is not None else 0.0
             fields["from_s"] = fields["to_s"] = t
