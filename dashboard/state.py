@@ -76,6 +76,10 @@ class Tape:
         start = max(cursor + 1 - items[0][0], 0)
         return [items[i][2] for i in range(start, len(items))]
 
+    def newest_first(self):
+        """The items kept, newest first (no copy: not while items are added)."""
+        return (item for _, _, item in reversed(self._items))
+
     def __len__(self) -> int:
         return len(self._items)
 
@@ -128,6 +132,7 @@ class FrameState:
             self._table = np.zeros(1, np.int64) - 1
             self._per_channel = np.zeros((len(PER_CHANNEL), 0))
             self._n_all, self._n_exc, self._n_inh = 1, 0, 0
+            self._index_bytes = 2
             return
         ids = np.asarray(culture["channel"], np.int64)
         self.n_channels = ids.size
@@ -142,6 +147,7 @@ class FrameState:
         ).astype(np.float64)
         # the rates' denominators: every channel, the excitatory ones, the inhibitory ones
         self._n_all, self._n_exc, self._n_inh = ids.size, int(exc.sum()), int(inh.sum())
+        self._index_bytes = 2 if ids.size <= 1 << 16 else 4
 
     def reset(self) -> None:
         """Empty every history (a new run, a jump in a replay); the scene stays."""
@@ -372,12 +378,13 @@ class FrameState:
 
     def _events(self, parts: list, cap: int | None = None) -> dict:
         """A stream's (times ms, channel indices) as base64 of little-endian arrays: ``n``,
-        ``t0`` (ms), ``t`` (float32 ms after ``t0``) and ``i`` (uint32 channel indices in
-        the scene's order) — a few bytes a spike, and no per-spike Python. Past ``cap``
+        ``t0`` (ms), ``t`` (float32 ms after ``t0``) and ``i`` (channel indices in the
+        scene's order, unsigned integers of ``i_bytes`` bytes: 2 for up to 65,536 channels,
+        else 4) — six bytes a spike, and no per-spike Python. Past ``cap``
         only the newest go, and ``capped_before_ms`` says from when: the page shows the
         time before as not shown, never as silence."""
         if not parts:
-            return {"n": 0, "t0": 0.0, "t": "", "i": ""}
+            return {"n": 0, "t0": 0.0, "t": "", "i": "", "i_bytes": self._index_bytes}
         t_ms = np.concatenate([p[0] for p in parts])
         idx = np.concatenate([p[1] for p in parts])
         capped_before_ms = None
@@ -390,7 +397,8 @@ class FrameState:
             "n": int(t_ms.size),
             "t0": t0,
             "t": _b64((t_ms - t0).astype("<f4")),
-            "i": _b64(idx.astype("<u4")),
+            "i": _b64(idx.astype(f"<u{self._index_bytes}")),
+            "i_bytes": self._index_bytes,
         }
         if capped_before_ms is not None:
             out["capped_before_ms"] = capped_before_ms
@@ -407,7 +415,7 @@ class FrameState:
     def _lit(self, now_ms: float) -> list:
         """Channel indices stimulated within the last LIT_MS."""
         lit = set()
-        for t_ms, idx in self.tapes["pulses"].since(0)[::-1]:
+        for t_ms, idx in self.tapes["pulses"].newest_first():
             recent = t_ms >= now_ms - LIT_MS
             if not recent.any():
                 break

@@ -130,9 +130,11 @@ function bytes(b64) {
 }
 
 // A stream's events (server: FrameState._events): times in ms (t0 + float32 offsets) and
-// channel indices, as typed arrays; `last` is the newest time, for trimming.
+// channel indices (2 or 4 bytes each: e.i_bytes), as typed arrays; `last` is the newest
+// time, for trimming.
 function chunk(e) {
-  const t = new Float32Array(bytes(e.t).buffer), i = new Uint32Array(bytes(e.i).buffer);
+  const t = new Float32Array(bytes(e.t).buffer);
+  const i = new (e.i_bytes === 2 ? Uint16Array : Uint32Array)(bytes(e.i).buffer);
   let last = -Infinity;
   for (let k = 0; k < t.length; k++) if (t[k] > last) last = t[k];
   return { t0: e.t0, t, i, last: e.t0 + last };

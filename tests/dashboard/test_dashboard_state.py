@@ -42,7 +42,7 @@ def _events(stream: dict) -> tuple[np.ndarray, np.ndarray]:
     if not stream["n"]:
         return np.zeros(0), np.zeros(0, np.int64)
     t = np.frombuffer(base64.b64decode(stream["t"]), "<f4") + stream["t0"]
-    return t, np.frombuffer(base64.b64decode(stream["i"]), "<u4")
+    return t, np.frombuffer(base64.b64decode(stream["i"]), f"<u{stream['i_bytes']}")
 
 
 def test_a_tape_gives_each_reader_what_came_after_its_cursor_while_it_is_kept():
@@ -128,6 +128,19 @@ def test_each_page_gets_every_spike_once_and_a_new_page_all_that_is_kept():
     late = Reader()
     frame = state.frame(late)
     assert frame["reset"] and _events(frame["spikes"])[1].tolist() == [0, 2, 3]
+
+
+def test_channel_indices_go_as_two_bytes_up_to_65536_channels_and_as_four_past_it():
+    for n_channels, width in ((1 << 16, 2), ((1 << 16) + 1, 4)):
+        state = FrameState()
+        ids = list(range(n_channels))
+        zeros = [0.0] * n_channels
+        state.set_scene({"name": "t", "culture": {**CULTURE, "channel": ids, "x_um": zeros,
+                                                   "y_um": zeros, "cell_type": None}})  # fmt: skip
+        state.add_spikes([0, n_channels - 1], [1.0, 2.0], 0.0, 10.0)
+        spikes = state.frame(Reader())["spikes"]
+        assert spikes["i_bytes"] == width
+        assert _events(spikes)[1].tolist() == [0, n_channels - 1]
 
 
 def test_a_frame_over_the_cap_carries_the_newest_and_says_from_when():
