@@ -9,10 +9,11 @@ interval of +-7 %. Here what is measured runs throughout and is switched on and 
 pairs in a few minutes. ``--side`` says what is switched:
 
 - ``hub``: a bare watcher of the hub's views (``bench/view_watcher.py --toggled``,
-  under ``SCHED_IDLE`` as the dashboard unless ``--watcher normal``) subscribes or not.
-  The hub gathers, builds and sends its views only while someone subscribes (it looks
-  four times a second, so each window starts 0.3 s after the switch): the hub's side of
-  the dashboard.
+  under ``SCHED_IDLE`` as the dashboard unless ``--watcher normal``) asks for them or
+  not. The hub gathers and builds its views only while someone asked within the last
+  second, and sends them only when asked: the hub's side of the dashboard. Each window
+  starts 0.3 s after the switch on; after the switch off the hub goes on gathering for a
+  second, so ``--settle-after-switch-s 1.1`` measures it whole.
 - ``page``: a dashboard (``neuvision dashboard --session S``, under ``SCHED_IDLE`` as by
   default) runs throughout; its page, a process of its own at normal priority as a
   browser would be, takes every frame or is stopped (``SIGSTOP``). A stopped page takes
@@ -192,11 +193,11 @@ def burn_main(cpu_share: float, hz: float = 30.0) -> None:
 
 
 class HubSide:
-    """A bare watcher of the hub's views (``bench/view_watcher.py --toggled``) that
-    subscribes (``SIGUSR1``) or not (``SIGUSR2``): the hub gathers and sends its views only
-    while someone subscribes, and looks four times a second whether anyone does."""
+    """A bare watcher of the hub's views (``bench/view_watcher.py --toggled``) that asks for
+    them (``SIGUSR1``) or not (``SIGUSR2``): the hub gathers and builds its views while
+    someone asked within the last second, and sends them only when asked."""
 
-    lag_s = 0.3  # the hub's next look, and Zenoh's news of the (un)subscription
+    lag_s = 0.3  # the hub's next look
 
     def __init__(self, session: str, tmp: Path, sets: list[str], idle: bool = True):
         cmd = [sys.executable, "bench/view_watcher.py", session, "--toggled"]
@@ -222,7 +223,8 @@ def measure(args, tmp: Path) -> tuple[list[dict], Path, float | None]:
     """Pairs of windows ``{"with": (t0_ns, t1_ns, the watcher's CPU s), "without": ...}``,
     the run's folder, and the page's frames a second while let run (None: no page)."""
     session = f"bench-dashboard-toggle-{os.getpid()}"
-    windows_s = 2 * args.pairs * (args.toggle_s + SIDES[args.side].lag_s)
+    lag_s = max(SIDES[args.side].lag_s, args.settle_after_switch_s or 0.0)
+    windows_s = 2 * args.pairs * (args.toggle_s + lag_s)
     run_s = (windows_s + 120) * MAX_X_REALTIME
     cmd = [sys.executable, "-m", "hub.cli", "run", "configs/closed_loop.toml", "--quiet"]
     cmd += ["--mode", "lockstep", "--duration-s", f"{run_s:.0f}", "--runs-dir", str(tmp / "runs")]
@@ -236,13 +238,14 @@ def measure(args, tmp: Path) -> tuple[list[dict], Path, float | None]:
         side = SIDES[args.side](session, tmp, args.set, *extra)
         time.sleep(args.settle_s)  # the watcher's imports, its scene, the page's first frames
         side.started()
+        lag_s = side.lag_s if args.settle_after_switch_s is None else args.settle_after_switch_s
         with_s = 0.0
         for i in range(args.pairs):
             order = ("without", "with") if i % 2 == 0 else ("with", "without")
             pair = {}
             for kind in order:
                 side.on(kind == "with")
-                time.sleep(side.lag_s)
+                time.sleep(lag_s)
                 t0, c0 = time.time_ns(), cpu_s(side.dash.pid)
                 time.sleep(args.toggle_s)
                 pair[kind] = (t0, time.time_ns(), cpu_s(side.dash.pid) - c0)
@@ -280,10 +283,13 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
     ap.add_argument("--pairs", type=int, default=300)
     ap.add_argument("--side", choices=tuple(SIDES), default="hub",
-                    help="hub: a bare watcher subscribes to the hub's views or not; page: a "
+                    help="hub: a bare watcher asks for the hub's views or not; page: a "
                     "dashboard's page takes frames or is stopped; frozen: the dashboard and "
                     "its page run or are stopped")  # fmt: skip
     ap.add_argument("--toggle-s", type=float, default=0.5, help="each window's length")
+    ap.add_argument("--settle-after-switch-s", type=float, default=None,
+                    help="left out after each switch (default: the side's own: 0.3 s for the "
+                    "hub's next look, else 0)")  # fmt: skip
     ap.add_argument("--settle-s", type=float, default=15.0,
                     help="after the dashboard starts, before the first window")  # fmt: skip
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
@@ -322,12 +328,14 @@ def main() -> None:
         for kind in ("without", "with")
     }
     what = {
-        "hub": f"the hub's views (a bare watcher, {args.watcher} priority, subscribed or not)",
+        "hub": f"the hub's views (a bare watcher, {args.watcher} priority, asking or not)",
         "page": "the dashboard's page (taking frames or stopped)",
         "frozen": "the dashboard and its page (running or frozen)",
         "idle-cpu": f"{args.cpu_share:.0%} of a core burnt under SCHED_IDLE (or stopped)",
     }[args.side]
     page = f", its page ~{fps:.0f} frames/s" if fps is not None else ""
+    settle_s = args.settle_after_switch_s
+    settle_s = SIDES[args.side].lag_s if settle_s is None else settle_s
     print(
         f"{what} toggled, {len(pairs)} pairs of {args.toggle_s:g} s windows: "
         f"without {without:.0f}, with {with_:.0f} steps/s (all windows of each kind); cost "
@@ -350,6 +358,7 @@ def main() -> None:
                 "watcher_priority": args.watcher if args.side == "hub" else None,
                 "pairs": len(pairs),
                 "toggle_s": args.toggle_s,
+                "settle_after_switch_s": settle_s,
                 "dashboard_set": args.set,
                 "steal_share": round(steal.share, 4),
             }

@@ -1,11 +1,11 @@
-"""A bare watcher of the hub's views, for benchmarks: it subscribes to ``hub/view`` of a
-session's hub on this machine, as the dashboard does, and takes each view off its ring
-without decoding it (``bench/dashboard_within.py --watcher bare``): what the views cost
-the loop with no dashboard's work on them.
+"""A bare watcher of the hub's views, for benchmarks: it asks a session's hub on this
+machine for its views (``hub/view/*``), as the dashboard does, 30 times a second, and
+takes them without decoding them (``bench/dashboard_within.py --watcher bare``): what the
+views cost the loop with no dashboard's work on them.
 
     python bench/view_watcher.py SESSION
-    python bench/view_watcher.py SESSION --toggled   # subscribed only between SIGUSR1
-                                                     # and SIGUSR2 (bench/dashboard_toggle.py)
+    python bench/view_watcher.py SESSION --toggled   # asking only between SIGUSR1 and
+                                                     # SIGUSR2 (bench/dashboard_toggle.py)
     python bench/view_watcher.py SESSION --idle      # under SCHED_IDLE, as the dashboard
 """
 
@@ -19,11 +19,10 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-import zenoh  # noqa: E402
-
 from hub import local_hubs  # noqa: E402
 from hub.bus import open_session  # noqa: E402
 from hub.config import load_config  # noqa: E402
+from hub.view import ViewAsker  # noqa: E402
 
 
 def main() -> None:
@@ -49,16 +48,10 @@ def main() -> None:
         subscribed.set()
     done = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: done.set())
-    sub, taken = None, 0
+    asker, taken = ViewAsker(session, cfg.bus.keys.hub_view), 0
     while not done.wait(1 / 30):
-        if subscribed.is_set() and sub is None:
-            ring = zenoh.handlers.RingChannel(4)
-            sub = session.declare_subscriber(cfg.bus.keys.hub_view, ring)
-        elif not subscribed.is_set() and sub is not None:
-            sub.undeclare()
-            sub = None
-        while sub is not None and sub.try_recv() is not None:
-            taken += 1
+        if subscribed.is_set():  # asks again once answered; unasked, the hub stops sending
+            taken += len(asker.take())
     print(f"views taken: {taken}", flush=True)
     session.close()
 

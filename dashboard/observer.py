@@ -4,18 +4,23 @@ It joins the hub's router as a client, like an endpoint, but only subscribes and
 it never puts a loop message. It does not subscribe to the loop's own keys either: the
 router would then send it four messages a step with the loop's congestion control, which
 costs a lockstep loop far more than its 5 % budget and lets a slow observer hold the loop up
-(docs/dashboard.md). It hears the hub's telemetry, published with congestion control DROP,
-held by Zenoh in ring buffers (no Python runs as a sample arrives; a full ring drops its
-oldest) and taken out by :meth:`BusObserver.tick`, a frame at a time:
+(docs/dashboard.md). Nor does it subscribe to the hub's telemetry: it *asks* for it, one
+question at a time, and :meth:`BusObserver.tick` takes what the answers brought, a frame
+at a time — so a dashboard that stops reading (frozen, swapped out, on a slow link) stops
+the hub's sending too, where a subscriber's full socket held the hub's puts, and with
+them the loop (docs/dashboard.md, "A frozen dashboard"):
 
-- ``hub/view`` (:class:`~hub.protocol.HubView`, ``loop.view_hz`` times a second): every
-  spike and pulse since the last view, the body's trail, its newest reading and the newest
-  motor command — what the loop carried, relayed by the hub;
-- ``hub/status``: the hub's state, counters and recent network bursts;
-- liveliness ``alive/**``: whether the hub is there.
+- ``hub/view/*`` (:class:`~hub.protocol.HubView`, built ``loop.view_hz`` times a second;
+  :class:`hub.view.ViewAsker`): every spike and pulse since the last view, the body's
+  trail, its newest reading and the newest motor command — what the loop carried,
+  relayed by the hub;
+- ``hub/status`` (subscribed, ``loop.status_hz`` times a second, a few hundred bytes, held
+  by Zenoh in a ring; a full ring drops its oldest): the hub's state, counters and recent
+  network bursts — and the final one, sent as the hub ends;
+- liveliness ``alive/**`` (subscribed: a few samples a run): whether the hub is there.
 
-It subscribes to ``hub/view`` once it has tried to read the run's scene: a hub that waits for
-its dashboard (``neuvision run --dashboard``) starts its steps then.
+It asks for views once it has tried to read the run's scene: a hub that waits for its
+dashboard (``neuvision run --dashboard``) starts its steps then.
 
 Each message is checked against the contract; a bad one is counted and left out.
 
@@ -46,14 +51,14 @@ from hub.bus import BusError, open_session
 from hub.config import BusSection
 from hub.ctl import request
 from hub.protocol import CONTROL_COMMANDS, Description, HubStatus, HubView, ProtocolError
+from hub.view import ViewAsker
 
 from .scene import build_scene, world_for
 from .state import FrameState
 
 log = logging.getLogger(__name__)
 
-# Samples each ring holds between two frames (a full ring drops its oldest).
-RINGS = {"view": 16, "status": 16}
+STATUS_RING = 16  # statuses held between two frames (a full ring drops its oldest)
 ENDPOINTS_EVERY_S = 1.0  # each endpoint's counters asked this often
 RETRY_S = 1.0  # between tries to reach the hub, or its scene
 QUERY_TIMEOUT_S = 2.0
@@ -78,8 +83,9 @@ class BusObserver:
         self.state = state
         self.where = ", ".join(bus.connect or bus.listen)
         self.session: zenoh.Session | None = None
-        self._subs: dict = {}
-        self._inboxes: dict[str, wire.Inbox] = {}
+        self._status = None  # the subscriber to hub/status, once connected
+        self._status_inbox = wire.Inbox()
+        self._views: ViewAsker | None = None
         self._declared: list = []
         self.run: str | None = None  # the run id seen on the wire
         self._hub_config: dict | None = None  # the present hub's config, once asked
@@ -119,30 +125,33 @@ class BusObserver:
     # ------------------------------------------------------------------ frames
 
     def tick(self) -> None:
-        """Take what arrived since the last tick into the state (caller holds its lock)."""
-        subs = self._subs
-        if not subs:
+        """Take what the answers brought since the last tick into the state, and ask again
+        where answered (caller holds the state's lock)."""
+        if self._status is None:
             return
-        for name in ("status", "view"):
-            sub = subs.get(name)
-            while sub is not None and (sample := sub.try_recv()) is not None:
-                self._take(name, sample)
+        while (sample := self._status.try_recv()) is not None:
+            try:
+                raw = self._status_inbox.feed(sample.payload, sample.attachment)
+            except wire.WireError as exc:
+                self.dropped[exc.kind] += 1
+                continue
+            if raw is not None:
+                self._take("status", raw)
+        for raw in self._views.take() if self._views is not None else ():
+            self._take("view", raw)
+        dropped = self.dropped + (self._views.dropped if self._views is not None else Counter())
         self.state.observer = {
             "connected": True,
             "hub_alive": self._hub_alive,
-            "dropped": dict(self.dropped),
+            "dropped": dict(dropped),
         }
 
-    def _take(self, name: str, sample) -> None:
-        key = str(sample.key_expr)
-        inbox = self._inboxes.setdefault(key, wire.Inbox())
+    def _take(self, name: str, raw: bytes) -> None:
         try:
-            raw = inbox.feed(sample.payload, sample.attachment)
-            if raw is not None:
-                self._handle(name, raw)
-        except (wire.WireError, ProtocolError) as exc:
+            self._handle(name, raw)
+        except ProtocolError as exc:
             if not self.dropped[exc.kind]:
-                log.warning("dropped a message on %s (%s): %s", key, exc.kind, exc)
+                log.warning("dropped a message on hub/%s (%s): %s", name, exc.kind, exc)
             self.dropped[exc.kind] += 1
 
     def _handle(self, name: str, raw: bytes) -> None:
@@ -232,29 +241,28 @@ class BusObserver:
             with self.state.lock:
                 self.state.observer = {**self.state.observer, "reason": why}
             return False
-        ring = zenoh.handlers.RingChannel
-        subs = {"status": session.declare_subscriber(self.keys.hub_status, ring(RINGS["status"]))}
+        ring = zenoh.handlers.RingChannel(STATUS_RING)
+        status = session.declare_subscriber(self.keys.hub_status, ring)
         self._declared = [
             session.liveliness().declare_subscriber(
                 self.keys.alive_all, self._on_alive, history=True
             )
         ]
         with self.state.lock:
-            self.session, self._subs = session, subs
+            self.session, self._status = session, status
         log.info("observing session %r at %s", self.bus.session, self.where)
         return True
 
     def _watch_views(self) -> None:
-        """Subscribe to ``hub/view`` (once), after the first try at the scene: a hub that
-        waits for its dashboard (``neuvision run --dashboard``) starts its steps when it
-        sees this subscriber, and by then the world is read (a first read compiles or loads
-        the geometry kernels: seconds of CPU on a slow machine, better spent before the
-        steps than during them)."""
-        if "view" not in self._subs:
-            ring = zenoh.handlers.RingChannel(RINGS["view"])
-            sub = self.session.declare_subscriber(self.keys.hub_view, ring)
+        """Start asking for views (once), after the first try at the scene: a hub that
+        waits for its dashboard (``neuvision run --dashboard``) starts its steps when it is
+        first asked, and by then the world is read (a first read compiles or loads the
+        geometry kernels: seconds of CPU on a slow machine, better spent before the steps
+        than during them)."""
+        if self._views is None:
+            views = ViewAsker(self.session, self.keys.hub_view)
             with self.state.lock:
-                self._subs = {**self._subs, "view": sub}
+                self._views = views
 
     def _on_alive(self, sample) -> None:
         if self.keys.parse_alive(str(sample.key_expr)) == ("hub", "0"):

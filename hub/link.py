@@ -24,6 +24,7 @@ import zenoh
 from hub import wire
 from hub.bus import LOOP_PUBLISH, TELEMETRY_PUBLISH, payload_bytes
 from hub.protocol import ROLES, Keys
+from hub.view import ViewShelf
 
 
 class HubLink:
@@ -89,8 +90,9 @@ class HubLink:
             for role, i in ids.items()
         }
         self._status = session.declare_publisher(keys.hub_status, **TELEMETRY_PUBLISH)
-        # framed (a view may be larger than one put of the low-latency transport), unsealed
-        self._view = wire.Outbox(session.declare_publisher(keys.hub_view, **TELEMETRY_PUBLISH))
+        # the views for live displays, handed to those that ask (hub/view.py): answered in
+        # Zenoh's thread from what the loop's thread left on the shelf
+        self.views = ViewShelf()
         # Zenoh undeclares what is garbage-collected: keep every declaration.
         self._declared = [
             session.declare_subscriber(
@@ -104,6 +106,9 @@ class HubLink:
             session.declare_queryable(keys.hub_control, lambda q: deliver(("control", q))),
             # the status on request, for observers that may not send control commands
             session.declare_queryable(keys.hub_status, lambda q: deliver(("status", q))),
+            session.declare_queryable(
+                f"{keys.hub_view}/*", lambda q: self.views.answer(q, keys.hub_view)
+            ),
             session.liveliness().declare_token(keys.alive("hub", "0")),
         ]
 
@@ -145,12 +150,12 @@ class HubLink:
         self._status.put(raw)
 
     def view_observed(self) -> bool:
-        """Whether anyone subscribes to ``hub/view`` (a live display)."""
-        return self._view.publisher.matching_status.matching
+        """Whether anyone asked for views lately (a live display)."""
+        return self.views.watched()
 
     def publish_view(self, raw: bytes) -> None:
-        """Put a ``HubView`` for observers (dropped, never waited for, on a slow link)."""
-        self._view.put(raw)
+        """Leave a ``HubView`` for the observers that ask."""
+        self.views.put(raw)
 
     def query(self, key: str, payload: bytes | None = None, *, timeout_s: float) -> list[bytes]:
         """The whole payloads of every reply to a query (``describe``, ``run``)."""

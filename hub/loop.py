@@ -108,8 +108,10 @@ VIEW_GUARD_S = 1e-3
 # endpoint awaited). Woken at the view rate, it took the loop's lock from the replies
 # thirty times a second (docs/dashboard.md, "Measured").
 VIEW_STALL_S = 0.1
-# How often the hub looks whether anyone watches ``hub/view`` (a query of Zenoh's routes).
+# How often the hub looks whether anyone asks for views, while no one does.
 LOOK_S = 0.25
+# At the run's end, how long the hub waits for a live display to ask for its last view.
+LAST_VIEW_WAIT_S = 1.0
 # The longest a thread holds the interpreter while another wants it during the steps.
 # Python's default, 5 ms, would let the recorder or a status hold up a step start
 # (realtime) or keep Zenoh's callback from handing the loop a reply (both modes).
@@ -227,10 +229,9 @@ class Hub:
         self._pause_started: float | None = None
         self.paused_s = 0.0
         self._next_status = 0.0
-        # What live displays get on hub/view (hub/view.py), while anyone subscribes.
+        # What live displays get on hub/view (hub/view.py), while anyone asks for them.
         self.view = ObserverView(self.run_id)
         self._next_view = 0.0
-        self._next_look = 0.0  # when the hub next looks whether anyone watches hub/view
         n = cfg.n_steps
         self.times = LoopTimes.for_run(cfg.loop.mode, cfg.loop.period_ms, n)
         self.recorder: Recorder | None = None
@@ -364,6 +365,8 @@ class Hub:
                     for r, d in self.descriptions.items()
                 },
             )
+            if self.link is not None and self.link.view_observed():
+                self.link.views.wait_had(LAST_VIEW_WAIT_S)  # a live display's last view
             session.close()
             self._release(observer)
         return RunResult(
@@ -817,7 +820,7 @@ class Hub:
         return f"; {', '.join(found)}: start it with --session {self.cfg.bus.session}"
 
     def _wait_for_view(self) -> None:
-        """Hold the first step until a live display subscribes to ``hub/view``, at most
+        """Hold the first step until a live display asks for views (``hub/view``), at most
         ``wait_for_view_s``: the page then shows the run from its first step, and the
         display's start-up (its imports, reading the world it draws) is not paid during the
         steps. Before the run is announced, so that no endpoint's clock has started."""
@@ -1207,8 +1210,8 @@ class Hub:
         )
 
     def _publish_view(self, now: float, *, last: bool = False) -> None:
-        """A view for live displays, if anyone subscribes and the loop moved (hub/view.py);
-        whether anyone subscribes is looked at four times a second meanwhile. In realtime
+        """A view for live displays, if anyone asks for them and the loop moved (hub/view.py);
+        whether anyone asks is looked at four times a second meanwhile. In realtime
         steps, only in the slack before the next step (``last``: the run's last view)."""
         hz = self.cfg.loop.view_hz
         if self.link is None or not hz:
@@ -1218,9 +1221,7 @@ class Hub:
         if not last and self.state == "running" and self.cfg.loop.mode == "realtime":
             if self.scheduler.start_of(self.k_done) - now < VIEW_GUARD_S:
                 return  # the tick after this step tries again
-        if now >= self._next_look:  # a look is a query of Zenoh's routes: ~30 us in the loop
-            self.view.watch(self.link.view_observed())
-            self._next_look = now + LOOK_S
+        self.view.watch(self.link.view_observed())
         for part in self.ledger.stranded:  # of steps that went missing: shown as late
             self.view.took(part)
         self.ledger.stranded.clear()

@@ -139,7 +139,9 @@ class Keys:
 
     @property
     def hub_view(self) -> str:
-        """Hub → observers: ``HubView``, what the loop carried, for live displays."""
+        """Hub → observers, asked for: ``HubView``, what the loop carried, for live
+        displays; a queryable on ``hub/view/*`` (``?after=MARK``: the views after the one
+        named MARK, each on ``hub/view/<its name>``; hub/view.py)."""
         return f"{self.root}/hub/view"
 
     def observer_run(self, name: str) -> str:

@@ -156,7 +156,12 @@ def access_control(keys: Keys, mode: str = "mtls") -> dict:
         # What the router passes on to any participant it admitted.
         _rule("receive", ["egress"], _ALL_MESSAGES, [f"{root}/**"]),
         _rule("watch", ["ingress"], _WATCH, [f"{root}/**"]),
-        _rule("read", ["ingress"], ["query"], [keys.describe("*", "*"), keys.hub_status]),
+        _rule(
+            "read",
+            ["ingress"],
+            ["query"],
+            [keys.describe("*", "*"), keys.hub_status, f"{keys.hub_view}/*"],
+        ),
         _rule("control", ["ingress"], ["query"], [keys.hub_control]),
         _rule("body out", ["ingress"], ["put"], [keys.sensors("*")]),
         _rule("body serves", ["ingress"], ["declare_queryable", "reply"], serve("body")),

@@ -339,18 +339,19 @@ class Inbox:
         return whole
 
 
-def reply(query, payload: bytes) -> None:
-    """Answer ``query`` with ``payload``, in several framed replies if it is large, and
-    finish it.
+def reply(query, payload: bytes, *, key_expr: str | None = None, final: bool = True) -> None:
+    """Answer ``query`` with ``payload`` (on ``key_expr``, else the query's key), in several
+    framed replies if it is large, and finish it unless ``final`` is False (more to come).
 
     The query is dropped explicitly: Zenoh sends a query's final answer when the object is
     freed, and a reference kept elsewhere (a logged exception's traceback reaches the
     callback's frame) would leave the asker waiting for its whole timeout.
     """
-    key_expr = query.key_expr
+    key_expr = key_expr or query.key_expr
     for chunk, attachment in frames(payload, None, secrets.randbits(32)):
         query.reply(key_expr, bytes(chunk), attachment=attachment)
-    query.drop()
+    if final:
+        query.drop()
 
 
 def get(session, key: str, payload: bytes | None = None, *, timeout_s: float) -> list[bytes]:

@@ -14,7 +14,7 @@ from dashboard.observer import BusObserver
 from dashboard.state import FrameState, Reader
 from hub.cli import main
 from hub.protocol import SpikeBatch
-from tests.harness import harness, subscribed, wait_for
+from tests.harness import harness, wait_for
 
 pytestmark = pytest.mark.bus
 
@@ -221,24 +221,34 @@ def test_a_streamed_steps_spikes_reach_live_displays_and_the_decoder_whole(tmp_p
     """A culture that sends each step's spikes in a part and then its batch (contract v4):
     each view has the step's spikes merged and in time order (a display closes its rate
     bins up to the window's end), and the decoder counts all of them."""
-    from hub import wire
+    from hub.bus import open_session
     from hub.protocol import HubView, MotorCommand
+    from hub.view import ViewAsker
 
     views: list[HubView] = []
     with harness(
         tmp_path, bus_overrides, 'culture.kind="tests.endpoints:StreamingCulture"',
         "experiment.duration_s=0.5",
     ) as h:  # fmt: skip
-        inbox = wire.Inbox()
+        asking = threading.Event()
 
-        def on_view(sample):  # a live display
-            raw = inbox.feed(sample.payload.to_bytes(), sample.attachment)
-            if raw is not None:
-                views.append(HubView.decode(raw))
+        def display():  # a live display: asks for views, 100 times a second
+            session = open_session(h.cfg.bus, listener=False)  # once the hub listens
+            asker = ViewAsker(session, h.cfg.bus.keys.hub_view)
+            while asking.is_set():
+                views.extend(HubView.decode(raw) for raw in asker.take())
+                time.sleep(0.01)
+            session.close()
 
-        with subscribed(h.cfg.bus, h.cfg.bus.keys.hub_view, on_view):
+        asking.set()
+        thread = threading.Thread(target=display)
+        thread.start()
+        try:
             result = h.run(wait_for_view_s=30)
             wait_for(lambda: views and views[-1].step == result.steps, 5.0)
+        finally:
+            asking.clear()
+            thread.join(timeout=10)
     assert result.outcome == "completed" and result.counts["dropped"] == {}
     n = result.steps
     assert len(h.record.decoded(SpikeBatch, "part")) == n
