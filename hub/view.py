@@ -147,6 +147,9 @@ def _newest(batches) -> list[SpikeBatch]:
 # Views the hub keeps for observers that ask (2 s at 30 views a second): one that asks later
 # than that has a gap, never a false silence.
 SHELF_VIEWS = 64
+# An answer holds the views asked for up to this many bytes (at least one view); the rest go
+# in the next: what is on its way to an observer stays within any socket's buffer.
+ANSWER_MAX_BYTES = 512_000
 # The hub gathers views while someone asked for one this recently.
 WATCHED_S = 1.0
 # How long an observer waits for the hub's answer before it asks again.
@@ -172,9 +175,10 @@ class ViewShelf:
             self.seq += 1
             self._views.append((self.seq, raw))
 
-    def after(self, mark: str) -> list[tuple[str, bytes]]:
-        """The views kept after the one named ``mark`` (``<epoch>-<number>``; all kept if
-        it is not one of this shelf's), each with its own name; and note the question."""
+    def after(self, mark: str, max_bytes: int = ANSWER_MAX_BYTES) -> list[tuple[str, bytes]]:
+        """The views kept after the one named ``mark`` (``<epoch>-<number>``; from the
+        oldest kept if it is not one of this shelf's), oldest first, each with its name, up
+        to ``max_bytes`` (at least one); and note the question."""
         epoch, _, seq = mark.partition("-")
         with self._lock:
             self.asked_at = time.monotonic()
@@ -182,7 +186,14 @@ class ViewShelf:
             if after > self._had:
                 self._had = after
                 self._lock.notify_all()
-            return [(f"{self.epoch}-{n}", raw) for n, raw in self._views if n > after]
+            out, size = [], 0
+            for n, raw in self._views:
+                if n > after:
+                    size += len(raw)
+                    if out and size > max_bytes:
+                        break
+                    out.append((f"{self.epoch}-{n}", raw))
+            return out
 
     def wait_had(self, timeout_s: float) -> bool:
         """Wait until an observer has had the newest view (it asked for those after it), at

@@ -137,3 +137,15 @@ def test_a_toggled_page_says_how_many_frames_it_took_when_asked_and_at_its_end()
         page.kill()
     assert json.loads(out.strip().splitlines()[-1])["frames"] == 0
     assert page.returncode == 0
+
+
+def test_a_freeze_reports_the_steps_in_each_half_and_its_longest_gap():
+    from bench.dashboard_freeze import longest_gaps
+
+    ms = 1_000_000
+    steps = [0, 10 * ms, 20 * ms, 700 * ms, 710 * ms, 1_600 * ms, 1_610 * ms]
+    (row,) = longest_gaps(steps, [(0, 1_000 * ms, 2_000 * ms)])
+    assert row == {
+        "steps_frozen": 5, "steps_running": 2, "gap_ms": 890.0, "gap_from_ms": 710,
+        "gap_to_ms": 1600,
+    }  # fmt: skip

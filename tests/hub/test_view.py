@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import threading
+import time
+
 import numpy as np
 import pytest
 
@@ -13,7 +16,7 @@ from hub.protocol import (
     SpikeBatch,
     Stimulation,
 )
-from hub.view import ObserverView
+from hub.view import ObserverView, ViewAsker, ViewShelf
 from tests.windows import RUN, W
 
 
@@ -102,3 +105,72 @@ def test_a_view_keeps_the_newest_spikes_up_to_its_bound(monkeypatch):
     v = view.build(4)
     assert v.spike_channel.tolist() == [2, 2, 3, 3]
     assert (v.from_s, v.to_s) == pytest.approx((0.02, 0.04))  # the observer sees a gap before
+
+
+# ---------------------------------------------------------------- handed over when asked
+
+
+def test_the_shelf_answers_the_views_after_the_one_named_and_all_it_keeps_to_a_stranger():
+    shelf = ViewShelf(keep=3)
+    for k in range(1, 6):
+        shelf.put(b"view %d" % k)
+    epoch = shelf.epoch
+    assert shelf.after(f"{epoch}-3") == [(f"{epoch}-4", b"view 4"), (f"{epoch}-5", b"view 5")]
+    assert shelf.after(f"{epoch}-5") == []
+    kept = [(f"{epoch}-{k}", b"view %d" % k) for k in (3, 4, 5)]  # the oldest two went
+    assert shelf.after("") == kept  # a first question
+    assert shelf.after(f"{epoch}-1") == kept  # one that fell behind: a gap, not a stall
+    assert shelf.after("0badcafe-4") == kept  # a mark of another hub's
+    assert shelf.after("", max_bytes=7) == kept[:1]  # an answer's bytes are capped, at
+    assert shelf.after("", max_bytes=14) == kept[:2]  # least one view in each
+
+
+def test_the_hub_gathers_while_someone_asked_within_the_last_second():
+    shelf = ViewShelf()
+    assert not shelf.watched()
+    shelf.after("")
+    assert shelf.watched(within_s=1.0)
+    shelf.asked_at -= 1.5
+    assert not shelf.watched(within_s=1.0)
+
+
+def test_the_hub_waits_for_a_watcher_to_have_its_last_view_but_not_forever():
+    shelf = ViewShelf()
+    shelf.put(b"last")
+    assert not shelf.wait_had(0.05)
+    threading.Timer(0.05, shelf.after, [f"{shelf.epoch}-1"]).start()
+    assert shelf.wait_had(5.0)
+
+
+@pytest.mark.bus
+def test_an_asker_gets_each_view_once_in_order_and_asks_only_when_answered(bus_overrides):
+    """A real Zenoh exchange: views over one put's size come framed and whole; a second
+    question goes only once the first is answered, so a watcher that stops asking is sent
+    nothing more."""
+    from hub.bus import open_session
+    from hub.config import load_config
+
+    cfg = load_config(None, bus_overrides)
+    hub = open_session(cfg.bus, listener=True)
+    try:
+        shelf = ViewShelf()
+        key = cfg.bus.keys.hub_view
+        hub.declare_queryable(f"{key}/*", lambda q: shelf.answer(q, key))
+        watcher = open_session(cfg.bus, listener=False)
+        asker = ViewAsker(watcher, key)
+        big = bytes(range(256)) * 600  # 150 kB: four frames
+        got: list[bytes] = []
+        for view in (b"one", big, b"three"):
+            shelf.put(view)
+            deadline = time.monotonic() + 10
+            while len(got) < shelf.seq and time.monotonic() < deadline:
+                got += asker.take()
+                time.sleep(0.01)
+        assert got == [b"one", big, b"three"] and asker.dropped == {}
+        asked = asker.asked
+        shelf.put(b"four")  # not asked for: nothing comes
+        time.sleep(0.3)
+        assert asker.asked == asked and asker._got == []
+        watcher.close()
+    finally:
+        hub.close()
