@@ -759,7 +759,7 @@ def _typed_decode(cls, ns: dict, fields: list[str], general: str) -> Callable | 
         f"        {general}",
         "    try:",
         "        s = wire_decode(raw)",
-        "    except WireFault:",
+        "    except (WireFault, ValueError):  # msgspec lets a key's bad UTF-8 through as such",
         f"        {general}",
         "    if s.v not in READ_VERSIONS:",
         f"        {general}",

@@ -8,7 +8,7 @@ import msgpack
 import numpy as np
 import pytest
 import zenoh
-from hypothesis import given
+from hypothesis import example, given
 from hypothesis import strategies as st
 
 from hub.protocol import (
@@ -232,6 +232,7 @@ def test_sensor_readings_round_trip_for_any_valid_content(step, ranges, pose, co
     assert back.ranges_m.dtype == np.float32 and back.pose.dtype == np.float64
 
 
+@example(raw=b"\xde\x00\x01\xa5\x00\x00\x00\x00\x80")  # a map key of bad UTF-8 (found so)
 @given(st.binary(max_size=200))
 def test_arbitrary_bytes_never_crash_a_decoder(raw):
     for kind in (MotorCommand, SensorReading, Stimulation, SpikeBatch, Description):
