@@ -22,10 +22,11 @@ pairs in a few minutes. ``--side`` says what is switched:
 - ``idle-cpu``: a process that only burns ``--cpu-share`` of a core (the dashboard's
   ~6 %) under ``SCHED_IDLE``, in 30 bursts a second, runs or is stopped: what CPU at
   idle priority alone costs the loop.
-- ``frozen``: the dashboard and its page both run or are stopped; the hub sends its views
-  throughout, dropped for the frozen dashboard: the cost of the dashboard's process and
-  its page — and a check that a frozen dashboard does not hold the hub up (over Zenoh's
-  low-latency transport one did: docs/dashboard.md, "A frozen dashboard").
+- ``frozen``: the dashboard and its page both run or are stopped (``SIGSTOP``). A frozen
+  dashboard asks for no views, and the hub goes on building them for a second after its
+  last question, so in half-second windows this is the cost of the dashboard's process,
+  its page and the views' sending. (While views were published, a frozen dashboard held
+  the hub up instead: docs/dashboard.md, "A frozen dashboard"; bench/dashboard_freeze.py.)
 
 Per window, from the run's record and ``/proc``: the steps completed, the watcher's CPU.
 The cost is ``1 - r``, ``r`` the pace of all windows with over that of all windows
@@ -145,11 +146,9 @@ class PageSide:
 
 class FrozenSide(PageSide):
     """The dashboard and its page both stopped (``SIGSTOP``, as a debugger, a swap storm or
-    a suspended machine would) or let go on. The hub sends its views throughout; while the
-    dashboard is frozen Zenoh drops them for it (its observer joins over the queued
-    transport): the cost of the dashboard's process and its page, and a check that a
-    frozen dashboard does not hold the loop up (over the low-latency transport it did:
-    docs/dashboard.md, "A frozen dashboard")."""
+    a suspended machine would) or let go on. A frozen dashboard asks for no views; the hub
+    builds them for a second after the last question: in half-second windows, the cost
+    of the dashboard's process, its page and the answers."""
 
     def __init__(self, session: str, tmp: Path, sets: list[str]):
         super().__init__(session, tmp, sets)

@@ -72,10 +72,11 @@ class BusObserver:
     not give it."""
 
     def __init__(self, bus: BusSection, state: FrameState, config: dict | None = None):
-        # Zenoh's queued transport for this session, whatever the loop's: over the
-        # low-latency one a put waits for the receiver's socket, congestion control or not,
-        # so a frozen dashboard would hold the hub up (docs/dashboard.md, "A frozen
-        # dashboard"); Zenoh agrees the transport link by link, the loop's stay low-latency.
+        # Zenoh's queued transport for this session, whatever the loop's (Zenoh agrees it
+        # link by link; the loop's stay low-latency): what the hub sends unasked (the
+        # status) is queued apart from its puts, not written by them. It did not keep a
+        # frozen dashboard's full socket from holding the hub up: the views are asked for,
+        # so that socket does not fill (docs/dashboard.md, "A frozen dashboard").
         self.bus = dataclasses.replace(bus, connect_timeout_s=QUERY_TIMEOUT_S, low_latency=False)
         self.config = config
         self.role = _role(bus)

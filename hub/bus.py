@@ -32,11 +32,11 @@ LOOP_PUBLISH = dict(
     express=True,
     priority=zenoh.Priority.REAL_TIME,
 )
-# Telemetry: newest wins. Over Zenoh's queued transport (bus.low_latency = false) a put
-# to a congested receiver is dropped; over the low-latency transport (the default) Zenoh
-# applies no congestion control, and a put waits until its bytes are in the receiver's
-# socket: a frozen subscriber holds the putter up. Zenoh agrees the transport link by link:
-# the dashboard joins over the queued one (docs/dashboard.md, "A frozen dashboard").
+# Telemetry: newest wins — but not for a subscriber that stops reading. Once its socket is
+# full, Zenoh holds the putter until it reads again, over the low-latency transport (a
+# blocking write) and, as measured, over the queued one too: only small, slow telemetry
+# is published (the status); the views are asked for (hub/view.py; docs/dashboard.md,
+# "A frozen dashboard").
 TELEMETRY_PUBLISH = dict(congestion_control=zenoh.CongestionControl.DROP)
 
 
