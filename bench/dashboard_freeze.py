@@ -31,7 +31,12 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from bench.dashboard_within import start_watcher, step_times_ns, stop, wait_for_steps  # noqa: E402
+from bench.dashboard_within import (  # noqa: E402
+    end_watched_run,
+    start_watcher,
+    step_times_ns,
+    wait_for_steps,
+)
 from bench.host import StealMeter, child_popen, end_children_on_signal  # noqa: E402
 
 MAX_X_REALTIME = 60  # the run's length: the freezes at up to this pace, and margin
@@ -92,20 +97,7 @@ def measure(args, tmp: Path) -> tuple[list[tuple[int, int, int]], Path]:
             if run.poll() is not None:
                 raise SystemExit(f"the run ended early:\n{(tmp / 'run.err').read_text()[-2000:]}")
     finally:
-        for proc in procs:
-            if proc.poll() is None:
-                os.kill(proc.pid, signal.SIGCONT)
-                stop(proc)
-        subprocess.run(
-            [sys.executable, "-m", "hub.cli", "ctl", "stop", "--session", session],
-            cwd=ROOT,
-            capture_output=True,
-        )
-        try:
-            run.wait(timeout=900)  # its analysis of a long record takes minutes
-        except subprocess.TimeoutExpired:
-            run.terminate()
-            run.wait()
+        end_watched_run(session, run, procs)
     (run_dir,) = (tmp / "runs").iterdir()
     return cycles, run_dir
 

@@ -59,9 +59,9 @@ from bench.closed_loop import PageClient, paired_cost  # noqa: E402
 from bench.dashboard_within import (  # noqa: E402
     MAX_X_REALTIME,
     cpu_s,
+    end_watched_run,
     start_watcher,
     step_times_ns,
-    stop,
     wait_for_steps,
 )
 from bench.host import StealMeter, child_popen, end_children_on_signal  # noqa: E402
@@ -260,20 +260,7 @@ def measure(args, tmp: Path) -> tuple[list[dict], Path, float | None]:
         frames = side.frames()
         fps = frames / with_s if frames is not None else None
     finally:
-        for proc in side.procs if side else ():
-            if proc.poll() is None:
-                os.kill(proc.pid, signal.SIGCONT)
-                stop(proc)
-        subprocess.run(
-            [sys.executable, "-m", "hub.cli", "ctl", "stop", "--session", session],
-            cwd=ROOT,
-            capture_output=True,
-        )
-        try:
-            run.wait(timeout=900)  # its analysis of a long record takes minutes
-        except subprocess.TimeoutExpired:
-            run.terminate()
-            run.wait()
+        end_watched_run(session, run, side.procs if side else ())
     (run_dir,) = (tmp / "runs").iterdir()
     return pairs, run_dir, fps
 

@@ -26,6 +26,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import signal
 import statistics
 import subprocess
 import sys
@@ -116,6 +117,25 @@ def stop(proc: subprocess.Popen) -> None:
     except subprocess.TimeoutExpired:
         proc.kill()
         proc.wait()
+
+
+def end_watched_run(session: str, run: subprocess.Popen, procs) -> None:
+    """End the watchers ``procs`` (let go first if stopped), then the run (``ctl stop``),
+    and wait for it: its analysis of a long record takes minutes."""
+    for proc in procs:
+        if proc.poll() is None:
+            os.kill(proc.pid, signal.SIGCONT)
+            stop(proc)
+    subprocess.run(
+        [sys.executable, "-m", "hub.cli", "ctl", "stop", "--session", session],
+        cwd=ROOT,
+        capture_output=True,
+    )
+    try:
+        run.wait(timeout=900)
+    except subprocess.TimeoutExpired:
+        run.terminate()
+        run.wait()
 
 
 def wait_for_steps(session: str, run: subprocess.Popen, timeout_s: float = 600.0) -> None:
