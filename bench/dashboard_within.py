@@ -195,21 +195,12 @@ def measure(args, tmp: Path) -> tuple[list[tuple[Window, Window]], Path]:
                         w.fps = (page.frames - frames0) / (time.monotonic() - t0)
                         page.close()
                     stop(dash)
-                    time.sleep(args.settle_s)  # the hub notices no one watches (4 times a second)
+                    time.sleep(args.settle_s)  # the hub gathers for a second after the last ask
                 done[kind] = w
             pairs.append((done["without"], done["with"]))
             print(f"  cycle {cycle + 1}/{args.cycles} measured", flush=True)
     finally:
-        subprocess.run(
-            [sys.executable, "-m", "hub.cli", "ctl", "stop", "--session", session],
-            cwd=ROOT,
-            capture_output=True,
-        )
-        try:
-            run.wait(timeout=120)
-        except subprocess.TimeoutExpired:
-            run.terminate()
-            run.wait()
+        end_watched_run(session, run, ())
     (run_dir,) = (tmp / "runs").iterdir()
     return pairs, run_dir
 

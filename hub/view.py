@@ -226,9 +226,6 @@ class ViewAsker:
     """
 
     def __init__(self, session, key_prefix: str, *, timeout_s: float = ASK_TIMEOUT_S):
-        import zenoh
-
-        self._zenoh = zenoh
         self.session = session
         self.key_prefix = key_prefix
         self.timeout_s = timeout_s
@@ -249,7 +246,8 @@ class ViewAsker:
         return got
 
     def _ask(self) -> None:
-        zenoh = self._zenoh
+        import zenoh  # here: the rest of this module is plain data, free of the bus
+
         self._answered.clear()
         inboxes: dict[str, wire.Inbox] = {}
 
