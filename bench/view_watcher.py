@@ -22,7 +22,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from hub import local_hubs  # noqa: E402
 from hub.bus import open_session  # noqa: E402
 from hub.config import load_config  # noqa: E402
-from hub.view import ViewAsker  # noqa: E402
+from hub.shelf import Asker  # noqa: E402
 
 
 def main() -> None:
@@ -48,7 +48,7 @@ def main() -> None:
         subscribed.set()
     done = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: done.set())
-    asker, taken = ViewAsker(session, cfg.bus.keys.hub_view), 0
+    asker, taken = Asker(session, cfg.bus.keys.hub_view), 0
     while not done.wait(1 / 30):
         if subscribed.is_set():  # asks again once answered; unasked, the hub stops sending
             taken += len(asker.take())

@@ -11,7 +11,7 @@ the hub's sending too, where a subscriber's full socket held the hub's puts, and
 them the loop (docs/dashboard.md, "A frozen dashboard"):
 
 - ``hub/view/*`` (:class:`~hub.protocol.HubView`, built ``loop.view_hz`` times a second;
-  :class:`hub.view.ViewAsker`): every spike and pulse since the last view, the body's
+  :class:`hub.shelf.Asker`): every spike and pulse since the last view, the body's
   trail, its newest reading and the newest motor command — what the loop carried,
   relayed by the hub;
 - ``hub/status`` (subscribed, ``loop.status_hz`` times a second, a few hundred bytes, held
@@ -51,7 +51,7 @@ from hub.bus import BusError, open_session
 from hub.config import BusSection
 from hub.ctl import request
 from hub.protocol import CONTROL_COMMANDS, Description, HubStatus, HubView, ProtocolError
-from hub.view import ViewAsker
+from hub.shelf import Asker
 
 from .scene import build_scene, world_for
 from .state import FrameState
@@ -86,7 +86,7 @@ class BusObserver:
         self.session: zenoh.Session | None = None
         self._status = None  # the subscriber to hub/status, once connected
         self._status_inbox = wire.Inbox()
-        self._views: ViewAsker | None = None
+        self._views: Asker | None = None
         self._declared: list = []
         self.run: str | None = None  # the run id seen on the wire
         self._hub_config: dict | None = None  # the present hub's config, once asked
@@ -261,7 +261,7 @@ class BusObserver:
         geometry kernels: seconds of CPU on a slow machine, better spent before the steps
         than during them)."""
         if self._views is None:
-            views = ViewAsker(self.session, self.keys.hub_view)
+            views = Asker(self.session, self.keys.hub_view)
             with self.state.lock:
                 self._views = views
 

@@ -24,7 +24,7 @@ import zenoh
 from hub import wire
 from hub.bus import LOOP_PUBLISH, TELEMETRY_PUBLISH, payload_bytes
 from hub.protocol import ROLES, Keys
-from hub.view import ViewShelf
+from hub.shelf import Shelf
 
 
 class HubLink:
@@ -94,7 +94,7 @@ class HubLink:
         self._status = session.declare_publisher(keys.hub_status, **TELEMETRY_PUBLISH)
         # the views for live displays, handed to those that ask (hub/view.py): answered in
         # Zenoh's thread from what the loop's thread left on the shelf
-        self.views = ViewShelf()
+        self.views = Shelf()
         # Zenoh undeclares what is garbage-collected: keep every declaration.
         self._declared = [
             session.declare_subscriber(

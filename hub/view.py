@@ -8,31 +8,20 @@ speed on two cores (docs/dashboard.md), and an observer on a slow link would hol
 loop up. Instead the hub keeps, while anyone asks for views, the replies it accepts and
 the inputs it sends, and builds them into one view ``loop.view_hz`` times a second.
 
-The views are not published: an observer *asks* for them (:class:`ViewAsker`), one
-question at a time, for those after the last one it has, and the hub answers from the
-views it keeps (:class:`ViewShelf`). Published, the views went on whether or not the
-observer took them; an observer that stopped reading (frozen, or on a link slower than
-the views) filled its socket, and from then on Zenoh held the hub's put — *drop* or not,
-queued transport or not — until the observer read again: the loop stood still
-(docs/dashboard.md, "A frozen dashboard"). Asked for, at most one answer is on its way to
-each observer.
+The views are not published: an observer *asks* for them, one question at a time, for
+those after the last one it has (:class:`hub.shelf.Asker`), and the hub answers from the
+views it keeps (:class:`hub.shelf.Shelf`; why: :mod:`hub.shelf`).
 
 Plain data: the hub calls :meth:`ObserverView.took` and :meth:`ObserverView.sent` under its
-lock, and :meth:`ObserverView.build` from its loop's thread; the shelf is shared with
-Zenoh's thread that answers the questions, under its own lock.
+lock, and :meth:`ObserverView.build` from its loop's thread.
 """
 
 from __future__ import annotations
 
-import math
-import secrets
-import threading
-import time
-from collections import Counter, deque
+from collections import deque
 
 import numpy as np
 
-from hub import wire
 from hub.protocol import HubView, Message, MotorCommand, SensorReading, SpikeBatch, Stimulation
 
 # Held at most between two views (a loop over 30,000 steps/s at 30 views/s lets the oldest go).
@@ -142,138 +131,3 @@ def _newest(batches) -> list[SpikeBatch]:
             break
         kept.append(batch)
     return kept[::-1]
-
-
-# Views the hub keeps for observers that ask (2 s at 30 views a second): one that asks later
-# than that has a gap, never a false silence.
-SHELF_VIEWS = 64
-# An answer holds the views asked for up to this many bytes (at least one view); the rest go
-# in the next: what is on its way to an observer stays within any socket's buffer.
-ANSWER_MAX_BYTES = 512_000
-# The hub gathers views while someone asked for one this recently.
-WATCHED_S = 1.0
-# How long an observer waits for the hub's answer before it asks again.
-ASK_TIMEOUT_S = 2.0
-
-
-class ViewShelf:
-    """The hub's latest views, numbered from 1 within the shelf's ``epoch`` (random: a
-    number of another hub's, or of this one's before it started again, is not taken for
-    one of this shelf's), for the observers that ask for them."""
-
-    def __init__(self, keep: int = SHELF_VIEWS):
-        self._lock = threading.Condition()
-        self._views: deque[tuple[int, bytes]] = deque(maxlen=keep)
-        self.epoch = secrets.token_hex(4)
-        self.seq = 0  # the newest view's number
-        self._had = 0  # the newest view's number some observer said it had
-        self.asked_at = -math.inf  # time.monotonic() of the last question
-
-    def put(self, raw: bytes) -> None:
-        """Keep a new view (the oldest kept goes, past ``keep``)."""
-        with self._lock:
-            self.seq += 1
-            self._views.append((self.seq, raw))
-
-    def after(self, mark: str, max_bytes: int = ANSWER_MAX_BYTES) -> list[tuple[str, bytes]]:
-        """The views kept after the one named ``mark`` (``<epoch>-<number>``; from the
-        oldest kept if it is not one of this shelf's), oldest first, each with its name, up
-        to ``max_bytes`` (at least one); and note the question."""
-        epoch, _, seq = mark.partition("-")
-        with self._lock:
-            self.asked_at = time.monotonic()
-            after = int(seq) if epoch == self.epoch and seq.isdigit() else 0
-            if after > self._had:
-                self._had = after
-                self._lock.notify_all()
-            out, size = [], 0
-            for n, raw in self._views:
-                if n > after:
-                    size += len(raw)
-                    if out and size > max_bytes:
-                        break
-                    out.append((f"{self.epoch}-{n}", raw))
-            return out
-
-    def wait_had(self, timeout_s: float) -> bool:
-        """Wait until an observer has had the newest view (it asked for those after it), at
-        most ``timeout_s``: the run's last view, before the hub leaves the bus."""
-        with self._lock:
-            return self._lock.wait_for(lambda: self._had >= self.seq, timeout_s)
-
-    def watched(self, within_s: float = WATCHED_S) -> bool:
-        """Whether anyone asked within the last ``within_s``."""
-        return time.monotonic() - self.asked_at < within_s
-
-    def answer(self, query, key_prefix: str) -> None:
-        """Answer a question ``<key_prefix>/*?after=MARK``: each view after the one named
-        ``MARK`` on ``<key_prefix>/<its name>``, framed if large, then the end."""
-        try:
-            for name, raw in self.after(str(query.parameters.get("after") or "")):
-                wire.reply(query, raw, key_expr=f"{key_prefix}/{name}", final=False)
-        finally:
-            query.drop()
-
-
-class ViewAsker:
-    """An observer's side of ``hub/view/*``: :meth:`take` returns the whole views that came
-    since the last call (as bytes, oldest first) and, when the last question is answered,
-    asks the next one — for the views after the newest it has. One question at a time, so
-    an observer that stops taking stops the hub's sending too.
-
-    Replies are handled in Zenoh's own thread; the query asks that they be dropped
-    rather than waited for on a congested link.
-    """
-
-    def __init__(self, session, key_prefix: str, *, timeout_s: float = ASK_TIMEOUT_S):
-        self.session = session
-        self.key_prefix = key_prefix
-        self.timeout_s = timeout_s
-        self.mark = ""  # the newest view's name taken (<epoch>-<number>)
-        self.asked = 0  # questions asked
-        self.dropped: Counter[str] = Counter()  # replies that did not reassemble, by kind
-        self._lock = threading.Lock()
-        self._got: list[bytes] = []
-        self._answered = threading.Event()
-        self._answered.set()
-
-    def take(self) -> list[bytes]:
-        """The whole views that came since the last call; asks again if answered."""
-        with self._lock:
-            got, self._got = self._got, []
-        if self._answered.is_set():
-            self._ask()
-        return got
-
-    def _ask(self) -> None:
-        import zenoh  # here: the rest of this module is plain data, free of the bus
-
-        self._answered.clear()
-        inboxes: dict[str, wire.Inbox] = {}
-
-        def on_reply(reply) -> None:
-            sample = reply.ok
-            if sample is None:
-                return
-            key = str(sample.key_expr)
-            try:
-                raw = inboxes.setdefault(key, wire.Inbox()).feed(sample.payload, sample.attachment)
-            except wire.WireError as exc:
-                self.dropped[exc.kind] += 1
-                return
-            if raw is not None:  # an answer's views come in order
-                with self._lock:
-                    self._got.append(raw)
-                    self.mark = key.rsplit("/", 1)[1]
-
-        self.asked += 1
-        # indirect=False: the replies are handled in Zenoh's own thread (on_reply only
-        # reassembles and appends); the default starts a Python thread for each question,
-        # which was a fifth of a dashboard's CPU at 30 questions a second
-        self.session.get(
-            f"{self.key_prefix}/*?after={self.mark}",
-            zenoh.handlers.Callback(on_reply, self._answered.set, indirect=False),
-            consolidation=zenoh.ConsolidationMode.NONE,
-            congestion_control=zenoh.CongestionControl.DROP,
-            timeout=self.timeout_s,
-        )

@@ -339,16 +339,24 @@ class Inbox:
         return whole
 
 
-def reply(query, payload: bytes, *, key_expr: str | None = None, final: bool = True) -> None:
+def reply(
+    query,
+    payload: bytes,
+    *,
+    key_expr: str | None = None,
+    final: bool = True,
+    key: bytes | None = None,
+) -> None:
     """Answer ``query`` with ``payload`` (on ``key_expr``, else the query's key), in several
-    framed replies if it is large, and finish it unless ``final`` is False (more to come).
+    framed replies if it is large (sealed with ``key`` if given), and finish it unless
+    ``final`` is False (more to come).
 
     The query is dropped explicitly: Zenoh sends a query's final answer when the object is
     freed, and a reference kept elsewhere (a logged exception's traceback reaches the
     callback's frame) would leave the asker waiting for its whole timeout.
     """
     key_expr = key_expr or query.key_expr
-    for chunk, attachment in frames(payload, None, secrets.randbits(32)):
+    for chunk, attachment in frames(payload, key, secrets.randbits(32)):
         query.reply(key_expr, bytes(chunk), attachment=attachment)
     if final:
         query.drop()

@@ -223,7 +223,7 @@ def test_a_streamed_steps_spikes_reach_live_displays_and_the_decoder_whole(tmp_p
     bins up to the window's end), and the decoder counts all of them."""
     from hub.bus import open_session
     from hub.protocol import HubView, MotorCommand
-    from hub.view import ViewAsker
+    from hub.shelf import Asker
 
     views: list[HubView] = []
     with harness(
@@ -234,7 +234,7 @@ def test_a_streamed_steps_spikes_reach_live_displays_and_the_decoder_whole(tmp_p
 
         def display():  # a live display: asks for views, 100 times a second
             session = open_session(h.cfg.bus, listener=False)  # once the hub listens
-            asker = ViewAsker(session, h.cfg.bus.keys.hub_view)
+            asker = Asker(session, h.cfg.bus.keys.hub_view)
             while asking.is_set():
                 views.extend(HubView.decode(raw) for raw in asker.take())
                 time.sleep(0.01)

@@ -16,7 +16,8 @@ from hub.protocol import (
     SpikeBatch,
     Stimulation,
 )
-from hub.view import ObserverView, ViewAsker, ViewShelf
+from hub.shelf import Asker, Shelf
+from hub.view import ObserverView
 from tests.windows import RUN, W
 
 
@@ -111,7 +112,7 @@ def test_a_view_keeps_the_newest_spikes_up_to_its_bound(monkeypatch):
 
 
 def test_the_shelf_answers_the_views_after_the_one_named_and_all_it_keeps_to_a_stranger():
-    shelf = ViewShelf(keep=3)
+    shelf = Shelf(keep=3)
     for k in range(1, 6):
         shelf.put(b"view %d" % k)
     epoch = shelf.epoch
@@ -126,7 +127,7 @@ def test_the_shelf_answers_the_views_after_the_one_named_and_all_it_keeps_to_a_s
 
 
 def test_the_hub_gathers_while_someone_asked_within_the_last_second():
-    shelf = ViewShelf()
+    shelf = Shelf()
     assert not shelf.watched()
     shelf.after("")
     assert shelf.watched(within_s=1.0)
@@ -135,7 +136,7 @@ def test_the_hub_gathers_while_someone_asked_within_the_last_second():
 
 
 def test_the_hub_waits_for_a_watcher_to_have_its_last_view_but_not_forever():
-    shelf = ViewShelf()
+    shelf = Shelf()
     shelf.put(b"last")
     assert not shelf.wait_had(0.05)
     threading.Timer(0.05, shelf.after, [f"{shelf.epoch}-1"]).start()
@@ -153,11 +154,11 @@ def test_an_asker_gets_each_view_once_in_order_and_asks_only_when_answered(bus_o
     cfg = load_config(None, bus_overrides)
     hub = open_session(cfg.bus, listener=True)
     try:
-        shelf = ViewShelf()
+        shelf = Shelf()
         key = cfg.bus.keys.hub_view
         hub.declare_queryable(f"{key}/*", lambda q: shelf.answer(q, key))
         watcher = open_session(cfg.bus, listener=False)
-        asker = ViewAsker(watcher, key)
+        asker = Asker(watcher, key)
         big = bytes(range(256)) * 600  # 150 kB: four frames
         got: list[bytes] = []
         for view in (b"one", big, b"three"):
