@@ -5,13 +5,15 @@ slower than the views — once held the loop up: while the hub published its vie
 watcher's socket filled within about a second, and Zenoh then held the hub's next put
 until the watcher read again (docs/dashboard.md, "A frozen dashboard"). Here a lockstep
 closed loop runs with a watcher (``--watcher bare``: ``bench/view_watcher.py``; or
-``dashboard``: ``neuvision dashboard`` and a page taking its frames), which is frozen for
-``--freeze-s`` and let run as long, ``--freezes`` times. From the run's record: the steps
-made in each freeze and after it, and the longest gap between two steps in each cycle,
-with where it began and ended (ms from the freeze).
+``dashboard``: ``neuvision dashboard`` and a page taking its frames; or ``observer``: the
+run's own burst observer, which asks the hub for its spikes as a watcher asks for views),
+which is frozen for ``--freeze-s`` and let run as long, ``--freezes`` times. From the
+run's record: the steps made in each freeze and after it, and the longest gap between two
+steps in each cycle, with where it began and ended (ms from the freeze).
 
     python bench/dashboard_freeze.py                      # 8 freezes of 1.5 s, bare watcher
     python bench/dashboard_freeze.py --watcher dashboard --freezes 12
+    python bench/dashboard_freeze.py --watcher observer
 
 The last line printed is one JSON object.
 """
@@ -66,6 +68,27 @@ def longest_gaps(t_ns, cycles) -> list[dict]:
     return out
 
 
+def burst_observer_of(session: str) -> int:
+    """The process id of the burst observer the hub of ``session`` started."""
+    for entry in os.listdir("/proc"):
+        try:
+            with open(f"/proc/{entry}/cmdline", "rb") as f:
+                args = f.read().split(b"\0")
+        except (OSError, ValueError):
+            continue
+        if b"observe" in args and b"bursts" in args and any(session.encode() in a for a in args):
+            return int(entry)
+    raise SystemExit(f"no burst observer of session {session!r}")
+
+
+def _continue(pid: int) -> None:
+    """SIGCONT, if it is still there (an observer the hub let go may have ended)."""
+    try:
+        os.kill(pid, signal.SIGCONT)
+    except ProcessLookupError:
+        pass
+
+
 def measure(args, tmp: Path) -> tuple[list[tuple[int, int, int]], Path]:
     session = f"bench-dashboard-freeze-{os.getpid()}"
     run_s = (args.freezes * 2 * args.freeze_s + 60) * MAX_X_REALTIME
@@ -74,29 +97,35 @@ def measure(args, tmp: Path) -> tuple[list[tuple[int, int, int]], Path]:
     cmd += ["--session", session, *(a for item in args.run_set for a in ("--set", item))]
     with open(tmp / "run.err", "w") as err:
         run = child_popen(cmd, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=err)
-    procs, cycles = [], []
+    procs, frozen, cycles = [], [], []
     try:
         wait_for_steps(session, run)
-        watcher, port = start_watcher(args.watcher, session, tmp / "watcher.log", [])
-        procs.append(watcher)
-        if port is not None:  # a page that takes the dashboard's frames, as a browser
+        if args.watcher == "observer":  # the run's own: frozen, never ended here
+            frozen.append(burst_observer_of(session))
+        else:
+            watcher, port = start_watcher(args.watcher, session, tmp / "watcher.log", [])
+            procs.append(watcher)
+        if args.watcher == "dashboard":  # a page that takes its frames, as a browser
             page = [sys.executable, "bench/dashboard_toggle.py", "--page-port", str(port)]
             procs.append(child_popen(page, cwd=ROOT, stdout=subprocess.DEVNULL))
+        frozen += [proc.pid for proc in procs]
         time.sleep(args.settle_s)
         for i in range(args.freezes):
             t0 = time.time_ns()
-            for proc in procs:
-                os.kill(proc.pid, signal.SIGSTOP)
+            for pid in frozen:
+                os.kill(pid, signal.SIGSTOP)
             time.sleep(args.freeze_s)
             t1 = time.time_ns()
-            for proc in procs:
-                os.kill(proc.pid, signal.SIGCONT)
+            for pid in frozen:
+                _continue(pid)
             time.sleep(args.freeze_s)
             cycles.append((t0, t1, time.time_ns()))
             print(f"  {i + 1}/{args.freezes} freezes", flush=True)
             if run.poll() is not None:
                 raise SystemExit(f"the run ended early:\n{(tmp / 'run.err').read_text()[-2000:]}")
     finally:
+        for pid in frozen:
+            _continue(pid)
         end_watched_run(session, run, procs)
     (run_dir,) = (tmp / "runs").iterdir()
     return cycles, run_dir
@@ -104,7 +133,7 @@ def measure(args, tmp: Path) -> tuple[list[tuple[int, int, int]], Path]:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
-    ap.add_argument("--watcher", choices=("bare", "dashboard"), default="bare")
+    ap.add_argument("--watcher", choices=("bare", "dashboard", "observer"), default="bare")
     ap.add_argument("--freezes", type=int, default=8)
     ap.add_argument("--freeze-s", type=float, default=1.5, help="each freeze, and each run after")
     ap.add_argument("--settle-s", type=float, default=8.0, help="after the watcher starts")

@@ -19,15 +19,19 @@ final report once the spikes of every step have been analysed. The hub starts th
 observer for its run (``online.launch = "local"``), or one runs it on another machine:
 ``neuvision observe bursts CONFIG --connect HOST``.
 
-The spikes come as telemetry (dropped, never waited for, when the observer's link is
-congested): an observer that falls behind reports later and never holds up the loop,
-even frozen; steps it never got are counted.
+The spikes are not published to the observer: the hub keeps its latest messages of them
+and the observer asks for those after the last it has, one question at a time
+(:mod:`hub.shelf`), every ``ASK_S`` or at once after an answer that brought some. Published
+(as telemetry, *drop*), they held the loop up for 0.5-0.7 s in most 1.5 s freezes of the
+observer; asked for, an observer that falls behind or freezes reports later and the loop
+goes on; steps it never got (fallen off the hub's shelf) are counted.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import logging
+import math
 import os
 import queue
 import signal
@@ -57,6 +61,7 @@ from hub.protocol import (
     SpikeBatch,
     unpack_map,
 )
+from hub.shelf import Asker
 from hub.stopping import StopFlag
 
 log = logging.getLogger(__name__)
@@ -69,6 +74,9 @@ REPORT_EVERY_MS = 1000.0
 REPORT_GAP_S = 0.25
 TAKE_AT_ONCE = 64  # messages of spikes analysed in one feed, at most
 WAKE_S = 0.1  # the longest the observer sleeps (to see that the spikes of a run's end came)
+# How often the observer asks the hub for spikes when the last answer brought none (the hub
+# leaves them every 30-50 ms).
+ASK_S = 0.05
 ANALYSIS_NICE = 19  # the analysing thread's nice value
 # An onset this close after the last network burst under way was seen is the same one.
 UNDER_WAY_GAP_MS = 50.0
@@ -115,33 +123,32 @@ class BurstObserver:
         """Handle runs until ``stop`` is set (or, with ``once``, the first run ends)."""
         while not stop.is_set() and not (once and self.runs_done):
             try:
-                item = self._events.get(timeout=WAKE_S)
+                item = self._events.get(timeout=min(WAKE_S, ASK_S))
             except queue.Empty:
                 item = None
             if isinstance(item, zenoh.Query):
                 self._on_query(item)
-            elif item is not None:
-                self._take_spikes(item)
+            self._take_spikes()
             if self._ending is not None and self._events.empty():
                 self._try_end()
         self._close_run()
 
-    def _take_spikes(self, first: tuple) -> None:
-        """Analyse a message of spikes and those waiting behind it, in one feed (its cost
-        is mostly per call)."""
+    def _take_spikes(self) -> None:
+        """Analyse the messages of spikes that came (in one feed: its cost is mostly per
+        call), and ask for more: at once after an answer that brought some, else every
+        ``ASK_S``."""
         run = self._run
-        item = first
-        for _ in range(TAKE_AT_ONCE):
-            if run is not None and item[0] is run:  # else: a run that ended
-                self._on_spikes(*item)
-            try:
-                item = self._events.get_nowait()
-            except queue.Empty:
-                break
-            if isinstance(item, zenoh.Query):
-                self._events.put(item)  # after the spikes: an end must see them analysed
-                break
-        if run is not None and run.live.due:
+        if run is None:
+            return
+        got = run.asker.take(ask=False)
+        for raw in got:
+            self._on_spikes(run, raw)
+        run.taken_since_ask += len(got)
+        now = time.monotonic()
+        if run.asker.answered and (run.taken_since_ask or now >= run.asked_at + ASK_S):
+            run.asker.take()  # nothing new came meanwhile: it asks
+            run.asked_at, run.taken_since_ask = now, 0
+        if run.live.due:
             self._publish(run, run.live.work())
 
     # ---------------------------------------------------------------- queries
@@ -170,14 +177,15 @@ class BurstObserver:
         except (TypeError, ValueError) as exc:
             return self._reply(query, RunReply(ok=False, run=start.run, reason=str(exc)))
         live = LiveBursts(start.channel, burst, network, 0.0)  # fed each message
-        run = _Run(start, live, wire.Inbox(start.key))
+        run = _Run(start, live)
         publisher = self.session.declare_publisher(self.keys.observer_reports(NAME), **LOOP_PUBLISH)
         run.outbox = wire.Outbox(publisher, start.key)
-        # Queued as they come (the hub sends them as telemetry: a lagging observer never
-        # holds it up; it catches up, and a message the link dropped is steps missing).
-        run.subscriber = self.session.declare_subscriber(
+        # asked for (one question at a time); an answer wakes the loop
+        run.asker = Asker(
+            self.session,
             self.keys.observer_spikes(NAME),
-            lambda s: self._events.put((run, s.payload.to_bytes())),
+            key=start.key,
+            on_answer=lambda: self._events.put(run),
         )
         self._run = run
         log.info("observing run %s: %d channels", start.run, start.channel.size)
@@ -188,15 +196,12 @@ class BurstObserver:
 
     # ---------------------------------------------------------------- spikes
 
-    def _on_spikes(self, run: _Run, payload: bytes) -> None:
-        """One ``ObservedSpikes`` message (or a frame of one) from the hub."""
+    def _on_spikes(self, run: _Run, whole: bytes) -> None:
+        """One ``ObservedSpikes`` message from the hub (unsealed and whole)."""
         run_id = run.start.run
         try:
-            whole = run.inbox.feed(payload)
-            if whole is None:
-                return  # more frames to come
             observed = ObservedSpikes.decode(whole)
-        except (wire.WireError, ProtocolError) as exc:
+        except ProtocolError as exc:
             run.drop(str(exc))
             return
         if observed.run != run_id:
@@ -264,7 +269,6 @@ class BurstObserver:
     def _close_run(self) -> None:
         run, self._run = self._run, None
         if run is not None:
-            run.subscriber.undeclare()
             run.outbox.publisher.undeclare()
 
 
@@ -274,9 +278,10 @@ class _Run:
 
     start: ObserverStart
     live: LiveBursts
-    inbox: wire.Inbox
     outbox: wire.Outbox | None = None
-    subscriber: zenoh.Subscriber | None = None
+    asker: Asker | None = None  # of the hub's spikes
+    asked_at: float = -math.inf  # when it last asked (time.monotonic())
+    taken_since_ask: int = 0  # messages taken since
     steps: int = 0  # the steps whose spikes came (in order)
     dropped: int = 0
     onset_ms: float | None = None  # the network burst under way in the last report
@@ -301,7 +306,7 @@ class _Run:
             until_ms=live.until_ms,
             bursts=live.bursts,
             network_bursts=live.network_bursts,
-            dropped=self.dropped,
+            dropped=self.dropped + sum(self.asker.dropped.values() if self.asker else ()),
             nb_start_ms=[nb.start_ms for nb in done],
             nb_end_ms=[nb.end_ms for nb in done],
             nb_core_start_ms=[nb.core_start_ms for nb in done],

@@ -56,7 +56,7 @@ class HubLink:
         self.session = session
         self._deliver = deliver
         self.keys = keys
-        self._observer: wire.Outbox | None = None  # to the burst observer (watch_observer)
+        self._observer: Shelf | None = None  # the burst observer's spikes (watch_observer)
         # One subscription for both replies: Zenoh gives each subscription its own Python
         # thread, and two would hand the interpreter and the loop's lock back and forth
         # every step. That thread is kept (Zenoh's default, indirect): the callback run in
@@ -116,8 +116,8 @@ class HubLink:
 
     def watch_observer(self, name: str, key: bytes) -> None:
         """Declare the run's exchange with the burst observer ``name``, sealed both ways
-        with ``key``: the spikes forwarded to it (:meth:`forward_spikes`; telemetry,
-        dropped rather than waited for) and its reports, each one whole delivered as
+        with ``key``: the spikes left for it to ask for (:meth:`forward_spikes`) and its
+        reports, each one whole delivered as
         ``("report", raw)``, one that does not unseal as ``("report_refused", kind,
         detail)``."""
         inbox = wire.Inbox(key)
@@ -131,16 +131,18 @@ class HubLink:
             if raw is not None:
                 self._deliver(("report", raw))
 
-        publisher = self.session.declare_publisher(
-            self.keys.observer_spikes(name), **TELEMETRY_PUBLISH
-        )
-        self._observer = wire.Outbox(publisher, key)
-        self._declared.append(
-            self.session.declare_subscriber(self.keys.observer_reports(name), on_report)
-        )
+        # kept for the observer to ask for, not published (hub/shelf.py): an observer that
+        # stopped reading held the loop up
+        self._observer = shelf = Shelf(key=key)
+        prefix = self.keys.observer_spikes(name)
+        self._declared += [
+            self.session.declare_queryable(f"{prefix}/*", lambda q: shelf.answer(q, prefix)),
+            self.session.declare_subscriber(self.keys.observer_reports(name), on_report),
+        ]
 
     def forward_spikes(self, raw: bytes) -> None:
-        """Put an ``ObservedSpikes`` for the burst observer (sealed; framed if large)."""
+        """Leave an ``ObservedSpikes`` for the burst observer to ask for (answered sealed;
+        framed if large)."""
         self._observer.put(raw)
 
     def send(self, role: str, raw: bytes) -> None:

@@ -169,9 +169,11 @@ def access_control(keys: Keys, mode: str = "mtls") -> dict:
         _rule("culture out", ["ingress"], ["put"], [keys.spikes("*"), keys.potentials("*")]),
         _rule("culture serves", ["ingress"], ["declare_queryable", "reply"], serve("culture")),
         _rule("culture alive", ["ingress"], ["liveliness_token"], [keys.alive("culture", "*")]),
-        # the burst observer: its reports (sealed with the hub's key for the run), its run
+        # the burst observer: its reports (sealed with the hub's key for the run), its
+        # questions for the spikes the hub keeps for it (answered sealed), its run
         # queryable, its liveliness
         _rule("observer out", ["ingress"], ["put"], [keys.observer_reports("*")]),
+        _rule("observer asks", ["ingress"], ["query"], [f"{keys.observer_spikes('*')}/*"]),
         _rule(
             "observer serves", ["ingress"], ["declare_queryable", "reply"], [keys.observer_run("*")]
         ),
@@ -185,7 +187,8 @@ def access_control(keys: Keys, mode: str = "mtls") -> dict:
             "subjects": ["culture"],
         },
         {
-            "rules": everyone + ["observer out", "observer serves", "observer alive"],
+            "rules": everyone
+            + ["observer out", "observer asks", "observer serves", "observer alive"],
             "subjects": ["observer"],
         },
         {"rules": everyone + ["control"], "subjects": ["operator"]},

@@ -24,6 +24,7 @@ from hub.protocol import (
     SpikeBatch,
     StepWindow,
 )
+from hub.shelf import Shelf
 from tests.harness import harness, wait_for
 from tests.hub.test_live import CHANNELS, PLANTED, _batches
 from tests.windows import RUN
@@ -57,11 +58,31 @@ def _start(hub, keys, key, **params):
 
 
 def _forwarder(hub, keys, key):
-    """Puts SpikeBatches to the observer as the hub forwards them, sealed with ``key``."""
-    outbox = wire.Outbox(hub.declare_publisher(keys.observer_spikes(NAME)), key)
-    return lambda *batches: outbox.put(
-        ObservedSpikes(run=RUN, batches=[b.encode() for b in batches]).encode()
-    )
+    """Leaves SpikeBatches for the observer to ask for, as the hub does: kept on a shelf,
+    answered sealed with ``key``."""
+    shelf, prefix = Shelf(key=key), keys.observer_spikes(NAME)
+    queryable = hub.declare_queryable(f"{prefix}/*", lambda q: shelf.answer(q, prefix))
+
+    def forward(*batches):
+        shelf.put(ObservedSpikes(run=RUN, batches=[b.encode() for b in batches]).encode())
+
+    forward.queryable = queryable  # declared while the forwarder is kept
+    return forward
+
+
+def _stranger(hub, keys, batch):
+    """Answers the observer's next question for spikes with ``batch``, not sealed with the
+    run's key (a participant that is not the hub)."""
+    prefix, answered = keys.observer_spikes(NAME), []
+
+    def answer(query):
+        if not answered:
+            raw = ObservedSpikes(run=RUN, batches=[batch.encode()]).encode()
+            wire.reply(query, raw, key_expr=f"{prefix}/0badcafe-1", key=b"x" * 16)
+            answered.append(query)
+        query.drop()
+
+    return hub.declare_queryable(f"{prefix}/*", answer), answered
 
 
 def test_it_reports_a_network_burst_under_way_then_complete_and_a_final_count(observed):
@@ -77,7 +98,6 @@ def test_it_reports_a_network_burst_under_way_then_complete_and_a_final_count(ob
     ]
     assert _start(hub, keys, key).ok
     forward = _forwarder(hub, keys, key)
-    stranger = _forwarder(hub, keys, b"x" * 16)
     batches = list(_batches(PLANTED, 60))
 
     def next_report(timeout_s=10.0):
@@ -91,7 +111,9 @@ def test_it_reports_a_network_burst_under_way_then_complete_and_a_final_count(ob
     while report.onset_ms is None:
         report = next_report()
     assert report.onset_ms == pytest.approx(102.0) and report.network_bursts == 0
-    stranger(batches[12])  # a copy of a step, not sealed with the run's key
+    stranger, answered = _stranger(hub, keys, batches[12])  # a copy of a step
+    wait_for(lambda: answered, 10)
+    stranger.undeclare()
     forward(*batches[13:30])  # many steps at once, as in lockstep
     forward(*batches[30:])
     report = next_report()

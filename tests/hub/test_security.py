@@ -157,6 +157,18 @@ def test_the_access_policy_lets_each_role_put_only_on_its_own_keys():
         "observer": ["nv/s/observer/*/reports"],  # the burst observer's, sealed by the hub
         "operator": [],
     }
+    # Only the burst observer may ask for the spikes the hub keeps for it (sealed besides).
+    asks = {
+        p["subjects"][0]: {
+            k
+            for name in p["rules"]
+            if "query" in rules[name]["messages"]
+            for k in rules[name]["key_exprs"]
+        }
+        for p in acl["policies"]
+    }
+    spikes = "nv/s/observer/*/spikes/*"
+    assert [role for role, keys in asks.items() if spikes in keys] == ["observer"]
     # Nobody may put what only the hub sends (it is the router: its puts enter by no link).
     assert not any(
         k.endswith(("/stim", "/motor", "/hub/status"))
@@ -379,5 +391,7 @@ def test_neuvision_run_on_one_machine_keeps_the_profile_on_a_port_of_its_own(sec
     (run_dir,) = (tmp_path / "runs").iterdir()
     manifest = json.loads((run_dir / "manifest.json").read_text())
     assert manifest["outcome"] == "completed"
+    # the burst observer (its own role) asked for the spikes and had every step's
+    assert manifest["counts"]["online_analysis"] == "complete"
     (listen,) = manifest["config"]["bus"]["listen"]
     assert listen.startswith("tls/127.0.0.1:")  # the free port it took is a TLS one too
