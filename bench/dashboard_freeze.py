@@ -113,7 +113,10 @@ def measure(args, tmp: Path) -> tuple[list[tuple[int, int, int]], Path]:
         for i in range(args.freezes):
             t0 = time.time_ns()
             for pid in frozen:
-                os.kill(pid, signal.SIGSTOP)
+                try:
+                    os.kill(pid, signal.SIGSTOP)
+                except ProcessLookupError:
+                    raise SystemExit(f"process {pid} ended before freeze {i + 1}") from None
             time.sleep(args.freeze_s)
             t1 = time.time_ns()
             for pid in frozen:

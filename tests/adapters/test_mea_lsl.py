@@ -195,7 +195,10 @@ def test_stimulation_markers_match_the_pulses_and_unsafe_ones_never_leave(source
         lambda: lsl_endpoint(source, outlet, electrode_diameter_um=10.0)
     ) as hub:
         stimulator = Stimulator(outlet)
-        assert hub.start(mode="realtime").ok
+        # 40 ms windows, pulses 30 ms into them: an input (sent after the previous window's
+        # reply) comes well before its pulse is due, even over a slow trip
+        period_ms, onset_ms = 40.0, 30.0
+        assert hub.start(mode="realtime", period_ms=period_ms).ok
         w0 = hub.window(0)
         # within the described limits, over the electrode's safe charge: refused
         hub.send(Stimulation(**w0.stamp, channel=[2], amplitude_ua=[100.0], width_ms=[0.4],
@@ -203,11 +206,11 @@ def test_stimulation_markers_match_the_pulses_and_unsafe_ones_never_leave(source
         assert hub.reply().step == 0
         w1 = hub.window(1)
         hub.send(Stimulation(**w1.stamp, channel=[3, 8], amplitude_ua=[40.0, 60.0],
-                             width_ms=[0.3, 0.2], onset_ms=[8.0, 8.0]))  # fmt: skip
+                             width_ms=[0.3, 0.2], onset_ms=[onset_ms, onset_ms]))  # fmt: skip
         assert hub.reply().step == 1
         w2 = hub.window(2)
         hub.send(Stimulation(**w2.stamp, channel=[12], amplitude_ua=[20.0], width_ms=[0.4],
-                             onset_ms=[8.0]))  # fmt: skip
+                             onset_ms=[onset_ms]))  # fmt: skip
         assert hub.reply().step == 2
         pulses = stimulator.pulses(3)
         markers = [m for m, _ in pulses]
@@ -218,12 +221,14 @@ def test_stimulation_markers_match_the_pulses_and_unsafe_ones_never_leave(source
         assert {m["polarity"] for m in markers} == {"negative_first"}
         assert {m["shape"] for m in markers} == {"biphasic"} and markers[0]["v"] == 1
         assert markers[0]["trigger"] == markers[1]["trigger"] < markers[2]["trigger"]
-        # each trigger due at its onset (20 + 8 ms against 10 + 8 ms into the run), and any
-        # lateness of the device thread (a few ms on a loaded machine) is what it counted
+        # each trigger fired at its onset, one window apart: a marker is stamped no sooner
+        # than its pulse is due and no later than the endpoint counted it fired (its lag: a
+        # fraction of a ms on an idle machine, a few on a loaded one, and not always before
+        # the stamp), so the markers' gap is the onsets' to within the lateness counted
         gap_ms = (pulses[2][1] - pulses[0][1]) * 1e3
         lags_ms = list(hub.endpoint.trigger_lag_ms)
         assert len(lags_ms) == 2 and max(lags_ms) < 50.0, lags_ms
-        assert gap_ms - (lags_ms[1] - lags_ms[0]) == pytest.approx(10.0, abs=0.5), gap_ms
+        assert -lags_ms[0] - 0.5 < gap_ms - period_ms < lags_ms[1] + 0.5, (gap_ms, lags_ms)
         device = hub.counters()["device"]
         assert device["pulses_refused"] == {"charge": 1}
         assert device["pulses_admitted"] == 3 and device["pulses"] == 3
