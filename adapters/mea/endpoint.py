@@ -131,6 +131,13 @@ class MeaEndpoint(Endpoint):
         self._workers: list[threading.Thread] = []
         self._closing = False
 
+    @property
+    def run_origin_s(self) -> float:
+        """The run's time 0 on ``time.monotonic()``'s clock (the arrival of its first input
+        less that input's window start; ``inf`` before it): pulses are due and spikes
+        binned from here."""
+        return self._origin
+
     @classmethod
     def check_config(cls, section: EndpointSection, cfg: ExperimentConfig) -> dict:
         """Check ``[culture.params]`` and the mode, opening nothing."""
