@@ -72,7 +72,6 @@ NAME = "bursts"  # the observer's name in its keys (observer/bursts/...)
 # lockstep run covers seconds of run time a second, and each report wakes the hub's loop.
 REPORT_EVERY_MS = 1000.0
 REPORT_GAP_S = 0.25
-TAKE_AT_ONCE = 64  # messages of spikes analysed in one feed, at most
 WAKE_S = 0.1  # the longest the observer sleeps (to see that the spikes of a run's end came)
 # How often the observer asks the hub for spikes when the last answer brought none (the hub
 # leaves them every 30-50 ms).
@@ -145,8 +144,7 @@ class BurstObserver:
             self._on_spikes(run, raw)
         run.taken_since_ask += len(got)
         now = time.monotonic()
-        if run.asker.answered and (run.taken_since_ask or now >= run.asked_at + ASK_S):
-            run.asker.take()  # nothing new came meanwhile: it asks
+        if (run.taken_since_ask or now >= run.asked_at + ASK_S) and run.asker.ask():
             run.asked_at, run.taken_since_ask = now, 0
         if run.live.due:
             self._publish(run, run.live.work())

@@ -150,19 +150,21 @@ class Asker:
         self._answered = threading.Event()
         self._answered.set()
 
-    @property
-    def answered(self) -> bool:
-        """The last question has been answered (or none was asked)."""
-        return self._answered.is_set()
-
     def take(self, ask: bool = True) -> list[bytes]:
-        """The whole messages that came since the last call; with ``ask``, asks again if
-        the last question was answered."""
+        """The whole messages that came since the last call; with ``ask``, :meth:`ask`."""
         with self._lock:
             got, self._got = self._got, []
-        if ask and self._answered.is_set():
-            self._ask()
+        if ask:
+            self.ask()
         return got
+
+    def ask(self) -> bool:
+        """Ask for the messages after the newest taken, if the last question has been
+        answered (what its answer brought waits for :meth:`take`); whether it asked."""
+        if not self._answered.is_set():
+            return False
+        self._ask()
+        return True
 
     def _ask(self) -> None:
         import zenoh  # here: the rest of this module is plain data, free of the bus
