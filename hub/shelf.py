@@ -2,16 +2,17 @@
 
 A publication goes on whether or not its subscriber takes it. A subscriber that stopped
 reading (frozen, swapped out, or on a link slower than the messages) fills its socket, and
-from then on the publisher's side of Zenoh holds up — *drop* or not, queued transport or
-not — until it reads again; when its lease lapses, the link is closed with a writer still
-waiting on it. Where the publisher is the hub, the loop stood still: 0.5-0.7 s in most
-1.5 s freezes of a live display (docs/dashboard.md, "A frozen dashboard") or of the burst
-observer (docs/benchmarks.md). So the hub publishes nothing large to an observer: it keeps
-its latest messages on a :class:`Shelf` and answers questions ``<prefix>/*?after=MARK``
-with those after the one named; the observer (:class:`Asker`) asks the next question only
-once the last is answered, so at most one answer is on its way to it, and one that stops
-taking stops the hub's sending too. The hub's live views (:mod:`hub.view`) and the spikes
-it forwards to the burst observer (:mod:`hub.burst_observer`) go this way.
+from then on Zenoh held up the publisher's whole session — *drop* or not, queued transport
+or not, from the publishing thread or another — until it read again (where in Zenoh was not
+pinned down: every thread of the hub waited, about when the lease lapses). Where the
+publisher is the hub, the loop stood still: 0.5-0.7 s in most 1.5 s freezes of a live
+display (docs/dashboard.md, "A frozen dashboard") or of the burst observer
+(docs/benchmarks.md). So the hub publishes nothing large to an observer: it keeps its
+latest messages on a :class:`Shelf` and answers questions ``<prefix>/*?after=MARK`` with
+those after the one named; the observer (:class:`Asker`) asks the next question only once
+the last is answered, so at most one answer is on its way to it, and one that stops taking
+stops the hub's sending too. The hub's live views (:mod:`hub.view`) and the spikes it
+forwards to the burst observer (:mod:`hub.burst_observer`) go this way.
 
 Plain data but for :meth:`Asker._ask`, which puts the question on the bus.
 """
