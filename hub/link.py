@@ -108,18 +108,15 @@ class HubLink:
             session.declare_queryable(keys.hub_control, lambda q: deliver(("control", q))),
             # the status on request, for observers that may not send control commands
             session.declare_queryable(keys.hub_status, lambda q: deliver(("status", q))),
-            session.declare_queryable(
-                f"{keys.hub_view}/*", lambda q: self.views.answer(q, keys.hub_view)
-            ),
+            self.views.declare(session, keys.hub_view),
             session.liveliness().declare_token(keys.alive("hub", "0")),
         ]
 
     def watch_observer(self, name: str, key: bytes) -> None:
         """Declare the run's exchange with the burst observer ``name``, sealed both ways
         with ``key``: the spikes left for it to ask for (:meth:`forward_spikes`) and its
-        reports, each one whole delivered as
-        ``("report", raw)``, one that does not unseal as ``("report_refused", kind,
-        detail)``."""
+        reports, each one whole delivered as ``("report", raw)``, one that does not unseal
+        as ``("report_refused", kind, detail)``."""
         inbox = wire.Inbox(key)
 
         def on_report(sample):
@@ -133,10 +130,9 @@ class HubLink:
 
         # kept for the observer to ask for, not published (hub/shelf.py): an observer that
         # stopped reading held the loop up
-        self._observer = shelf = Shelf(key=key)
-        prefix = self.keys.observer_spikes(name)
+        self._observer = Shelf(key=key)
         self._declared += [
-            self.session.declare_queryable(f"{prefix}/*", lambda q: shelf.answer(q, prefix)),
+            self._observer.declare(self.session, self.keys.observer_spikes(name)),
             self.session.declare_subscriber(self.keys.observer_reports(name), on_report),
         ]
 

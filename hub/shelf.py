@@ -14,7 +14,7 @@ the last is answered, so at most one answer is on its way to it, and one that st
 stops the hub's sending too. The hub's live views (:mod:`hub.view`) and the spikes it
 forwards to the burst observer (:mod:`hub.burst_observer`) go this way.
 
-Plain data but for :meth:`Asker._ask`, which puts the question on the bus.
+Plain data but for :meth:`Shelf.declare` and :meth:`Asker._ask`, which go on the bus.
 """
 
 from __future__ import annotations
@@ -97,6 +97,11 @@ class Shelf:
     def watched(self, within_s: float = WATCHED_S) -> bool:
         """Whether anyone asked within the last ``within_s``."""
         return time.monotonic() - self.asked_at < within_s
+
+    def declare(self, session, key_prefix: str):
+        """The queryable ``<key_prefix>/*`` on ``session`` that answers from this shelf
+        (:meth:`answer`, in Zenoh's thread); keep it as long as the shelf serves."""
+        return session.declare_queryable(f"{key_prefix}/*", lambda q: self.answer(q, key_prefix))
 
     def answer(self, query, key_prefix: str) -> None:
         """Answer a question ``<key_prefix>/*?after=MARK``: each message after the one

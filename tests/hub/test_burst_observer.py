@@ -60,8 +60,8 @@ def _start(hub, keys, key, **params):
 def _forwarder(hub, keys, key):
     """Leaves SpikeBatches for the observer to ask for, as the hub does: kept on a shelf,
     answered sealed with ``key``."""
-    shelf, prefix = Shelf(key=key), keys.observer_spikes(NAME)
-    queryable = hub.declare_queryable(f"{prefix}/*", lambda q: shelf.answer(q, prefix))
+    shelf = Shelf(key=key)
+    queryable = shelf.declare(hub, keys.observer_spikes(NAME))
 
     def forward(*batches):
         shelf.put(ObservedSpikes(run=RUN, batches=[b.encode() for b in batches]).encode())
