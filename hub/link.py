@@ -24,7 +24,7 @@ import zenoh
 from hub import wire
 from hub.bus import LOOP_PUBLISH, TELEMETRY_PUBLISH, payload_bytes
 from hub.protocol import ROLES, Keys
-from hub.shelf import Shelf
+from hub.shelf import SHELF_KEEP, Shelf
 
 
 class HubLink:
@@ -112,11 +112,11 @@ class HubLink:
             session.liveliness().declare_token(keys.alive("hub", "0")),
         ]
 
-    def watch_observer(self, name: str, key: bytes) -> None:
+    def watch_observer(self, name: str, key: bytes, keep: int = SHELF_KEEP) -> None:
         """Declare the run's exchange with the burst observer ``name``, sealed both ways
-        with ``key``: the spikes left for it to ask for (:meth:`forward_spikes`) and its
-        reports, each one whole delivered as ``("report", raw)``, one that does not unseal
-        as ``("report_refused", kind, detail)``."""
+        with ``key``: the spikes left for it to ask for (:meth:`forward_spikes`; the last
+        ``keep`` messages kept) and its reports, each one whole delivered as ``("report",
+        raw)``, one that does not unseal as ``("report_refused", kind, detail)``."""
         inbox = wire.Inbox(key)
 
         def on_report(sample):
@@ -130,7 +130,7 @@ class HubLink:
 
         # kept for the observer to ask for, not published (hub/shelf.py): an observer that
         # stopped reading held the loop up
-        self._observer = Shelf(key=key)
+        self._observer = Shelf(keep, key=key)
         self._declared += [
             self._observer.declare(self.session, self.keys.observer_spikes(name)),
             self.session.declare_subscriber(self.keys.observer_reports(name), on_report),

@@ -97,6 +97,9 @@ log = logging.getLogger(__name__)
 # under way within a frame or two; in lockstep a put and a wake-up of the observer a step
 # (or even every 100 ms of run time, at thousands of steps a second) would cost the loop.
 FORWARD_S = {"realtime": 0.03, "lockstep": 0.05}
+# The forwarded spikes kept for the burst observer to ask for: one that stalls (frozen,
+# swapped out) or whose lease lapsed catches up on its return if it was gone less than this.
+OBSERVER_KEEP_S = 10.0
 # The longest the hub waits for the burst observer's final report (one that fell behind
 # catches up first; it answers within seconds of its last spikes coming otherwise).
 OBSERVER_END_TIMEOUT_S = 60.0
@@ -242,6 +245,7 @@ class Hub:
         self.online: OnlineTally | None = OnlineTally() if cfg.online.enabled else None
         self.observer_key = wire.new_key()
         self._to_observe: list[bytes] = []
+        self._observer_gone: tuple[float, int] | None = None  # (since, step) while vanished
         self._forward_s = FORWARD_S[cfg.loop.mode]
         self._forwarded_at = 0.0  # monotonic
         self.scheduling: Scheduling | None = None  # realtime: what the hub's threads got
@@ -559,8 +563,11 @@ class Hub:
         verdict, message = self._classify_reply(role, raw, t_arrival)
         if self.recorder:
             self.recorder.message(verdict, self.output_key[role], raw, t_wall_ns)
-        if verdict == "rx" and role == "culture" and self.online is not None:
-            # the observer takes a step's spikes at once: with the parts streamed before
+        if role == "culture" and self.online is not None and verdict in ("rx", "late"):
+            if verdict == "late" and message.partial:
+                return  # a part of a step stood in for: the observer counts that step missing
+            # the observer takes a step's spikes at once: with the parts streamed before;
+            # a late step's too, as the record keeps them
             taken = self.ledger.pending[role].get(message.step, message)
             self._to_observe.append(raw if taken is message else taken.encode())
             if self.scheduler.direct and t_arrival - self._forwarded_at >= self._forward_s:
@@ -612,12 +619,8 @@ class Hub:
         if was == present:
             return
         self._record_event("alive" if present else "dead", role=parsed[0], id=parsed[1])
-        if parsed == ("observer", OBSERVER) and not present and self.online is not None:
-            if self.state in ("running", "paused") and not self.online.final:
-                # Live analysis only: the loop goes on, and the record keeps every spike.
-                log.warning("the burst observer vanished at step %d: no more live bursts", self.k)
-                self.online.lost = f"the burst observer vanished at step {self.k}"
-            return
+        if parsed == ("observer", OBSERVER) and self.online is not None:
+            return self._observer_came_or_went(present)
         required = parsed[0] in ROLES and self.ids[parsed[0]] == parsed[1]
         if present and required and parsed[0] in self.gone:
             return self._rejoin(parsed[0])
@@ -636,6 +639,35 @@ class Hub:
                 self.gone[parsed[0]] = (time.monotonic(), self.k)
                 return
             self._endpoint_dead(*parsed)
+
+    def _observer_came_or_went(self, present: bool) -> None:
+        """The burst observer vanished, or is back. Live analysis only: the loop goes on
+        and the record keeps every spike. Back, it asks for the spikes after the last it
+        had; those the hub no longer keeps (``OBSERVER_KEEP_S``) its final report counts
+        as missing steps."""
+        online = self.online
+        if self.state not in ("running", "paused") or online.final:
+            return
+        if not present:
+            log.warning(
+                "the burst observer vanished at step %d: live bursts wait for its return "
+                "(the hub keeps %g s of spikes for it)", self.k, OBSERVER_KEEP_S,
+            )  # fmt: skip
+            online.lost = f"the burst observer vanished at step {self.k}"
+            self._observer_gone = (time.monotonic(), self.k)
+        elif self._observer_gone is not None:
+            since, gone_at = self._observer_gone
+            self._observer_gone = None
+            online.lost = ""
+            entry = {"role": "observer", "id": OBSERVER, "gone_at_step": gone_at}
+            entry.update(at_step=self.k, gap_s=round(time.monotonic() - since, 3))
+            self.rejoins.append(entry)
+            self._record_event("rejoined", **entry)
+            log.warning(
+                "the burst observer is back at step %d after %.2f s: live bursts go on (its "
+                "final report says whether it had every step)",
+                self.k, entry["gap_s"],
+            )  # fmt: skip
 
     def _endpoint_dead(self, role: str, id: str) -> None:
         """An endpoint is gone for good: ``policy.endpoint_death`` applies."""
@@ -979,7 +1011,8 @@ class Hub:
             burst=dict(online.burst),
             network=dict(online.network),
         )
-        self.link.watch_observer(OBSERVER, self.observer_key)
+        keep = math.ceil(OBSERVER_KEEP_S / self._forward_s)
+        self.link.watch_observer(OBSERVER, self.observer_key, keep=keep)
         answers = []
         for raw in self.link.query(self.keys.observer_run(OBSERVER), start.encode(), timeout_s=5.0):
             try:

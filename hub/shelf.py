@@ -70,8 +70,15 @@ class Shelf:
 
     def after(self, mark: str, max_bytes: int = ANSWER_MAX_BYTES) -> list[tuple[str, bytes]]:
         """The messages kept after the one named ``mark`` (``<epoch>-<number>``; from the
-        oldest kept if it is not one of this shelf's), oldest first, each with its name, up
-        to ``max_bytes`` (at least one); and note the question."""
+        oldest kept if it is not one of this shelf's), oldest first, up to ``max_bytes``
+        (at least one); and note the question.
+
+        Each comes with its name, ``<epoch>-<number>-<follows>``: ``follows`` is the
+        number of the message before it in the answer, or for the first the number asked
+        after (0 for a mark not of this shelf's) — a first that does not follow it on
+        (``number > follows + 1``) says that the shelf no longer keeps those between. An
+        asker that missed a reply on the way (dropped on a congested link) sees the next
+        not follow what it has, and asks again (:class:`Asker`)."""
         epoch, _, seq = mark.partition("-")
         with self._lock:
             self.asked_at = time.monotonic()
@@ -79,13 +86,14 @@ class Shelf:
             if after > self._had:
                 self._had = after
                 self._lock.notify_all()
-            out, size = [], 0
+            out, size, follows = [], 0, after
             for n, raw in self._items:
                 if n > after:
                     size += len(raw)
                     if out and size > max_bytes:
                         break
-                    out.append((f"{self.epoch}-{n}", raw))
+                    out.append((f"{self.epoch}-{n}-{follows}", raw))
+                    follows = n
             return out
 
     def wait_had(self, timeout_s: float) -> bool:
@@ -121,7 +129,9 @@ class Asker:
     at a time, so an observer that stops taking stops the hub's sending too.
 
     Replies are handled in Zenoh's own thread; the query asks that they be dropped
-    rather than waited for on a congested link.
+    rather than waited for on a congested link. A message that does not follow the
+    newest taken (one before it was dropped so) is left for the next question, counted
+    in ``dropped["gap"]``: what is taken has no hole but those the shelf no longer kept.
 
     Parameters
     ----------
@@ -189,10 +199,16 @@ class Asker:
             except wire.WireError as exc:
                 self.dropped[exc.kind] += 1
                 return
-            if raw is not None:  # an answer's messages come in order
-                with self._lock:
-                    self._got.append(raw)
-                    self.mark = key.rsplit("/", 1)[1]
+            if raw is None:  # a frame of a message not whole yet
+                return
+            epoch, n, follows = _name(key)
+            with self._lock:  # an answer's messages come in order
+                have_epoch, _, have = self.mark.partition("-")
+                if follows != (int(have) if epoch == have_epoch else 0):
+                    self.dropped["gap"] += 1
+                    return
+                self._got.append(raw)
+                self.mark = f"{epoch}-{n}"
 
         def on_end() -> None:
             self._answered.set()
@@ -210,3 +226,12 @@ class Asker:
             congestion_control=zenoh.CongestionControl.DROP,
             timeout=self.timeout_s,
         )
+
+
+def _name(key: str) -> tuple[str, int, int]:
+    """``(epoch, number, follows)`` of a message's key, ``<prefix>/<epoch>-<n>-<follows>``
+    (:meth:`Shelf.after`); one not so named follows nothing (it is never taken)."""
+    epoch, n, follows = (key.rsplit("/", 1)[1].split("-") + ["", ""])[:3]
+    if n.isdigit() and follows.isdigit():
+        return epoch, int(n), int(follows)
+    return epoch, 0, -1

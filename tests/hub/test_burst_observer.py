@@ -226,6 +226,62 @@ def test_the_loop_goes_on_when_the_observer_dies_and_the_manifest_says_so(
     assert dead == [{"role": "observer", "id": NAME}]
 
 
+def _run_freezing_the_observer(h, monkeypatch):
+    """Run ``h``, freezing the hub's burst observer (``SIGSTOP``) once the steps go, until
+    the hub saw it vanish (its lease lapsed), then letting it go on."""
+    started = []
+
+    def start(*args):  # the hub's own start of its observer, kept to be frozen
+        started.append(start_burst_observer(*args))
+        return started[-1]
+
+    monkeypatch.setattr("hub.loop.start_burst_observer", start)
+
+    def freeze_until_vanished():
+        wait_for(lambda: h.hub is not None and h.hub.k > 50, timeout_s=60)
+        started[0].popen.send_signal(signal.SIGSTOP)
+        try:
+            wait_for(lambda: h.hub.online.lost, timeout_s=30)
+        finally:
+            started[0].popen.send_signal(signal.SIGCONT)
+
+    freezer = threading.Thread(target=freeze_until_vanished, daemon=True)
+    freezer.start()
+    result = h.run()
+    freezer.join(5)
+    return result
+
+
+def test_an_observer_frozen_past_its_lease_catches_up_on_its_return(
+    tmp_path, bus_overrides, monkeypatch
+):
+    overrides = ["online.enabled=true", 'loop.mode="realtime"', "experiment.duration_s=8"]
+    with harness(tmp_path, bus_overrides, *overrides) as h:
+        result = _run_freezing_the_observer(h, monkeypatch)
+    assert result.outcome == "completed" and result.steps == 800
+    manifest = _manifest(h.run_dir)
+    # the spikes of the freeze were kept for it: its analysis has every step
+    assert manifest["counts"]["online_analysis"] == "complete"
+    assert manifest["counts"]["online_steps_missing"] == 0
+    [rejoin] = manifest["rejoins"]
+    assert rejoin["role"] == "observer" and rejoin["at_step"] > rejoin["gone_at_step"]
+    events = [(e.key, e.payload["role"]) for e in h.record.events if e.key in ("dead", "rejoined")]
+    assert events == [("dead", "observer"), ("rejoined", "observer")]
+
+
+def test_an_observer_back_after_the_spikes_kept_for_it_counts_the_steps_it_missed(
+    tmp_path, bus_overrides, monkeypatch
+):
+    monkeypatch.setattr("hub.loop.OBSERVER_KEEP_S", 0.1)  # less than any lease
+    overrides = ["online.enabled=true", 'loop.mode="realtime"', "experiment.duration_s=8"]
+    with harness(tmp_path, bus_overrides, *overrides) as h:
+        result = _run_freezing_the_observer(h, monkeypatch)
+    assert result.outcome == "completed"
+    counts = _manifest(h.run_dir)["counts"]
+    assert counts["online_analysis"] == "incomplete"
+    assert counts["online_steps_missing"] > 0
+
+
 def test_an_external_observer_that_never_comes_is_named_with_how_to_start_it(
     tmp_path, bus_overrides
 ):
