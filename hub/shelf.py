@@ -80,6 +80,7 @@ class Shelf:
         asker that missed a reply on the way (dropped on a congested link) sees the next
         not follow what it has, and asks again (:class:`Asker`)."""
         epoch, _, seq = mark.partition("-")
+        seq = seq.partition("-")[0]  # an asker that sends a whole name back
         with self._lock:
             self.asked_at = time.monotonic()
             after = int(seq) if epoch == self.epoch and seq.isdigit() else 0
@@ -204,7 +205,7 @@ class Asker:
             epoch, n, follows = _name(key)
             with self._lock:  # an answer's messages come in order
                 have_epoch, _, have = self.mark.partition("-")
-                if follows != (int(have) if epoch == have_epoch else 0):
+                if follows is not None and follows != (int(have) if epoch == have_epoch else 0):
                     self.dropped["gap"] += 1
                     return
                 self._got.append(raw)
@@ -228,10 +229,13 @@ class Asker:
         )
 
 
-def _name(key: str) -> tuple[str, int, int]:
+def _name(key: str) -> tuple[str, int, int | None]:
     """``(epoch, number, follows)`` of a message's key, ``<prefix>/<epoch>-<n>-<follows>``
-    (:meth:`Shelf.after`); one not so named follows nothing (it is never taken)."""
-    epoch, n, follows = (key.rsplit("/", 1)[1].split("-") + ["", ""])[:3]
-    if n.isdigit() and follows.isdigit():
-        return epoch, int(n), int(follows)
+    (:meth:`Shelf.after`); ``follows`` None for a shelf's before 2026-11-29, whose names
+    did not say it (taken as they come, as then), and -1 for a name that is neither (never
+    taken)."""
+    epoch, n, *rest = key.rsplit("/", 1)[1].split("-") + [""]
+    follows = rest[0] if len(rest) > 1 else ""
+    if n.isdigit() and (follows.isdigit() or not follows):
+        return epoch, int(n), int(follows) if follows else None
     return epoch, 0, -1

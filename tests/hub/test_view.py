@@ -119,6 +119,7 @@ def test_the_shelf_answers_the_views_after_the_one_named_and_all_it_keeps_to_a_s
     e = shelf.epoch  # each name: <epoch>-<number>-<the number it follows in the answer>
     assert shelf.after(f"{e}-3") == [(f"{e}-4-3", b"view 4"), (f"{e}-5-4", b"view 5")]
     assert shelf.after(f"{e}-5") == []
+    assert shelf.after(f"{e}-3-2") == shelf.after(f"{e}-3")  # a whole name sent back
     kept = [(f"{e}-3-0", b"view 3"), (f"{e}-4-3", b"view 4"), (f"{e}-5-4", b"view 5")]
     assert shelf.after("") == kept  # a first question: the oldest kept (two went)
     # one that fell behind: a gap, said (3 follows 1: 2 is no longer kept), not a stall
