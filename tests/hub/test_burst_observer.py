@@ -203,22 +203,11 @@ def test_the_loop_goes_on_when_the_observer_dies_and_the_manifest_says_so(
 ):
     overrides = ["online.enabled=true", 'loop.mode="realtime"', "experiment.duration_s=3"]
     with harness(tmp_path, bus_overrides, *overrides) as h:
-        started = []
 
-        def start(*args):  # the hub's own start of its observer, kept to be killed
-            started.append(start_burst_observer(*args))
-            return started[-1]
+        def kill(observer):
+            observer.popen.send_signal(signal.SIGKILL)
 
-        monkeypatch.setattr("hub.loop.start_burst_observer", start)
-
-        def kill_when_running():
-            wait_for(lambda: h.hub is not None and h.hub.k > 50, timeout_s=60)
-            started[0].popen.send_signal(signal.SIGKILL)
-
-        killer = threading.Thread(target=kill_when_running, daemon=True)
-        killer.start()
-        result = h.run()
-        killer.join(5)
+        result = _run_doing_to_the_observer(h, monkeypatch, kill)
     assert result.outcome == "completed" and result.steps == 300
     counts = _manifest(h.run_dir)["counts"]
     assert counts["online_analysis"].startswith("incomplete: the burst observer vanished")
@@ -226,30 +215,40 @@ def test_the_loop_goes_on_when_the_observer_dies_and_the_manifest_says_so(
     assert dead == [{"role": "observer", "id": NAME}]
 
 
-def _run_freezing_the_observer(h, monkeypatch):
-    """Run ``h``, freezing the hub's burst observer (``SIGSTOP``) once the steps go, until
-    the hub saw it vanish (its lease lapsed), then letting it go on."""
+def _run_doing_to_the_observer(h, monkeypatch, act):
+    """Run ``h``, doing ``act`` to the burst observer the hub starts (a
+    :class:`~hub.launch.LocalProcess`) once the run has made 50 steps."""
     started = []
 
-    def start(*args):  # the hub's own start of its observer, kept to be frozen
+    def start(*args):  # the hub's own start of its observer, kept for ``act``
         started.append(start_burst_observer(*args))
         return started[-1]
 
     monkeypatch.setattr("hub.loop.start_burst_observer", start)
 
-    def freeze_until_vanished():
+    def act_when_running():
         wait_for(lambda: h.hub is not None and h.hub.k > 50, timeout_s=60)
-        started[0].popen.send_signal(signal.SIGSTOP)
+        act(started[0])
+
+    actor = threading.Thread(target=act_when_running, daemon=True)
+    actor.start()
+    result = h.run()
+    actor.join(35)
+    return result
+
+
+def _run_freezing_the_observer(h, monkeypatch):
+    """Run ``h``, freezing the burst observer (``SIGSTOP``) until the hub saw it vanish
+    (its lease lapsed), then letting it go on."""
+
+    def freeze_until_vanished(observer):
+        observer.popen.send_signal(signal.SIGSTOP)
         try:
             wait_for(lambda: h.hub.online.lost, timeout_s=30)
         finally:
-            started[0].popen.send_signal(signal.SIGCONT)
+            observer.popen.send_signal(signal.SIGCONT)
 
-    freezer = threading.Thread(target=freeze_until_vanished, daemon=True)
-    freezer.start()
-    result = h.run()
-    freezer.join(5)
-    return result
+    return _run_doing_to_the_observer(h, monkeypatch, freeze_until_vanished)
 
 
 def test_an_observer_frozen_past_its_lease_catches_up_on_its_return(
