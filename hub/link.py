@@ -24,7 +24,7 @@ import zenoh
 from hub import wire
 from hub.bus import LOOP_PUBLISH, TELEMETRY_PUBLISH, payload_bytes
 from hub.protocol import ROLES, Keys
-from hub.shelf import SHELF_KEEP, Shelf
+from hub.shelf import Shelf
 
 
 class HubLink:
@@ -112,7 +112,7 @@ class HubLink:
             session.liveliness().declare_token(keys.alive("hub", "0")),
         ]
 
-    def watch_observer(self, name: str, key: bytes, keep: int = SHELF_KEEP) -> None:
+    def watch_observer(self, name: str, key: bytes, keep: int) -> None:
         """Declare the run's exchange with the burst observer ``name``, sealed both ways
         with ``key``: the spikes left for it to ask for (:meth:`forward_spikes`; the last
         ``keep`` messages kept) and its reports, each one whole delivered as ``("report",

@@ -232,10 +232,9 @@ class Asker:
 def _name(key: str) -> tuple[str, int, int | None]:
     """``(epoch, number, follows)`` of a message's key, ``<prefix>/<epoch>-<n>-<follows>``
     (:meth:`Shelf.after`); ``follows`` None for a shelf's before 2026-11-29, whose names
-    did not say it (taken as they come, as then), and -1 for a name that is neither (never
-    taken)."""
-    epoch, n, *rest = key.rsplit("/", 1)[1].split("-") + [""]
-    follows = rest[0] if len(rest) > 1 else ""
-    if n.isdigit() and (follows.isdigit() or not follows):
-        return epoch, int(n), int(follows) if follows else None
-    return epoch, 0, -1
+    were ``<epoch>-<n>`` (taken as they come, as then), and -1 for a name that is neither
+    (never taken)."""
+    parts = key.rsplit("/", 1)[1].split("-")
+    if len(parts) in (2, 3) and all(p.isdigit() for p in parts[1:]):
+        return parts[0], int(parts[1]), int(parts[2]) if len(parts) == 3 else None
+    return parts[0], 0, -1
