@@ -24,7 +24,8 @@ input after reading a buffer larger than the CPU's last-level cache (:data:`FLUS
 so that the interpreter, the message classes and the endpoint start from memory. Medians
 of the wall time per input. In the trivial lockstep loop, with the other processes and the
 kernel's networking running between any two inputs, the same handling took about three
-times its warm figure (docs/benchmarks.md, "Where the trivial loop's pace is set").
+times its warm figure (docs/measurements/loop-cost.md,
+"Where the trivial loop's pace is set").
 
     .venv/bin/python bench/protocol.py             # about 8 s
     .venv/bin/python bench/protocol.py --repeat 3  # quicker

@@ -159,8 +159,8 @@ class Dashboard:
                     page.dropped += 1
                 else:
                     ready.append(page)
-            try:  # in this thread: ~1 ms a frame, where a worker's hand-over and the
-                # loop's wake-up on its result cost as much CPU again (docs/dashboard.md)
+            try:  # in this thread: ~1 ms a frame, where a worker's hand-over and the loop's
+                # wake-up on its result cost as much CPU again (docs/measurements/dashboard-cost.md)
                 frames = self._build(ready)
             except Exception:
                 log.exception("a frame failed")
@@ -286,7 +286,8 @@ def serve(
     dashboard = Dashboard(source, state, fps)
     # No permessage-deflate: a frame is mostly base64 of float32/uint32 arrays, which barely
     # compresses, and deflating it cost ~1 ms a frame (at 30 frames/s the largest share of
-    # the dashboard's CPU in a lockstep run, by a yappi profile; docs/dashboard.md).
+    # the dashboard's CPU in a lockstep run, by a yappi profile;
+    # docs/measurements/dashboard-cost.md).
     config = uvicorn.Config(
         dashboard.app,
         log_level="warning",

@@ -17,7 +17,7 @@ import time
 # opens. One network-receive thread, not two: with two, an arriving message wakes the
 # other to steal its work. Zenoh's accept and application work keeps threads of its own:
 # handed to the receive thread, it slowed the loop where the hub has a CPU of its own
-# (docs/benchmarks.md). A ZENOH_RUNTIME set by the user is kept as it is.
+# (docs/measurements/loop-cost.md). A ZENOH_RUNTIME set by the user is kept as it is.
 ZENOH_RUNTIME = "(rx: (worker_threads: 1))"
 os.environ.setdefault("ZENOH_RUNTIME", ZENOH_RUNTIME)
 
@@ -76,7 +76,7 @@ def zenoh_config(bus: BusSection, *, listener: bool, role: str | None = None) ->
     put("transport/link/tx/lease", bus.lease_ms)
     # A Zenoh router stamps every message it routes with its own clock (an HLC time). No
     # part of NeuVision reads those stamps (the hub's clocks time the loop), and stamping
-    # cost the trivial lockstep loop 7 % placed by the OS (docs/benchmarks.md).
+    # cost the trivial lockstep loop 7 % placed by the OS (docs/measurements/loop-cost.md).
     put("timestamping/enabled", False)
     put("transport/unicast/lowlatency", bus.low_latency)
     put("transport/unicast/qos/enabled", not bus.low_latency)

@@ -109,7 +109,7 @@ VIEW_GUARD_S = 1e-3
 # Lockstep: a view goes from the reply thread after a step (Lockstep._advance); the loop's
 # thread sends one only when the steps stand still this long past its time (paused, an
 # endpoint awaited). Woken at the view rate, it took the loop's lock from the replies
-# thirty times a second (docs/dashboard.md, "Measured").
+# thirty times a second (docs/measurements/dashboard-cost.md).
 VIEW_STALL_S = 0.1
 # How often the hub looks whether anyone asks for views, while no one does.
 LOOK_S = 0.25
