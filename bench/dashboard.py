@@ -5,8 +5,8 @@ A recorded closed-loop run is fed, step by step, through what the live path does
 1. the hub: each step's two replies taken and two inputs sent (:class:`hub.view.ObserverView`
    ``took``/``sent``), and every ``steps_per_view`` steps a view built, encoded and framed
    (:mod:`hub.wire`) — the part on the loop's own thread;
-2. the dashboard: the frames reassembled, the view decoded and added to the page's state
-   (:meth:`dashboard.observer.BusObserver._take`);
+2. the dashboard: the frames reassembled (as :class:`hub.shelf.Asker` does), the view
+   decoded and added to the page's state (:meth:`dashboard.observer.BusObserver._take`);
 3. the frame for one page: :meth:`dashboard.state.FrameState.frame` and its JSON
    (:func:`dashboard.server.page_json`).
 
@@ -46,13 +46,6 @@ from hub.config import BusSection  # noqa: E402
 from hub.protocol import MotorCommand, SensorReading, SpikeBatch, Stimulation  # noqa: E402
 from hub.record import read_run  # noqa: E402
 from hub.view import ObserverView  # noqa: E402
-
-
-class _Sample:
-    """What a Zenoh subscriber hands over: the key, the payload and its attachment."""
-
-    def __init__(self, key: str, payload: bytes, attachment: bytes):
-        self.key_expr, self.payload, self.attachment = key, payload, attachment
 
 
 def record_run(seconds: float, runs_dir: Path) -> Path:
@@ -110,8 +103,11 @@ def measure(steps: list[tuple], scene: dict, steps_per_view: int) -> dict:
         outbox_id += 1
         framed = wire.frames(raw, None, outbox_id)
         t1 = clock()
+        inbox = wire.Inbox()  # as the dashboard's asker reassembles an answer's replies
         for payload, attachment in framed:
-            observer._take("view", _Sample("hub/view", bytes(payload), attachment))
+            whole = inbox.feed(bytes(payload), attachment)
+            if whole is not None:
+                observer._take("view", whole)
         t2 = clock()
         text = page_json(state.frame(reader))
         t3 = clock()

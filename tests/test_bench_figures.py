@@ -149,3 +149,15 @@ def test_a_freeze_reports_the_steps_in_each_half_and_its_longest_gap():
         "steps_frozen": 5, "steps_running": 2, "gap_ms": 890.0, "gap_from_ms": 710,
         "gap_to_ms": 1600,
     }  # fmt: skip
+
+
+def test_the_dashboards_data_path_takes_every_view_of_a_recorded_run(tmp_path):
+    from bench.dashboard import measure, steps_of
+    from tests.dashboard.synthetic import write_run
+
+    write_run(tmp_path)
+    steps, scene = steps_of(tmp_path)
+    figures = measure(steps, scene, steps_per_view=10)  # exits if the dashboard dropped one
+    assert figures["views"] == len(steps) // 10
+    assert figures["view_bytes"] > 0 and figures["frame_bytes"] > 0
+    assert set(figures["cpu_s"]) == {"hub_took_sent", "hub_view", "dashboard_take", "page_frame"}
