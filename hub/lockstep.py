@@ -54,13 +54,20 @@ class Lockstep:
         hub, ledger = self.hub, self.hub.ledger
         n = hub.n_steps
         timeout_s = hub.cfg.loop.reply_timeout_s
-        with hub.lock:
-            ledger.expect.update(body=0, culture=0)
-            self._last_progress = time.monotonic()
-            hub.send("body", hub.inputs.motor_for(0, None))
-            hub.send("culture", hub.inputs.stim_for(0, None))
-            self.direct = True
         try:
+            with hub.lock:
+                ledger.expect.update(body=0, culture=0)
+                self._last_progress = time.monotonic()
+                # Direct before the first inputs go out: a reply that comes while this
+                # thread is held up after them (preempted on a busy machine) then waits
+                # for the lock, rather than being queued for this thread while the other
+                # endpoint's reply, and the input it lets out, are taken directly: the
+                # culture's next reply could be taken before its first (the record and the
+                # burst observer would see step 1 before step 0, the observer count step 0
+                # missing).
+                self.direct = True
+                hub.send("body", hub.inputs.motor_for(0, None))
+                hub.send("culture", hub.inputs.stim_for(0, None))
             while True:
                 with hub.lock:
                     if self._failure is not None:

@@ -17,6 +17,7 @@ import zenoh
 
 from hub import wire
 from hub.bus import open_session, payload_bytes
+from hub.loop import Hub
 from hub.protocol import (
     SCHEMA_VERSION,
     ControlReply,
@@ -64,6 +65,40 @@ def test_lockstep_keeps_the_step_order_with_one_step_of_latency(tmp_path, bus_ov
     assert h.exit_codes == {"body": 0, "culture": 0}
     assert h.record.manifest["outcome"] == "completed"
     assert h.record.manifest["counts"]["late"] == {}
+
+
+def test_replies_are_taken_in_step_order_however_the_hubs_thread_is_held_up(
+    tmp_path, bus_overrides, monkeypatch
+):
+    """On a busy machine the hub's thread may be preempted right after the first inputs go
+    out, and again before it takes its next event: both are played here by holding it up
+    (0.2 s, some hundred round trips). The culture's first reply, come meanwhile, is still
+    taken before its second, which the body's first reply lets out: the record and the
+    burst observer see the steps in order. (A CI run saw step 1 taken first, and the
+    observer count step 0 missing.)"""
+    send, wait_event = Hub.send, Hub.wait_event
+
+    def sending(hub, role, message, raw=None):
+        send(hub, role, message, raw)
+        if role == "culture" and message.step == 0:
+            time.sleep(0.2)
+
+    def waiting(hub, until):
+        item = wait_event(hub, until)
+        if item is not None and item[:2] == ("rx", "culture"):
+            time.sleep(0.2)
+        return item
+
+    monkeypatch.setattr(Hub, "send", sending)
+    monkeypatch.setattr(Hub, "wait_event", waiting)
+    with harness(tmp_path, bus_overrides, "experiment.duration_s=0.2", "online.enabled=true") as h:
+        result = h.run()
+    assert result.outcome == "completed" and result.steps == 20
+    assert result.counts["late"] == {} and result.counts["missing"] == {}
+    taken = [m.step for m in h.record.decoded(SpikeBatch, "rx")]  # in the order taken
+    assert taken == list(range(20))
+    assert result.counts["online_analysis"] == "complete"
+    assert result.counts["online_steps_missing"] == 0
 
 
 @pytest.mark.skipif(not hasattr(os, "sched_setaffinity"), reason="no CPU affinity here")
