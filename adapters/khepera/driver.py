@@ -156,7 +156,8 @@ class KheperaDriver:
             self.stop_motors()
         except (LinkFault, ReplyError) as exc:
             log.warning("could not stop the motors at close: %s", exc)
-        self.link.close()
+        with self._motor:  # a stop from another thread goes before, or finds it closed
+            self.link.close()
 
     # ------------------------------------------------------------ the loop's side
 
@@ -173,6 +174,9 @@ class KheperaDriver:
 
     def stop_motors(self) -> None:
         """``D,0,0`` now, on the caller's thread (waits for the link, not for a cycle).
+        Nothing once the link is closed: :meth:`close` stopped the motors first, or said
+        that it could not (the hub's going and the endpoint's end may come in either order,
+        each making the robot safe).
 
         Raises
         ------
@@ -182,6 +186,8 @@ class KheperaDriver:
         with self._lock:
             self._target = (0, 0)
         with self._motor:  # after a speed write under way, never before it
+            if self.link.closed:
+                return
             self.link.transact("D", 0, 0)
             with self._lock:
                 self._sent = (0, 0)

@@ -77,6 +77,11 @@ class SerialLink:
     def name(self) -> str:
         return str(self.port.port)
 
+    @property
+    def closed(self) -> bool:
+        """Whether :meth:`close` released the port."""
+        return not self.port.is_open
+
     def transact(self, letter: str, *values: int) -> Reply:
         """Send one command and return its checked reply.
 
@@ -89,6 +94,8 @@ class SerialLink:
         """
         raw = command(letter, *values, dialect=self.dialect)
         with self._lock:
+            if self.closed:  # pyserial would fail on it with a TypeError, not an OSError
+                raise LinkFault(f"serial link {self.name} is closed")
             error: ReplyError | None = None
             for _ in range(self.tries):
                 try:
@@ -176,10 +183,11 @@ class SerialLink:
         not)."""
         if self.guard is not None:
             self.guard.release()
-        try:
-            self.port.close()
-        except (serial.SerialException, OSError):
-            pass
+        with self._lock:  # not under a transaction of another thread's
+            try:
+                self.port.close()
+            except (serial.SerialException, OSError):
+                pass
 
 
 def open_port(

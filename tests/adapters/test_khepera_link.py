@@ -262,3 +262,18 @@ def test_a_stop_is_not_undone_by_a_speed_the_serial_thread_was_about_to_send(emu
     finally:
         go.set()
         driver.close()
+
+
+def test_a_stop_after_the_link_closed_is_no_error_the_close_stopped_the_motors(emulator):
+    """The hub's going (a bus thread makes the robot safe) and the endpoint's end (it closes
+    the driver) may come in either order. Closed first, the close stopped the motors, and a
+    stop after it does nothing (it raised pyserial's TypeError from the bus thread)."""
+    driver = make_driver(emulator, watchdog_s=5.0)
+    driver.connect()
+    driver.command(0.1, 0.1)
+    wait_for(lambda: emulator.speed_units != (0, 0), 5.0)
+    driver.close()
+    assert emulator.speed_units == (0, 0)
+    driver.stop_motors()
+    with pytest.raises(LinkFault, match="closed"):
+        driver.link.transact("D", 0, 0)
