@@ -475,7 +475,13 @@ def cmd_endpoint(args) -> int:
         endpoint = make_endpoint(cfg, args.role)
         # its hub refuses it if it serves other settings than the hub's experiment
         endpoint.settings_digest = settings_digest(cfg, args.role)
-        return endpoint.serve(cfg.bus, realtime_priority=priority, cpus=cpus, once=args.once)
+        return endpoint.serve(
+            cfg.bus,
+            realtime_priority=priority,
+            cpus=cpus,
+            keep_cpus_awake=cfg.loop.keep_cpus_awake,
+            once=args.once,
+        )
     except DeviceFault as exc:
         print(f"neuvision: {args.role} device fault: {_one_line(exc)}", file=sys.stderr)
         return EXIT_FAULT

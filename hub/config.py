@@ -140,6 +140,11 @@ class LoopSection:
     # leaves the scheduler alone). Refused without CAP_SYS_NICE/RLIMIT_RTPRIO: the run
     # goes on, and the manifest says so.
     realtime_priority: int = field(default=10, metadata=bounds(ge=0, le=99))
+    # While the steps run, ask Linux's PM QoS to keep idle CPUs awake (a wake-up latency of
+    # 0 µs): a message that wakes a thread on an idle CPU then does not wait for that CPU
+    # to wake (hub/scheduling.py). Needs write access to /dev/cpu_dma_latency; without it
+    # the run goes on, and the manifest says so. Costs the idle CPUs' power while it runs.
+    keep_cpus_awake: bool = True
     # The CPUs the hub's process runs on (empty: wherever the OS puts it). A CPU of its
     # own keeps the hub's threads from waiting behind the endpoints' (docs/architecture.md, "CPU
     # placement"). Not for runs side by side: each would take the same CPUs.

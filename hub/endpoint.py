@@ -55,8 +55,10 @@ from hub.protocol import (
     decode_run_request,
 )
 from hub.scheduling import (
+    CpusAwake,
     Scheduling,
     available_cpus,
+    hold_cpus_awake,
     place_threads,
     raise_threads,
     restore_placement,
@@ -162,6 +164,8 @@ class Endpoint(abc.ABC):
         self.holds = 0  # pauses of the hub (each made the device safe)
         self.keys = Keys()
         self.scheduling = Scheduling("normal", reason="not serving")
+        self.cpus_awake = CpusAwake(False, reason="no run served yet")
+        self._keep_cpus_awake = False  # serve(keep_cpus_awake=...): held while a run is served
         self._inbox = wire.Inbox()
         self._outbox: wire.Outbox | None = None
         self._owed: set[int] = set()  # steps stepped on whose reply has not left yet
@@ -258,6 +262,7 @@ class Endpoint(abc.ABC):
             "busy_s": self.busy_s,
             "cpu_s": time.process_time(),  # the whole process, every thread
             "scheduling": self.scheduling.to_dict(),
+            "cpus_awake": self.cpus_awake.to_dict(),
         }
         cpus = available_cpus()
         if cpus is not None:
@@ -315,6 +320,11 @@ class Endpoint(abc.ABC):
             culture = self.role == "culture"
             self._limits = StimulationLimits(self._description()) if culture else None
             self._run_taken_at = time.monotonic()  # the hub's inputs are due from now
+            self.cpus_awake = hold_cpus_awake(self._keep_cpus_awake)
+            if self._keep_cpus_awake and not self.cpus_awake.held:
+                log.info(
+                    "%s/%s: idle CPUs may sleep: %s", self.role, self.id, self.cpus_awake.reason
+                )
             log.info("%s/%s took run %s", self.role, self.id, request.run)
             return RunReply(ok=True, run=request.run)
 
@@ -325,6 +335,7 @@ class Endpoint(abc.ABC):
         self.run = None
         self._owed.clear()
         self._inbox.key = None
+        self.cpus_awake.release()
         self.end_run()
         if self._once and stop:
             self._stop.set()
@@ -464,6 +475,7 @@ class Endpoint(abc.ABC):
         install_signals: bool = True,
         realtime_priority: int = 0,
         cpus: Sequence[int] = (),
+        keep_cpus_awake: bool = False,
         once: bool = False,
     ) -> int:
         """Serve on the bus until stopped; return the exit status (0 on a clean stop).
@@ -474,9 +486,12 @@ class Endpoint(abc.ABC):
         second endpoint of the same name). ``realtime_priority`` > 0 puts this
         process's threads under ``SCHED_FIFO`` at that priority once warmed up (see
         :mod:`hub.scheduling`; refused: ordinary scheduling). ``cpus`` keeps the process's
-        threads on those CPUs (``<role>.cpus``; empty: the OS decides).
+        threads on those CPUs (``<role>.cpus``; empty: the OS decides). ``keep_cpus_awake``
+        asks the OS to keep idle CPUs awake while a run is served (``loop.keep_cpus_awake``;
+        :func:`hub.scheduling.hold_cpus_awake`).
         """
         self._once = once
+        self._keep_cpus_awake = keep_cpus_awake
         if install_signals:
             for sig in (signal.SIGINT, signal.SIGTERM):
                 signal.signal(sig, lambda *_: self.request_stop())
@@ -634,6 +649,7 @@ class Endpoint(abc.ABC):
                 self._telemetry.clear()
                 self._session = None
                 session.close()
+                self.cpus_awake.release()
                 restore_threads(self.scheduling)
                 restore_placement(placement)
         if failures:

@@ -80,9 +80,11 @@ from hub.record import Recorder, experiment_text, host, utc_now, versions, write
 from hub.replies import ReplyChecker
 from hub.report import LoopTimes, counts, steps_share
 from hub.scheduling import (
+    CpusAwake,
     Placement,
     Scheduling,
     check_cpus,
+    hold_cpus_awake,
     place_threads,
     raise_threads,
     restore_placement,
@@ -249,6 +251,7 @@ class Hub:
         self._forward_s = FORWARD_S[cfg.loop.mode]
         self._forwarded_at = 0.0  # monotonic
         self.scheduling: Scheduling | None = None  # realtime: what the hub's threads got
+        self.cpus_awake: CpusAwake | None = None  # whether idle CPUs were kept awake
         self.placement = Placement()  # the CPUs the hub's threads are kept on (loop.cpus)
         # Lockstep: replies are taken in the threads they arrive on (``scheduler.direct``).
         self.lock = threading.Lock()  # held by whatever touches the loop's state then
@@ -404,6 +407,9 @@ class Hub:
         self.times.start()
         switch_s = sys.getswitchinterval()
         sys.setswitchinterval(GIL_SWITCH_S)
+        self.cpus_awake = hold_cpus_awake(self.cfg.loop.keep_cpus_awake)
+        if not self.cpus_awake.held and self.cfg.loop.keep_cpus_awake:
+            log.info("idle CPUs may sleep during the steps: %s", self.cpus_awake.reason)
         try:
             if self.cfg.loop.mode == "lockstep":
                 self.scheduler.run()
@@ -419,6 +425,7 @@ class Hub:
                 finally:
                     restore_threads(self.scheduling)
         finally:
+            self.cpus_awake.release()
             sys.setswitchinterval(switch_s)
 
     def take_report(self, report: BurstReport) -> None:
@@ -1277,7 +1284,7 @@ class Hub:
 
     def timing(self) -> dict:
         """Loop timing figures of the run so far (wall time, lateness, late steps)."""
-        return self.times.report(self.k_done, self.scheduling)
+        return self.times.report(self.k_done, self.scheduling, self.cpus_awake)
 
     def counts(self) -> dict:
         """Online bursts, late, missing and dropped messages so far."""

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from hub.protocol import Description
-from hub.scheduling import Scheduling, available_cpus
+from hub.scheduling import CpusAwake, Scheduling, available_cpus
 
 
 @dataclass
@@ -99,7 +99,9 @@ class LoopTimes:
             out["lateness_ms_max"] = self._lateness_max_s * 1e3
         return out
 
-    def report(self, steps: int, scheduling: Scheduling | None) -> dict:
+    def report(
+        self, steps: int, scheduling: Scheduling | None, cpus_awake: CpusAwake | None = None
+    ) -> dict:
         """Loop timing figures of the first ``steps`` steps (wall time, lateness, late steps)."""
         n, wall = steps, self.wall_s()
         out = {
@@ -117,6 +119,8 @@ class LoopTimes:
         }
         if scheduling is not None:
             out["scheduling"] = scheduling.to_dict()
+        if cpus_awake is not None:
+            out["cpus_awake"] = cpus_awake.to_dict()
         cpus = available_cpus()
         if cpus is not None:
             out["cpus"] = sorted(cpus)  # those the hub's process could run on

@@ -18,11 +18,21 @@ second left to other work) still applies.
 
 Placement (:func:`place_threads`, the ``cpus`` keys of the config) keeps a process's
 threads on the CPUs named, for any mode; by default the OS places them.
+
+Idle CPUs kept awake (:func:`hold_cpus_awake`, ``loop.keep_cpus_awake``): every step wakes a
+thread on another CPU several times, and an idle CPU that has gone to sleep (a C-state on
+bare metal; in a virtual machine, the virtual CPU halted and handed back to the host) takes
+tens to hundreds of microseconds to wake. While a run steps, the hub and each endpoint ask
+Linux's PM QoS (``/dev/cpu_dma_latency``, as ``cyclictest`` and tuned's
+latency-performance profile do) for a wake-up latency of 0: idle CPUs then poll instead of
+sleeping, at the cost of their power while the run lasts. The request ends when its file is
+closed, by :meth:`CpusAwake.release` or by the process's death.
 """
 
 from __future__ import annotations
 
 import os
+import struct
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -207,3 +217,51 @@ def restore_placement(got: Placement) -> None:
         except OSError:  # ended, or no longer ours to change
             pass
     got._previous.clear()
+
+
+# --------------------------------------------------------------------------- idle CPUs awake
+
+PM_QOS_DEVICE = "/dev/cpu_dma_latency"
+
+
+@dataclass
+class CpusAwake:
+    """What a run got: whether idle CPUs were kept from sleeping while it stepped."""
+
+    held: bool
+    reason: str = ""  # why not
+    _fd: int | None = field(default=None, repr=False)
+
+    def release(self) -> None:
+        """End the request (idle CPUs may sleep again); harmless if none is held."""
+        if self._fd is not None:
+            fd, self._fd = self._fd, None
+            os.close(fd)
+
+    def to_dict(self) -> dict:
+        return (
+            {"held": True, "latency_us": 0} if self.held else {"held": False, "reason": self.reason}
+        )
+
+
+def hold_cpus_awake(asked: bool = True, device: str = PM_QOS_DEVICE) -> CpusAwake:
+    """Ask the OS to keep every idle CPU awake (a wake-up latency of 0 µs) until
+    :meth:`CpusAwake.release`, or until this process ends.
+
+    Needs write access to ``device`` (root, or a udev rule: docs/architecture.md); without
+    it, or on a system without PM QoS, nothing changes and the result says why.
+    """
+    if not asked:
+        return CpusAwake(False, reason="not asked (loop.keep_cpus_awake = false)")
+    try:
+        fd = os.open(device, os.O_WRONLY | os.O_CLOEXEC)
+    except FileNotFoundError:
+        return CpusAwake(False, reason=f"no {device}: this system has no PM QoS")
+    except OSError as exc:
+        return CpusAwake(False, reason=f"{device}: {exc.strerror}")
+    try:
+        os.write(fd, struct.pack("=i", 0))
+    except OSError as exc:
+        os.close(fd)
+        return CpusAwake(False, reason=f"{device} refused the request: {exc.strerror}")
+    return CpusAwake(True, _fd=fd)

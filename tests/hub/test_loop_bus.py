@@ -30,6 +30,7 @@ from hub.protocol import (
     StepWindow,
     Stimulation,
 )
+from hub.scheduling import PM_QOS_DEVICE
 from tests.harness import harness, subscribed, wait_for
 
 pytestmark = pytest.mark.bus
@@ -116,6 +117,25 @@ def test_the_hub_and_each_endpoint_run_on_the_cpus_their_config_names(tmp_path, 
     assert manifest["endpoints"]["culture"]["cpus"] == [endpoint_cpu]
     # The run over, this process's threads may run where they could before.
     assert sorted(os.sched_getaffinity(0)) == cpus
+
+
+@pytest.mark.parametrize("keep", [True, False])
+def test_the_record_says_whether_idle_cpus_were_kept_awake(tmp_path, bus_overrides, keep):
+    with harness(
+        tmp_path, bus_overrides, "experiment.duration_s=0.2", f"loop.keep_cpus_awake={keep}".lower()
+    ) as h:
+        result = h.run()
+    assert result.outcome == "completed"
+    manifest = h.record.manifest
+    got = [manifest["timing"]["cpus_awake"]]
+    got += [manifest["endpoints"][role]["cpus_awake"] for role in ("body", "culture")]
+    if not keep:
+        assert all(g == {"held": False, "reason": got[0]["reason"]} for g in got)
+        assert "loop.keep_cpus_awake = false" in got[0]["reason"]
+    elif os.access(PM_QOS_DEVICE, os.W_OK):  # the hub and each endpoint held the request
+        assert got == [{"held": True, "latency_us": 0}] * 3
+    else:
+        assert all(not g["held"] and PM_QOS_DEVICE in g["reason"] for g in got)
 
 
 def test_realtime_mode_holds_its_period(tmp_path, bus_overrides):

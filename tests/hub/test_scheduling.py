@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import struct
 import subprocess
 import sys
 import threading
@@ -11,9 +12,11 @@ import pytest
 
 from hub.config import ConfigError
 from hub.scheduling import (
+    PM_QOS_DEVICE,
     available_cpus,
     check_cpus,
     endpoint_priority,
+    hold_cpus_awake,
     place_threads,
     raise_threads,
     restore_placement,
@@ -185,3 +188,50 @@ def test_a_cpu_this_process_may_not_use_is_a_config_error_naming_the_key():
     with pytest.raises(ConfigError, match=r"loop\.cpus"):
         check_cpus("loop.cpus", [missing])
     assert _kept(before)
+
+
+# ----------------------------------------------------------------- idle CPUs kept awake
+
+
+def _fds_on(path: str) -> int:
+    """How many of this process's file descriptors are open on ``path``."""
+    fds = os.listdir("/proc/self/fd")
+    return sum(1 for fd in fds if os.path.realpath(f"/proc/self/fd/{fd}") == path)
+
+
+@pytest.mark.skipif(
+    not os.access(PM_QOS_DEVICE, os.W_OK), reason=f"{PM_QOS_DEVICE} not writable here"
+)
+def test_cpus_kept_awake_ask_the_os_for_no_wake_up_latency_until_released():
+    got = hold_cpus_awake()
+    try:
+        assert got.held and got.to_dict() == {"held": True, "latency_us": 0}
+        # The device reads back the latency the system keeps now: the least of all requests.
+        with open(PM_QOS_DEVICE, "rb") as device:
+            assert struct.unpack("=i", device.read(4)) == (0,)
+        assert _fds_on(PM_QOS_DEVICE) == 1
+    finally:
+        got.release()
+    assert _fds_on(PM_QOS_DEVICE) == 0  # the request ends with its file
+    got.release()  # twice is harmless
+
+
+def test_the_request_is_a_zero_written_to_the_pm_qos_file(tmp_path):
+    device = tmp_path / "cpu_dma_latency"
+    device.touch()
+    got = hold_cpus_awake(device=str(device))
+    assert got.held
+    got.release()
+    assert struct.unpack("=i", device.read_bytes()) == (0,)
+
+
+def test_without_pm_qos_or_access_to_it_nothing_is_held_and_the_reason_is_said(tmp_path):
+    missing = hold_cpus_awake(device=str(tmp_path / "none"))
+    assert not missing.held and "has no PM QoS" in missing.reason
+    assert missing.to_dict() == {"held": False, "reason": missing.reason}
+    refused = hold_cpus_awake(device=str(tmp_path))  # a folder: cannot be written
+    assert not refused.held and str(tmp_path) in refused.reason
+    not_asked = hold_cpus_awake(asked=False)
+    assert not not_asked.held and "loop.keep_cpus_awake = false" in not_asked.reason
+    for got in (missing, refused, not_asked):
+        got.release()  # nothing to end
