@@ -28,6 +28,11 @@ does, the hub on a CPU of its own and the endpoints on the others (``loop.cpus``
 one and lose the other (Zenoh's thread settings once did: 2.8 % faster placed by the OS,
 23 % slower placed): measure both.
 
+So does whether idle CPUs may sleep: a tree since ``loop.keep_cpus_awake`` (default on)
+keeps them awake while it steps, and a tree before it does not. ``--cpus-awake`` keeps them
+awake for the whole A/B, from this script (Linux PM QoS, :func:`hub.scheduling.hold_cpus_awake`),
+so that every side runs so: like for like. Without it each side runs as it would for a user.
+
 The last line printed is one JSON object (``steps_per_s_a``, ``steps_per_s_b``: medians;
 ``cost_share_paired`` and ``cost_share_interval_90``; ``steal_share``).
 """
@@ -52,6 +57,7 @@ USER_ZENOH_RUNTIME = os.environ.get("ZENOH_RUNTIME")
 from bench.closed_loop import paired_cost  # noqa: E402
 from bench.host import StealMeter, child_run, end_children_on_signal  # noqa: E402
 from bench.loop import placement  # noqa: E402
+from hub.scheduling import hold_cpus_awake  # noqa: E402
 
 # Run in the side's tree, with that tree first on the path (its hub, its endpoints).
 PROGRAM = """
@@ -124,6 +130,11 @@ def main(argv: list[str] | None = None) -> dict:
         action="store_true",
         help="the hub on a CPU of its own, the endpoints on the others (both sides)",
     )
+    ap.add_argument(
+        "--cpus-awake",
+        action="store_true",
+        help="keep idle CPUs awake for every side's runs (PM QoS held by this script)",
+    )
     args = ap.parse_args(argv)
     if args.pairs < 1 or args.steps < 100:
         ap.error("--pairs must be >= 1 and --steps >= 100")
@@ -154,11 +165,15 @@ def main(argv: list[str] | None = None) -> dict:
             print(f"warming up {name}: a {min(args.closed_loop, 2.0):g} s run", flush=True)
             run_closed_loop(*sides[name], min(args.closed_loop, 2.0))
     figures: dict[str, list[float]] = {name: [] for name in sides}
+    awake = hold_cpus_awake(args.cpus_awake)
+    if args.cpus_awake and not awake.held:
+        ap.error(f"--cpus-awake: {awake.reason}")
     with StealMeter() as steal:
         for i in range(args.pairs):
             for name in run_order(list(sides), i):
                 figures[name].append(measure(name))
                 print(f"pair {i + 1}, {name}: {figures[name][-1]:,.0f} steps/s", flush=True)
+    awake.release()
     median = {name: statistics.median(runs) for name, runs in figures.items()}
     costs = {
         name: paired_cost([x / a for a, x in zip(figures["a"], runs, strict=True)])
@@ -166,6 +181,7 @@ def main(argv: list[str] | None = None) -> dict:
         if name != "a"
     }
     placed = " (hub on a CPU of its own)" if args.placed else ""
+    placed += " (idle CPUs kept awake for every side)" if args.cpus_awake else ""
     for name, (cost, lo, hi) in costs.items():
         print(
             f"{args.pairs} interleaved {'pairs' if len(sides) == 2 else 'rounds'} of {what}"
@@ -179,6 +195,7 @@ def main(argv: list[str] | None = None) -> dict:
         "b": args.b,
         "bench": "closed_loop" if args.closed_loop else "loop",
         "placed": args.placed,
+        "cpus_awake": args.cpus_awake,
         "steps_per_s_a": round(median["a"], 1),
         "steps_per_s_b": round(median["b"], 1),
         "runs_steps_per_s": {k: [round(v, 1) for v in vs] for k, vs in figures.items()},

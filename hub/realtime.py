@@ -9,8 +9,8 @@ not use. Live burst detection is not the loop's work: the burst observer does it
 process of its own (hub/burst_observer.py).
 
 The scheduler keeps its own state (the step under way, the steps done) and drives the hub
-through the loop's services (:class:`hub.loop.Hub`: ``send``, ``next_event``, ``drain``,
-``tick``, its ``ledger``, ``inputs`` and ``times``).
+through the loop's services (:class:`hub.loop.Hub`: ``send``, ``wait_event``, ``handle``,
+``next_event``, ``drain``, ``tick``, its ``ledger``, ``inputs`` and ``times``).
 """
 
 from __future__ import annotations
@@ -105,7 +105,7 @@ class Realtime:
         hub, ledger = self.hub, self.hub.ledger
         ledger.await_replies(steps, deadlines)
         while waiting := ledger.waiting(time.monotonic()):
-            hub.next_event(ledger.next_deadline(waiting))
+            self._wait(ledger.next_deadline(waiting))
         # Replies judged by when they arrived, not by when this thread got to them.
         hub.drain()
         return ledger.settle()
@@ -139,4 +139,17 @@ class Realtime:
             if now >= target:
                 hub.times.lateness_s[k] = now - target
                 return True
-            hub.next_event(target)
+            self._wait(target)
+
+    def _wait(self, until: float) -> None:
+        """Handle one event, waiting at most until ``until``. The loop's chores that fall due
+        (the status, a flush of the record, the observer's spikes: ``tick``) are done here
+        only if the wait ends before ``until``: at ``until`` a step starts or a deadline
+        passes, and they wait for the slack after the step, where every step ends with
+        them (done at a step's start they made it late)."""
+        hub = self.hub
+        item = hub.wait_event(until)
+        if item is not None:
+            hub.handle(item)
+        elif time.monotonic() < until:
+            hub.tick()
