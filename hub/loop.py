@@ -425,6 +425,8 @@ class Hub:
                 finally:
                     restore_threads(self.scheduling)
         finally:
+            realtime = self.cfg.loop.mode == "realtime"
+            self.times.stop(self.scheduler.start_of(self.k_done) if realtime else 0.0)
             self.cpus_awake.release()
             sys.setswitchinterval(switch_s)
 

@@ -34,6 +34,10 @@ class LoopTimes:
         Lockstep: time spent on replies in the threads they came on.
     t_start, cpu_start_s : float
         Monotonic and process CPU time when the steps began (``t_start`` 0: not yet).
+    t_stop, cpu_stop_s : float
+        The same when the steps ended (``t_stop`` 0: not yet): the run's figures cover its
+        steps, not what the hub does after them (the body's final stop, the endpoints'
+        counters, the observer's last report, a live display's last view).
     """
 
     mode: str
@@ -45,6 +49,8 @@ class LoopTimes:
     direct_busy_s: float = 0.0
     t_start: float = 0.0
     cpu_start_s: float = field(default=0.0)
+    t_stop: float = 0.0
+    cpu_stop_s: float = 0.0
     # role -> per step: from the input's put to its reply's arrival (NaN: none came)
     round_trip_s: dict[str, np.ndarray] = field(default_factory=dict)
     _lateness_seen: int = field(default=0, repr=False)  # steps scanned by lateness_now
@@ -76,9 +82,24 @@ class LoopTimes:
         self.cpu_start_s = time.process_time()
         self.waiting_s = self.direct_busy_s = 0.0
 
+    def stop(self, not_before: float = 0.0) -> None:
+        """The steps ended now, or at ``not_before`` if later (realtime: the end of the last
+        step's period)."""
+        if self.t_start and not self.t_stop:
+            self.t_stop = max(time.monotonic(), not_before)
+            self.cpu_stop_s = time.process_time()
+
     def wall_s(self) -> float:
-        """Wall time since the steps began (0 before)."""
-        return time.monotonic() - self.t_start if self.t_start else 0.0
+        """Wall time of the steps: since they began, until they ended (0 before)."""
+        if not self.t_start:
+            return 0.0
+        return (self.t_stop or time.monotonic()) - self.t_start
+
+    def cpu_s(self) -> float:
+        """The hub's process CPU time over the steps (0 before)."""
+        if not self.t_start:
+            return 0.0
+        return (self.cpu_stop_s if self.t_stop else time.process_time()) - self.cpu_start_s
 
     def lateness_now(self, steps: int) -> dict:
         """Realtime: how late the last of ``steps`` steps started and the most so far, in ms
@@ -113,7 +134,7 @@ class LoopTimes:
             "x_realtime": n * self.period_ms / 1e3 / wall if wall > 0 else 0.0,
             # the loop's thread's time not waiting, and in lockstep the replies' threads'
             "hub_busy_s": max(wall - self.waiting_s, 0.0) + self.direct_busy_s,
-            "hub_cpu_s": time.process_time() - self.cpu_start_s if self.t_start else 0.0,
+            "hub_cpu_s": self.cpu_s(),
             "late_steps": int(self.late_steps),
             "late_share": self.late_steps / n if n else 0.0,
         }

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import time
 from collections import Counter
 
 import numpy as np
@@ -22,6 +23,31 @@ def test_timing_covers_the_steps_done_only():
     assert out["step_ms_median"] == pytest.approx(2.5)
     assert out["lateness_ms_max"] == pytest.approx(4.0)
     assert out["mode"] == "realtime" and out["wall_s"] > 0
+
+
+def test_wall_and_cpu_time_end_with_the_steps_not_with_what_the_hub_does_after_them():
+    times = LoopTimes.for_run("lockstep", 10.0, n_steps=100)
+    times.start()
+    times.stop()
+    out = times.report(steps=100, scheduling=None)
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < 0.01:  # the hub closing up: a final stop, counters
+        pass
+    later = times.report(steps=100, scheduling=None)
+    assert later["wall_s"] == out["wall_s"] < 0.01
+    assert later["hub_cpu_s"] == out["hub_cpu_s"] < 0.01
+    assert later["steps_per_s"] == out["steps_per_s"]
+    times.stop()  # once only
+    assert times.report(steps=100, scheduling=None)["wall_s"] == out["wall_s"]
+
+
+def test_realtime_steps_end_with_the_last_steps_period():
+    times = LoopTimes.for_run("realtime", 10.0, n_steps=4)
+    times.lateness_s[:] = 0.0  # each step started on time
+    times.start()
+    times.stop(not_before=times.t_start + 0.04)  # the 4th period ends 40 ms after the 1st began
+    out = times.report(steps=4, scheduling=None)
+    assert out["wall_s"] == pytest.approx(0.04) and out["x_realtime"] == pytest.approx(1.0)
 
 
 def test_a_run_that_never_stepped_reports_zeros():
