@@ -168,12 +168,14 @@ def main(argv: list[str] | None = None) -> dict:
     awake = hold_cpus_awake(args.cpus_awake)
     if args.cpus_awake and not awake.held:
         ap.error(f"--cpus-awake: {awake.reason}")
-    with StealMeter() as steal:
-        for i in range(args.pairs):
-            for name in run_order(list(sides), i):
-                figures[name].append(measure(name))
-                print(f"pair {i + 1}, {name}: {figures[name][-1]:,.0f} steps/s", flush=True)
-    awake.release()
+    try:
+        with StealMeter() as steal:
+            for i in range(args.pairs):
+                for name in run_order(list(sides), i):
+                    figures[name].append(measure(name))
+                    print(f"pair {i + 1}, {name}: {figures[name][-1]:,.0f} steps/s", flush=True)
+    finally:
+        awake.release()
     median = {name: statistics.median(runs) for name, runs in figures.items()}
     costs = {
         name: paired_cost([x / a for a, x in zip(figures["a"], runs, strict=True)])
