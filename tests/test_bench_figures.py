@@ -161,3 +161,15 @@ def test_the_dashboards_data_path_takes_every_view_of_a_recorded_run(tmp_path):
     assert figures["views"] == len(steps) // 10
     assert figures["view_bytes"] > 0 and figures["frame_bytes"] > 0
     assert set(figures["cpu_s"]) == {"hub_took_sent", "hub_view", "dashboard_take", "page_frame"}
+
+
+def test_the_wake_floor_bench_times_each_way_of_waiting_and_ends_with_its_json(capsys):
+    from bench.wake_floor import main
+
+    out = main(["--period-ms", "1", "--wakes", "200", "--rounds", "2"])
+    last = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert last == json.loads(json.dumps(out))
+    assert len(out["rounds"]) == 2 and all(set(r) == {"queue", "sleep"} for r in out["rounds"])
+    for how in ("queue", "sleep"):
+        assert 0.0 <= out[f"wake_late_share_{how}"] <= 1.0
+    assert out["wake_max_ms_queue"] >= out["wake_p99_ms_queue"] >= 0.0
