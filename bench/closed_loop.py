@@ -280,6 +280,8 @@ def main() -> None:
         f"(CPU steal {steal:.1%})"
     )
     out["lockstep_steal_share"] = round(steal, 4)
+    # whether idle CPUs were kept from sleeping (loop.keep_cpus_awake): it moves the figures
+    out["cpus_awake"] = t["cpus_awake"]["held"]
     print(
         "  wall time shares: network {share_network:.1%}, arena {share_arena:.1%}, "
         "hub {share_hub:.1%} (the rest: messages in flight, process wake-ups)".format(**shares)

@@ -313,6 +313,8 @@ def main() -> None:
         )
         key = "lockstep_steps_per_s" if tag == "placed" else "lockstep_os_placement_steps_per_s"
         out[key] = round(lock["steps_per_s"], 1)
+        # whether idle CPUs were kept from sleeping (loop.keep_cpus_awake): it moves the figures
+        out["cpus_awake"] = lock["cpus_awake"]["held"]
         for who, us in lock["cpu_us_per_step"].items():
             out[f"lockstep_{tag}_cpu_us_per_step_{who}"] = round(us, 1)
         if not placed:
