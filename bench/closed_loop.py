@@ -11,6 +11,10 @@
 3. The cost of the live dashboard: lockstep runs without and with ``--dashboard`` (a page
    connected by websocket, taking every frame), interleaved A/B/B/A in this session;
    ``x_realtime_lockstep_with_dashboard`` against ``x_realtime_lockstep_ab`` (medians).
+   The page also checks that the dashboard kept showing the run: the longest its step stood
+   still (``dashboard_page_still_s_max``), and the runs whose page froze before the end
+   (``dashboard_pages_frozen``; a frozen dashboard costs the loop less, and its run would
+   pass for a cheap one).
 
     python bench/closed_loop.py                 # 60 s lockstep + 60 s realtime + 3 A/B pairs
     python bench/closed_loop.py --seconds 20
@@ -65,6 +69,12 @@ class PageClient:
         self.frames = 0
         self.bytes = 0
         self.first = self.last = 0.0  # when the first and the last frame came
+        # The step the frames show: the newest, when it last moved, and the longest it
+        # stood still between two moves (a page frozen while the run went on; the frame's
+        # JSON is read up to its step only, to keep this page's cost what it was)
+        self.step = -1
+        self.moved_at = 0.0
+        self.still_s_max = 0.0
         self._done = threading.Event()
         self._thread = threading.Thread(target=self._run, daemon=True)
         self._thread.start()
@@ -80,10 +90,18 @@ class PageClient:
                         self.first = self.first or self.last
                         self.frames += 1
                         self.bytes += len(text)
+                        self._saw(_frame_step(text), self.last)
             except OSError:
                 self._done.wait(0.2)  # not serving yet
             except Exception:  # the run ended: its dashboard with it
                 return
+
+    def _saw(self, step: int | None, now: float) -> None:
+        if step is None or step <= self.step:
+            return
+        if self.step >= 0:
+            self.still_s_max = max(self.still_s_max, now - self.moved_at)
+        self.step, self.moved_at = step, now
 
     def close(self) -> None:
         self._done.set()
@@ -93,6 +111,15 @@ class PageClient:
     def fps(self) -> float:
         span = self.last - self.first
         return (self.frames - 1) / span if span > 0 else 0.0
+
+
+_FRAME_STEP = re.compile(r'"type":"frame".{0,200}?"step":(-?\d+)')
+
+
+def _frame_step(text: str) -> int | None:
+    """The step a page's frame shows (None for other messages): read from its head."""
+    found = _FRAME_STEP.match(text, 1) if text.startswith('{"type":"frame"') else None
+    return int(found.group(1)) if found else None
 
 
 def dashboard_ab(seconds: float, pairs: int, sets: list[str] = ()) -> dict:
@@ -107,6 +134,8 @@ def dashboard_ab(seconds: float, pairs: int, sets: list[str] = ()) -> dict:
     # dashboard's process (from its log) and the page (this process, idle but for it)
     cpu_us = {"A": {"loop": []}, "B": {"loop": [], "dashboard": [], "page": []}}
     fps, dash_cpu, dash_cpu_stepping = [], [], []
+    still_s, behind = [], []  # the page's longest stand-still; steps it never showed
+    frozen = 0  # pages that stood still before their run's end
     order = [("A", "B") if i % 2 == 0 else ("B", "A") for i in range(pairs)]
     with StealMeter() as steal:
         for pair in order:
@@ -134,6 +163,9 @@ def dashboard_ab(seconds: float, pairs: int, sets: list[str] = ()) -> dict:
                     if dashboard_s is not None:
                         cpu_us["B"]["dashboard"].append(dashboard_s / steps * 1e6)
                     fps.append(page.fps)
+                    still_s.append(page.still_s_max)
+                    behind.append(steps - 1 - page.step)
+                    frozen += behind[-1] > FROZEN_SHARE * steps
                     if share is not None:
                         dash_cpu.append(share)
                     if stepping is not None:
@@ -162,6 +194,11 @@ def dashboard_ab(seconds: float, pairs: int, sets: list[str] = ()) -> dict:
         f"from the first step it showed; CPU steal {steal.share:.1%}"
     )
     print(
+        f"the page: longest stand-still of its step {max(still_s):.2f} s; its last step "
+        f"behind the run's by {min(behind)}-{max(behind)} steps; {frozen} of {len(behind)} "
+        "pages frozen before their run's end"
+    )
+    print(
         f"CPU per step (medians): the loop's processes {cpu['A']['loop']:.0f} us without, "
         f"{cpu['B']['loop']:.0f} us with the dashboard, whose process took "
         f"{cpu['B']['dashboard']:.0f} us and the page {cpu['B']['page']:.0f} us"
@@ -175,6 +212,9 @@ def dashboard_ab(seconds: float, pairs: int, sets: list[str] = ()) -> dict:
         "dashboard_ab_runs": {k: [round(v, 2) for v in vs] for k, vs in x.items()},
         "dashboard_hub_cpu_us_per_step": {"A": round(ha, 1), "B": round(hb, 1)},
         "dashboard_page_fps": round(statistics.median(fps), 1),
+        "dashboard_page_still_s_max": round(max(still_s), 3),
+        "dashboard_page_steps_behind_at_end": behind,
+        "dashboard_pages_frozen": frozen,
         "dashboard_process_cpu_share": round(statistics.median(dash_cpu), 4) if dash_cpu else None,
         "dashboard_process_cpu_share_stepping": (
             round(statistics.median(dash_cpu_stepping), 4) if dash_cpu_stepping else None
@@ -184,6 +224,11 @@ def dashboard_ab(seconds: float, pairs: int, sets: list[str] = ()) -> dict:
             k: {part: round(v, 1) for part, v in parts.items()} for k, parts in cpu.items()
         },
     }
+
+
+# A page whose last step is behind its run's last by more than this share of the run's
+# steps froze (the hub waits for a live display's last view before it ends)
+FROZEN_SHARE = 0.01
 
 
 def _median(values: list[float]) -> float:

@@ -62,6 +62,12 @@ STATUS_RING = 16  # statuses held between two frames (a full ring drops its olde
 ENDPOINTS_EVERY_S = 1.0  # each endpoint's counters asked this often
 RETRY_S = 1.0  # between tries to reach the hub, or its scene
 QUERY_TIMEOUT_S = 2.0
+# The hub sends its status loop.status_hz times a second while it lives: this many of its
+# periods (and at least SILENT_MIN_S) without one, from a hub whose token is still there,
+# and the link to it is taken for stuck, and joined again
+SILENT_PERIODS = 3
+SILENT_MIN_S = 3.0
+TICKING_S = 1.0  # ... counted only while frames are taken (:meth:`BusObserver.tick`)
 COMMANDS = tuple(c for c in CONTROL_COMMANDS if c != "config")
 
 
@@ -72,12 +78,14 @@ class BusObserver:
     not give it."""
 
     def __init__(self, bus: BusSection, state: FrameState, config: dict | None = None):
-        # Zenoh's queued transport for this session, whatever the loop's (Zenoh agrees it
-        # link by link; the loop's stay low-latency): what the hub sends unasked (the
-        # status) is queued apart from its puts, not written by them. It did not keep a
-        # frozen dashboard's full socket from holding the hub up: the views are asked for,
-        # so that socket does not fill (docs/dashboard.md, "A frozen dashboard").
-        self.bus = dataclasses.replace(bus, connect_timeout_s=QUERY_TIMEOUT_S, low_latency=False)
+        # The run's own transport (``bus.low_latency``, as the loop's links). Over Zenoh's
+        # queued transport the hub's link to a dashboard beside a lockstep closed loop got
+        # stuck, in 10 of 15 runs within 2.5-35 s: every *drop* message to it (the status, the
+        # answers for views) dropped from then on while the link stayed up, and the page
+        # froze on one step as the run went on (docs/dashboard.md, "A page that froze").
+        # A frozen dashboard cannot hold the hub up over either: the views are asked for,
+        # one question at a time (docs/dashboard.md, "A frozen dashboard").
+        self.bus = dataclasses.replace(bus, connect_timeout_s=QUERY_TIMEOUT_S)
         self.config = config
         self.role = _role(bus)
         self.keys = bus.keys
@@ -106,6 +114,10 @@ class BusObserver:
         }
         state.observer = {"connected": False, "hub_alive": False, "dropped": {}}
         self.tries = 0  # tries at reaching the hub
+        self.rejoins = 0  # links to a live hub that went silent, joined again
+        self._rejoining = False  # until the hub's token is seen on the new link
+        self._heard_at = 0.0  # time.monotonic() of the hub's last status or view taken
+        self._ticked_at = 0.0  # ... and of the last tick, which takes them
         self._why: str | None = None  # why the last try failed, as said
 
     # ------------------------------------------------------------------ life
@@ -130,6 +142,7 @@ class BusObserver:
         where answered (caller holds the state's lock)."""
         if self._status is None:
             return
+        self._ticked_at = time.monotonic()
         while (sample := self._status.try_recv()) is not None:
             try:
                 raw = self._status_inbox.feed(sample.payload, sample.attachment)
@@ -137,14 +150,17 @@ class BusObserver:
                 self.dropped[exc.kind] += 1
                 continue
             if raw is not None:
+                self._heard_at = time.monotonic()
                 self._take("status", raw)
         for raw in self._views.take() if self._views is not None else ():
+            self._heard_at = time.monotonic()
             self._take("view", raw)
         dropped = self.dropped + (self._views.dropped if self._views is not None else Counter())
         self.state.observer = {
             "connected": True,
             "hub_alive": self._hub_alive,
             "dropped": dict(dropped),
+            "rejoins": self.rejoins,
         }
 
     def _take(self, name: str, raw: bytes) -> None:
@@ -213,6 +229,9 @@ class BusObserver:
             if self.session is None and not self._connect():
                 self._closed.wait(RETRY_S)
                 continue
+            if self._silent():
+                self._rejoin()
+                continue
             if self._need_scene.is_set() and self._hub_alive:
                 self._need_scene.clear()
                 if not self._fetch_scene():
@@ -223,6 +242,43 @@ class BusObserver:
                 next_counters = now + ENDPOINTS_EVERY_S
                 self._fetch_counters()
             self._closed.wait(0.1 if self._need_scene.is_set() else 0.25)
+
+    def _silent(self) -> bool:
+        """Whether a live hub's link to this dashboard has been silent too long: neither a
+        status nor a view for SILENT_PERIODS of the hub's status period. Zenoh once kept
+        such a link up while dropping everything the hub sent on it (docs/dashboard.md, "A
+        page that froze")."""
+        now = time.monotonic()
+        if not self._hub_alive or now - self._ticked_at > TICKING_S:  # nothing taken: no news
+            return False
+        status_hz = ((self._hub_config or self.config or {}).get("loop") or {}).get("status_hz")
+        limit_s = max(SILENT_MIN_S, SILENT_PERIODS / status_hz if status_hz else 0.0)
+        return now - self._heard_at > limit_s
+
+    def _rejoin(self) -> None:
+        """Leave the bus and join it again: a new link to the hub. The views are asked for
+        after the last one taken, as before (a gap if the hub no longer keeps those)."""
+        self.rejoins += 1
+        log.log(
+            logging.WARNING if self.rejoins == 1 else logging.INFO,
+            "nothing from the hub at %s for %.1f s while it is there: joining again (%d time(s))",
+            self.where, time.monotonic() - self._heard_at, self.rejoins,
+        )  # fmt: skip
+        # the hub seen on the new link is taken for the same one (a new run shows itself
+        # by its run id, _new_run); one gone meanwhile is seen gone
+        self._hub_alive, self._rejoining = False, True
+        with self.state.lock:
+            session, self.session, self._status = self.session, None, None
+            views, self._views = self._views, None
+        self._declared = []
+        session.close()
+        if not self._connect():  # the hub went meanwhile: the next one is a hub anew
+            self._rejoining = False
+        elif views is not None:
+            asker = Asker(self.session, self.keys.hub_view)
+            asker.mark = views.mark
+            with self.state.lock:
+                self._views = asker
 
     def _connect(self) -> bool:
         try:
@@ -251,6 +307,7 @@ class BusObserver:
         ]
         with self.state.lock:
             self.session, self._status = session, status
+            self._heard_at = time.monotonic()  # the silence counts from the link's start
         log.info("observing session %r at %s", self.bus.session, self.where)
         return True
 
@@ -268,10 +325,10 @@ class BusObserver:
     def _on_alive(self, sample) -> None:
         if self.keys.parse_alive(str(sample.key_expr)) == ("hub", "0"):
             alive = sample.kind == zenoh.SampleKind.PUT
-            if alive and not self._hub_alive:
+            if alive and not self._hub_alive and not self._rejoining:
                 self._hub_config = None  # a hub (again): its run's config and endpoints
                 self._need_scene.set()
-            self._hub_alive = alive
+            self._hub_alive, self._rejoining = alive, False
 
     def _fetch_scene(self) -> bool:
         """Ask the hub for the run's config (once per hub: the hub records each control

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from bench.closed_loop import _dashboard_cpu_s, _loop_cpu_s, paired_cost
+from bench.closed_loop import PageClient, _dashboard_cpu_s, _frame_step, _loop_cpu_s, paired_cost
 from bench.loop_ab import run_order
 from bench.page import browser_cpu_s
 
@@ -35,6 +35,26 @@ def test_the_interval_holds_the_median_cost_and_widens_with_the_spread():
 def test_a_faster_run_with_the_dashboard_is_a_negative_cost():
     cost, _, hi = paired_cost([1.05, 1.04, 1.06])
     assert cost < 0 and hi < 0
+
+
+def test_the_bench_page_reads_the_step_a_frame_shows_and_nothing_else():
+    from dashboard.server import page_json
+
+    frame = {"type": "frame", "generation": 2, "reset": False, "t_s": 1.5, "step": 150}
+    assert _frame_step(page_json({**frame, "spikes": {"n": 0}})) == 150
+    assert _frame_step(page_json({**frame, "step": -1})) == -1
+    assert _frame_step(page_json({"type": "scene", "scene": {"step": 3}})) is None
+    assert _frame_step(page_json({"type": "reply", "cmd": "pause", "ok": True})) is None
+
+
+def test_the_bench_page_times_the_longest_its_step_stood_still_between_two_moves():
+    page = PageClient.__new__(PageClient)  # its bookkeeping only: no websocket
+    page.step, page.moved_at, page.still_s_max = -1, 0.0, 0.0
+    for now, step in [(0.0, -1), (1.0, 5), (1.1, 9), (1.2, 9), (2.6, 9), (2.7, 30), (2.8, 20)]:
+        page._saw(step, now)
+    assert page.step == 30 and page.still_s_max == pytest.approx(1.6)  # 9 from 1.1 s to 2.7 s
+    page._saw(30, 9.0)  # still at the end: counted by the run's last step, not here
+    assert page.still_s_max == pytest.approx(1.6)
 
 
 def test_the_loops_cpu_is_the_hub_its_endpoints_and_the_burst_observer():

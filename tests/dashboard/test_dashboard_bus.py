@@ -302,11 +302,74 @@ def test_a_dashboard_that_cannot_join_says_why(tmp_path, caplog):
     assert len(said) == 1  # ... and says it once
 
 
-def test_the_observer_joins_over_zenohs_queued_transport_whatever_the_loops(bus_overrides):
-    # over the low-latency transport a put waits for the receiver's socket, so a frozen
-    # dashboard would hold the hub up; Zenoh agrees the transport link by link
+@pytest.mark.parametrize("low_latency", [True, False])
+def test_the_observer_joins_over_the_runs_own_transport(bus_overrides, low_latency):
+    # over the queued transport beside a low-latency loop, the hub's link to a dashboard
+    # got stuck dropping every status and view in most lockstep runs (docs/dashboard.md,
+    # "A page that froze")
     from hub.config import load_config
 
-    cfg = load_config(None, [*bus_overrides, "bus.low_latency=true"])
+    cfg = load_config(None, [*bus_overrides, f"bus.low_latency={str(low_latency).lower()}"])
     observer = BusObserver(cfg.bus, FrameState())
-    assert cfg.bus.low_latency and not observer.bus.low_latency
+    assert observer.bus.low_latency is low_latency
+
+
+def test_a_link_to_a_live_hub_that_goes_silent_is_joined_again(bus_overrides, caplog):
+    """A hub whose token stays while nothing it sends arrives (Zenoh once kept such a link
+    up, dropping all the hub sent on it: docs/dashboard.md, "A page that froze"): the
+    observer leaves and joins again, and takes the hub's statuses once they come."""
+    from hub.bus import open_session
+    from hub.config import load_config
+    from hub.protocol import HubStatus
+
+    cfg = load_config(None, bus_overrides)
+    keys = cfg.bus.keys
+    hub = open_session(cfg.bus, listener=True)  # a stand-in hub: its token and its status
+    token = hub.liveliness().declare_token(keys.alive("hub", "0"))  # noqa: F841
+    publisher = hub.declare_publisher(keys.hub_status)
+    state = FrameState()
+    observer = BusObserver(cfg.bus, state, config={"loop": {"status_hz": 20.0}})
+    sending = threading.Event()
+    sending.set()
+    stop = threading.Event()
+
+    def send_statuses():
+        step = 0
+        while not stop.wait(0.05):
+            if sending.is_set():
+                step += 1
+                status = HubStatus(
+                    step=step, t_s=step / 100, mode="lockstep", state="running",
+                    late={}, missing={}, dropped={}, alive=["body/0", "culture/0"],
+                )  # fmt: skip
+                publisher.put(status.encode())
+
+    def taken_step() -> int:
+        with state.lock:
+            observer.tick()
+            return state.status.get("step", 0)
+
+    sender = threading.Thread(target=send_statuses, daemon=True)
+    sender.start()
+    caplog.set_level(logging.INFO, logger="dashboard.observer")
+    observer.start()
+    try:
+        wait_for(lambda: taken_step() > 5, 10)
+        sending.clear()  # the hub lives on; nothing of its reaches the observer
+        silent_at = time.monotonic()
+        wait_for(lambda: taken_step() >= 0 and observer.rejoins == 1, 10)
+        waited_s = time.monotonic() - silent_at
+        sending.set()
+        before = taken_step()
+        wait_for(lambda: taken_step() > before + 5, 10)
+    finally:
+        stop.set()
+        sender.join(timeout=5)
+        observer.close()
+        hub.close()
+    # silent for SILENT_MIN_S (3 s: 3 periods of the hub's 20 Hz status are less) before it
+    # joins again, and only once: the statuses came again on the new link
+    assert 3.0 <= waited_s < 6.0
+    assert observer.rejoins == 1 and state.observer["rejoins"] == 1
+    said = [r.getMessage() for r in caplog.records if "joining again" in r.getMessage()]
+    assert len(said) == 1 and "while it is there" in said[0]
