@@ -199,7 +199,9 @@ function drawHeader() {
       : obs.connected || !obs.reason ? `waiting for a hub at ${src.hub}`
       : `waiting for a hub at ${src.hub}: ${obs.reason}`;
     const bad = Object.values(obs.dropped || {}).reduce((a, b) => a + b, 0);
-    badge.textContent = `live · session ${src.session} · ${where}` + (bad ? ` · ${bad} bad messages` : "");
+    // a link to the hub that went silent, left and joined again (docs/dashboard.md)
+    const rejoined = obs.rejoins ? ` · joined again ${obs.rejoins}×` : "";
+    badge.textContent = `live · session ${src.session} · ${where}` + (bad ? ` · ${bad} bad messages` : "") + rejoined;
     badge.className = "badge live";
   } else if (src.kind === "replay") {
     badge.textContent = `replay · ${src.run_dir}`;
