@@ -113,12 +113,15 @@ class PageClient:
         return (self.frames - 1) / span if span > 0 else 0.0
 
 
-_FRAME_STEP = re.compile(r'"type":"frame".{0,200}?"step":(-?\d+)')
+_FRAME_STEP = re.compile(r'\{"type":"frame".{0,200}?"step":(-?\d+)')
+# A page whose last step is behind its run's last by more than this share of the run's
+# steps froze (the hub waits for a live display's last view before it ends)
+FROZEN_SHARE = 0.01
 
 
 def _frame_step(text: str) -> int | None:
     """The step a page's frame shows (None for other messages): read from its head."""
-    found = _FRAME_STEP.match(text, 1) if text.startswith('{"type":"frame"') else None
+    found = _FRAME_STEP.match(text)
     return int(found.group(1)) if found else None
 
 
@@ -224,11 +227,6 @@ def dashboard_ab(seconds: float, pairs: int, sets: list[str] = ()) -> dict:
             k: {part: round(v, 1) for part, v in parts.items()} for k, parts in cpu.items()
         },
     }
-
-
-# A page whose last step is behind its run's last by more than this share of the run's
-# steps froze (the hub waits for a live display's last view before it ends)
-FROZEN_SHARE = 0.01
 
 
 def _median(values: list[float]) -> float:
