@@ -17,9 +17,11 @@ The parts: :class:`Hub` here sets a run up (endpoints, descriptions, the run's
 announcement), handles events and closes up; the two schedulers,
 :class:`~hub.lockstep.Lockstep` and :class:`~hub.realtime.Realtime`, keep the steps' own
 state and call the hub's loop services (``send``, ``wait_event``, ``handle``, ``tick``);
-what crosses the bus goes through :mod:`hub.link`; each step's inputs come from
+what crosses the bus goes through :mod:`hub.link`, and the questions to the endpoints
+(describe, take the run, its end) through :mod:`hub.roster`; each step's inputs come from
 :mod:`hub.policy`, each reply is checked by :mod:`hub.replies` and judged by
-:mod:`hub.ledger`, and the run's figures are kept by :mod:`hub.report`.
+:mod:`hub.ledger`; the burst observer's run is :mod:`hub.online`'s, and the run's
+figures are kept by :mod:`hub.report`.
 """
 
 from __future__ import annotations
@@ -41,20 +43,15 @@ import zenoh
 from hub import wire
 from hub.analysis.bursts import BurstParams
 from hub.analysis.network_bursts import NetworkBurstParams
-from hub.burst_observer import NAME as OBSERVER
-from hub.burst_observer import OnlineTally
 from hub.bus import BusError, open_session, payload_bytes
 from hub.config import ConfigError, ExperimentConfig
-from hub.launch import (
-    LocalProcess,
-    last_line,
-    settings_digest,
-    start_burst_observer,
-    stop_local_endpoints,
-)
+from hub.errors import EndpointDied, HubError
+from hub.launch import LocalProcess, stop_local_endpoints
 from hub.ledger import Ledger
 from hub.link import HubLink
 from hub.lockstep import Lockstep
+from hub.online import PARTICIPANT as OBSERVER
+from hub.online import OnlineAnalysis
 from hub.policy import InputPolicy, SchemeError
 from hub.protocol import (
     ROLES,
@@ -65,13 +62,7 @@ from hub.protocol import (
     HubStatus,
     Message,
     MotorCommand,
-    ObservedSpikes,
-    ObserverEnd,
-    ObserverStart,
     ProtocolError,
-    RunEnd,
-    RunHold,
-    RunReply,
     RunStart,
     StepWindow,
 )
@@ -79,6 +70,7 @@ from hub.realtime import Realtime
 from hub.record import Recorder, experiment_text, host, utc_now, versions, write_manifest
 from hub.replies import ReplyChecker
 from hub.report import LoopTimes, counts, steps_share
+from hub.roster import Roster, check_fits_loop
 from hub.scheduling import (
     CpusAwake,
     Placement,
@@ -94,17 +86,6 @@ from hub.view import ObserverView
 
 log = logging.getLogger(__name__)
 
-# The culture's spikes go to the burst observer every this many seconds of wall time, many
-# steps in one put: in realtime soon enough for a live display to show a network burst
-# under way within a frame or two; in lockstep a put and a wake-up of the observer a step
-# (or even every 100 ms of run time, at thousands of steps a second) would cost the loop.
-FORWARD_S = {"realtime": 0.03, "lockstep": 0.05}
-# The forwarded spikes kept for the burst observer to ask for: one that stalls (frozen,
-# swapped out) or whose lease lapsed catches up on its return if it was gone less than this.
-OBSERVER_KEEP_S = 10.0
-# The longest the hub waits for the burst observer's final report (one that fell behind
-# catches up first; it answers within seconds of its last spikes coming otherwise).
-OBSERVER_END_TIMEOUT_S = 60.0
 # Realtime: a view for live displays is built after a step, and only this long or more before
 # the next step's start (else after a later step), so that it never delays a step.
 VIEW_GUARD_S = 1e-3
@@ -127,19 +108,9 @@ GIL_SWITCH_S = 2e-4
 INTERRUPTED, STOPPED_BY_CONTROL = "interrupted", "stopped by control"
 
 
-class HubError(RuntimeError):
-    """A run could not start or had to stop; the message says why."""
-
-
 class StoppedBeforeSteps(Exception):
     """A stop asked for by the user (a signal, ``ctl stop``) before the first step: the run
     ends as ``interrupted`` or ``stopped``, as the same stop during the steps does."""
-
-
-class EndpointDied(HubError):
-    def __init__(self, role: str, id: str, step: int):
-        super().__init__(f"{role}/{id} died at step {step} (its liveliness token vanished)")
-        self.role, self.id, self.step = role, id, step
 
 
 @dataclass
@@ -240,16 +211,14 @@ class Hub:
         n = cfg.n_steps
         self.times = LoopTimes.for_run(cfg.loop.mode, cfg.loop.period_ms, n)
         self.recorder: Recorder | None = None
-        # Live burst detection by the burst observer (hub/burst_observer.py): its reports
-        # (None with online.enabled = false), the key that seals what goes between it and
-        # the hub, and the culture's SpikeBatches taken and not forwarded to it yet
-        # (every FORWARD_S; in realtime after a step, in the slack before the next).
-        self.online: OnlineTally | None = OnlineTally() if cfg.online.enabled else None
-        self.observer_key = wire.new_key()
-        self._to_observe: list[bytes] = []
-        self._observer_gone: tuple[float, int] | None = None  # (since, step) while vanished
-        self._forward_s = FORWARD_S[cfg.loop.mode]
-        self._forwarded_at = 0.0  # monotonic
+        # Live burst detection by the burst observer (hub/online.py; None with
+        # online.enabled = false)
+        self.online: OnlineAnalysis | None = (
+            OnlineAnalysis(cfg, self.run_id, self._record_event, lambda: self.k)
+            if cfg.online.enabled
+            else None
+        )
+        self.roster: Roster | None = None  # the endpoints, asked over the link (attach)
         self.scheduling: Scheduling | None = None  # realtime: what the hub's threads got
         self.cpus_awake: CpusAwake | None = None  # whether idle CPUs were kept awake
         self.placement = Placement()  # the CPUs the hub's threads are kept on (loop.cpus)
@@ -260,8 +229,6 @@ class Hub:
         # hub itself did not run (frozen, starved): (when it ended, how long it was).
         self._last_wake = time.monotonic()
         self._stall: tuple[float, float] = (-math.inf, 0.0)
-        self._digests: dict[str, str | None] = {}  # _settings_digest's, by role
-        self._observer_proc: LocalProcess | None = None  # the burst observer it started
 
     # ================================================================ public
 
@@ -302,7 +269,9 @@ class Hub:
                 self.recorder = Recorder(self.run_dir, flush_s=cfg.record.flush_s)
             write_manifest(self.run_dir, manifest)
         # Started first: it builds its detector while the endpoints build their models.
-        observer = self._observer_proc = self._start_observer()
+        observer = (
+            self.online.start(self.run_dir if self.recorder else None) if self.online else None
+        )
         # Before Zenoh starts its threads, which inherit the placement.
         self.placement = place_threads("loop.cpus", cfg.loop.cpus)
         if self.placement.reason:
@@ -323,11 +292,12 @@ class Hub:
         try:
             self.attach(session)
             self._wait_for_endpoints()
-            self._describe_all(session)
+            self._describe_all()
             self._wait_for_view()
             self.prepare(self.descriptions)
-            self._announce_observer()  # subscribed before the culture may send a spike
-            self._announce_run(session)
+            if self.online is not None:  # subscribed before the culture may send a spike
+                self.online.announce(self.link, self.n_steps, self.descriptions["culture"].channel)
+            self._announce_run()
             self._record_event("start", mode=cfg.loop.mode, n_steps=cfg.n_steps)
             self._steps()
             if self.stop_reason:
@@ -347,9 +317,12 @@ class Hub:
             raise
         finally:
             self._safe_stop_body()
-            endpoint_stats = self._final_counters(session)  # those alive, whatever the outcome
-            self._end_run(session, outcome)
-            self._end_observer()
+            endpoint_stats = self._final_counters()  # those alive, whatever the outcome
+            self._end_run(outcome)
+            if self.online is not None:
+                self.online.end(
+                    self.k_done, there=OBSERVER in self.alive, take_waiting=self._take_reports
+                )
             self._publish_view(time.monotonic(), last=True)  # the last steps, for live displays
             self.state = "stopped"
             self._publish_status()
@@ -430,26 +403,6 @@ class Hub:
             self.cpus_awake.release()
             sys.setswitchinterval(switch_s)
 
-    def take_report(self, report: BurstReport) -> None:
-        """Count a burst observer's report and record each network burst it found."""
-        if self.online is None or report.run != self.run_id:
-            return
-        was_under_way = self.online.onset_ms
-        rows = self.online.take(report)
-        if report.onset_ms is not None and was_under_way is None:
-            # what a live display was told, and when
-            self._record_event("network_burst_under_way", onset_ms=report.onset_ms, at_step=self.k)
-        for start, end, n_channels, core_start, core_end in rows:
-            self._record_event(
-                "network_burst",
-                start_ms=start,
-                end_ms=end,
-                n_channels=n_channels,
-                core_start_ms=core_start,
-                core_end_ms=core_end,
-                at_step=self.k,
-            )
-
     def next_event(self, until: float) -> bool:
         """Handle one event, waiting at most until ``until``; False if none came."""
         item = self.wait_event(until)
@@ -502,9 +455,10 @@ class Hub:
             self.handle(item)
 
     def tick(self) -> None:
-        if self._to_observe and not self.scheduler.direct:
-            if time.monotonic() - self._forwarded_at >= self._forward_s:
-                self._forward_spikes()
+        online = self.online
+        if online is not None and online.pending and not self.scheduler.direct:
+            if time.monotonic() - online.forwarded_at >= online.forward_s:
+                online.forward()
         if self.gone:
             self._check_rejoin_deadlines()
         now = time.monotonic()
@@ -559,7 +513,8 @@ class Hub:
         except ProtocolError as exc:
             self.ledger.drop("observer", exc.kind, str(exc))
             return
-        self.take_report(report)
+        if self.online is not None:
+            self.online.take_report(report)
 
     def _on_refused(self, role: str, raw: bytes, kind: str, detail: str, t_wall_ns: int) -> None:
         """A payload on a reply key that did not unseal or reassemble: not the endpoint's."""
@@ -577,17 +532,11 @@ class Hub:
                 return  # a part of a step stood in for: the observer counts that step missing
             # the observer takes a step's spikes at once: with the parts streamed before;
             # a late step's too, as the record keeps them
+            online = self.online
             taken = self.ledger.pending[role].get(message.step, message)
-            self._to_observe.append(raw if taken is message else taken.encode())
-            if self.scheduler.direct and t_arrival - self._forwarded_at >= self._forward_s:
-                self._forward_spikes()  # lockstep; realtime: after the step (tick)
-
-    def _forward_spikes(self) -> None:
-        """The culture's SpikeBatches taken since the last forward, to the burst observer."""
-        if self._to_observe and self.link is not None:
-            self._forwarded_at = time.monotonic()
-            batches, self._to_observe = self._to_observe, []
-            self.link.forward_spikes(ObservedSpikes(run=self.run_id, batches=batches).encode())
+            online.pending.append(raw if taken is message else taken.encode())
+            if self.scheduler.direct and t_arrival - online.forwarded_at >= online.forward_s:
+                online.forward()  # lockstep; realtime: after the step (tick)
 
     def _note_round_trip(self, role: str, step: int, t_arrival: float) -> None:
         """The time from the input of ``step`` to ``role`` going out to its reply coming in."""
@@ -628,8 +577,12 @@ class Hub:
         if was == present:
             return
         self._record_event("alive" if present else "dead", role=parsed[0], id=parsed[1])
-        if parsed == ("observer", OBSERVER) and self.online is not None:
-            return self._observer_came_or_went(present)
+        if parsed == OBSERVER and self.online is not None:
+            if self.state in ("running", "paused"):
+                entry = self.online.came_or_went(present)
+                if entry is not None:
+                    self.rejoins.append(entry)
+            return
         required = parsed[0] in ROLES and self.ids[parsed[0]] == parsed[1]
         if present and required and parsed[0] in self.gone:
             return self._rejoin(parsed[0])
@@ -648,35 +601,6 @@ class Hub:
                 self.gone[parsed[0]] = (time.monotonic(), self.k)
                 return
             self._endpoint_dead(*parsed)
-
-    def _observer_came_or_went(self, present: bool) -> None:
-        """The burst observer vanished, or is back. Live analysis only: the loop goes on
-        and the record keeps every spike. Back, it asks for the spikes after the last it
-        had; those the hub no longer keeps (``OBSERVER_KEEP_S``) its final report counts
-        as missing steps."""
-        online = self.online
-        if self.state not in ("running", "paused") or online.final:
-            return
-        if not present:
-            log.warning(
-                "the burst observer vanished at step %d: live bursts wait for its return "
-                "(the hub keeps %g s of spikes for it)", self.k, OBSERVER_KEEP_S,
-            )  # fmt: skip
-            online.lost = f"the burst observer vanished at step {self.k}"
-            self._observer_gone = (time.monotonic(), self.k)
-        elif self._observer_gone is not None:
-            since, gone_at = self._observer_gone
-            self._observer_gone = None
-            online.lost = ""
-            entry = {"role": "observer", "id": OBSERVER, "gone_at_step": gone_at}
-            entry.update(at_step=self.k, gap_s=round(time.monotonic() - since, 3))
-            self.rejoins.append(entry)
-            self._record_event("rejoined", **entry)
-            log.warning(
-                "the burst observer is back at step %d after %.2f s: live bursts go on (its "
-                "final report says whether it had every step)",
-                self.k, entry["gap_s"],
-            )  # fmt: skip
 
     def _endpoint_dead(self, role: str, id: str) -> None:
         """An endpoint is gone for good: ``policy.endpoint_death`` applies."""
@@ -751,17 +675,7 @@ class Hub:
     def _hold(self, hold: bool) -> None:
         """Tell each endpoint the run is paused (it makes itself safe at once: the wheels
         stop, nothing is delivered) or resumed; record who acknowledged."""
-        message = RunHold(run=self.run_id, hold=hold).encode()
-        taken = {}
-        for role, i in self.ids.items():
-            replies = self.link.query(self.keys.run(role, i), message, timeout_s=1.0)
-            answers = []
-            for raw in replies:
-                try:
-                    answers.append(RunReply.decode(raw))
-                except ProtocolError:
-                    continue
-            taken[role] = any(a.ok for a in answers)
+        taken = self.roster.hold(list(self.ids.items()), self.run_id, hold)
         self._record_event("hold" if hold else "unhold", **taken)
         if not all(taken.values()):
             log.warning("not every endpoint acknowledged the %s: %s",
@@ -778,6 +692,7 @@ class Hub:
         liveliness, control and status (:class:`~hub.link.HubLink`). :meth:`run` does this
         first; a tool or test that drives a scheduler without endpoints does it itself."""
         self.link = HubLink(session, self.keys, self.ids, self.run_keys, self._deliver)
+        self.roster = Roster(self.cfg, self.link, self.recorder)
 
     def _deliver(self, item: tuple) -> None:
         """An event from the bus: replies taken at once in lockstep steps, the rest queued
@@ -792,7 +707,7 @@ class Hub:
         the bus."""
         needed = {(role, i) for role, i in self.ids.items()}
         if self.online is not None:
-            needed.add(("observer", OBSERVER))
+            needed.add(OBSERVER)
         start = time.monotonic()
         deadline = start + self.cfg.loop.wait_timeout_s
         next_note = start
@@ -803,26 +718,19 @@ class Hub:
                     "waiting for %s on session %r (%.0f s of %g s): each builds its model "
                     "before it appears; a simulator's first run also compiles its kernels%s",
                     waiting, self.cfg.bus.session, time.monotonic() - start,
-                    self.cfg.loop.wait_timeout_s, self._elsewhere(needed - self.alive),
+                    self.cfg.loop.wait_timeout_s, self.roster.elsewhere(needed - self.alive),
                 )  # fmt: skip
                 next_note += 5.0
             if self.stop_reason:
                 self._stop_while_waiting("endpoints")
-            proc = self._observer_proc
-            if (
-                proc is not None
-                and ("observer", OBSERVER) in needed - self.alive
-                and proc.popen.poll() is not None
-            ):  # it will not come: say why now, not after the wait
-                raise HubError(
-                    f"the burst observer that the hub started ended before the run, with exit "
-                    f"status {proc.popen.returncode}{last_line(proc.log_path)} (its log: "
-                    f"{proc.log_path or 'none'}; online.enabled = false runs without it)"
-                )
+            if OBSERVER in needed - self.alive:  # one that ended will not come: say so now
+                exited = self.online.exited_early()
+                if exited is not None:
+                    raise exited
             if time.monotonic() >= deadline:
                 missing = ", ".join(f"{r}/{i}" for r, i in sorted(needed - self.alive))
                 hint = ""
-                if ("observer", OBSERVER) in needed - self.alive:
+                if OBSERVER in needed - self.alive:
                     hint = (
                         '; with online.launch = "external" start it with \'neuvision observe '
                         'bursts CONFIG --connect HOST\' ("local": the hub starts it, see '
@@ -833,32 +741,9 @@ class Hub:
                     f"endpoint(s) {missing} did not appear on session {self.cfg.bus.session!r} "
                     f"within {self.cfg.loop.wait_timeout_s} s (listening on "
                     f"{', '.join(self.cfg.bus.listen)}){hint}"
-                    f"{self._elsewhere(needed - self.alive)}"
+                    f"{self.roster.elsewhere(needed - self.alive)}"
                 )
             self.next_event(min(deadline, time.monotonic() + 0.1))
-
-    def _elsewhere(self, missing: set[tuple[str, str]]) -> str:
-        """Where on this hub's bus the ``missing`` participants are, under other sessions
-        (an endpoint started with another ``--session`` reaches the router, not the run):
-        "; body/0 is on this hub's bus under session 'lab3' ..." or ""."""
-        found = []
-        for role, i in sorted(missing):
-            sessions = set()
-            try:
-                replies = self.link.session.liveliness().get(f"nv/*/alive/{role}/{i}", timeout=0.5)
-                for reply in replies:
-                    if reply.ok is not None:
-                        parts = str(reply.ok.key_expr).split("/")
-                        if len(parts) > 1 and parts[1] != self.cfg.bus.session:
-                            sessions.add(parts[1])
-            except zenoh.ZError:
-                continue
-            if sessions:
-                names = " and ".join(repr(n) for n in sorted(sessions))
-                found.append(f"{role}/{i} is on this hub's bus under session {names}")
-        if not found:
-            return ""
-        return f"; {', '.join(found)}: start it with --session {self.cfg.bus.session}"
 
     def _wait_for_view(self) -> None:
         """Hold the first step until a live display asks for views (``hub/view``), at most
@@ -894,74 +779,18 @@ class Hub:
     def _stopped_outcome(self) -> str:
         return "interrupted" if self.stop_reason == INTERRUPTED else "stopped"
 
-    def _describe_all(self, session: zenoh.Session) -> None:
+    def _describe_all(self) -> None:
         for role, i in self.ids.items():
             self._describe(role, i)
 
     def _describe(self, role: str, i: str) -> None:
         """Ask one endpoint to describe itself; keep what its replies are checked against."""
-        key = self.keys.describe(role, i)
-        desc = None
-        t0 = time.time()
-        replies = self.link.query(key, timeout_s=5.0)
-        t1 = time.time()
-        described = []
-        for raw in replies:
-            if self.recorder:
-                self.recorder.message("rx", key, raw)
-            try:
-                desc = Description.decode(raw)
-            except ProtocolError as exc:
-                raise HubError(f"{role}/{i} sent an invalid description: {exc}") from None
-            described.append(desc)
-        if len(described) > 1:
-            raise self._several(role, i, [d.counters for d in described])
-        if desc is None or desc.role != role or desc.id != i:
-            raise HubError(f"{role}/{i} did not describe itself on {key}")
-        counters = desc.counters or {}
-        theirs, ours = counters.get("settings_digest"), self._settings_digest(role)
-        if isinstance(theirs, str) and ours is not None and theirs != ours:
-            raise HubError(
-                f"{role}/{i} serves other settings than this hub's experiment ({role}.kind and "
-                f"{role}.params as resolved, the seed included, differ: its {theirs[:12]}, "
-                f"the hub's {ours[:12]}): start it with the hub's experiment file and the "
-                f"same --set items"
-            )
-        their_time = counters.get("unix_time_s")
-        self.participants[role] = {
-            "host": counters.get("host", {}),
-            # their clock minus ours, at the middle of the query (± half its round trip)
-            "clock_offset_ms": (their_time - (t0 + t1) / 2) * 1e3
-            if isinstance(their_time, float)
-            else None,
-            "describe_round_trip_ms": (t1 - t0) * 1e3,
-            "settings_digest": theirs if isinstance(theirs, str) else None,
-        }
+        desc, where = self.roster.describe(role, i)
+        self.participants[role] = where
         self._take_description(desc)
         self._record_event("described", role=role, id=i, kind=desc.kind)
 
-    def _several(self, role: str, i: str, counters: list) -> HubError:
-        """More than one endpoint answers as ``role/i`` (one left running elsewhere): each
-        would take the run and step, and the hub take whichever reply came first."""
-        where = []
-        for c in counters:
-            host = (c or {}).get("host") or {}
-            if host.get("pid") is not None:
-                where.append(f"{host.get('hostname', '?')} pid {host['pid']}")
-        named = f" ({', '.join(where)})" if where else ""
-        return HubError(
-            f"{len(counters)} endpoints answer as {role}/{i} on session "
-            f"{self.cfg.bus.session!r}{named}: stop all but one"
-        )
-
-    def _settings_digest(self, role: str) -> str | None:
-        """The digest of this hub's ``role`` settings (:func:`hub.launch.settings_digest`),
-        worked out once; None when its kind does not load here."""
-        if role not in self._digests:
-            self._digests[role] = settings_digest(self.cfg, role)
-        return self._digests[role]
-
-    def _announce_run(self, session: zenoh.Session) -> None:
+    def _announce_run(self) -> None:
         """Give each endpoint the run: its id, timing and that endpoint's key (contract v2)."""
         for role, i in self.ids.items():
             self._announce(role, i)
@@ -981,84 +810,8 @@ class Hub:
             key=self.run_keys[role],
             seed=cfg.experiment.seed,
         )
-        replies = self.link.query(self.keys.run(role, i), start.encode(), timeout_s=5.0)
-        answers = []
-        for raw in replies:
-            try:
-                answers.append(RunReply.decode(raw))
-            except ProtocolError:
-                continue
-        if not answers:
-            raise HubError(f"{role}/{i} did not answer the run's announcement")
-        if len(answers) > 1:  # another one came up since the description
-            raise self._several(role, i, [None] * len(answers))
-        refusals = [a.reason for a in answers if not a.ok or a.run != self.run_id]
-        if refusals:
-            raise HubError(f"{role}/{i} refused the run: {refusals[0]}")
+        self.roster.announce(role, i, start)
         self._record_event("run_taken", role=role, id=i, run=self.run_id)
-
-    def _start_observer(self) -> LocalProcess | None:
-        """The burst observer of a run with ``online.launch = "local"``, as a child process
-        (its log: ``observer.log`` in the run folder)."""
-        online = self.cfg.online
-        if not online.enabled or online.launch != "local":
-            return None
-        log_dir = self.run_dir if self.recorder else None
-        return start_burst_observer(self.cfg.bus, log_dir, self.cfg.loop.cpus)
-
-    def _announce_observer(self) -> None:
-        """Give the burst observer the run: the culture's channels, the detector's
-        parameters, the key that seals what the hub and it send each other."""
-        if self.online is None:
-            return
-        online = self.cfg.online
-        start = ObserverStart(
-            run=self.run_id,
-            n_steps=self.n_steps,
-            channel=self.descriptions["culture"].channel,
-            key=self.observer_key,
-            burst=dict(online.burst),
-            network=dict(online.network),
-        )
-        keep = math.ceil(OBSERVER_KEEP_S / self._forward_s)
-        self.link.watch_observer(OBSERVER, self.observer_key, keep=keep)
-        answers = []
-        for raw in self.link.query(self.keys.observer_run(OBSERVER), start.encode(), timeout_s=5.0):
-            try:
-                answers.append(RunReply.decode(raw))
-            except ProtocolError:
-                continue
-        if not answers:
-            raise HubError("the burst observer did not answer the run's announcement")
-        refused = [a.reason for a in answers if not a.ok or a.run != self.run_id]
-        if refused:
-            raise HubError(f"the burst observer refused the run: {refused[0]}")
-        self._record_event("run_taken", role="observer", id=OBSERVER, run=self.run_id)
-        self.online.announced = True
-
-    def _end_observer(self) -> None:
-        """Ask the burst observer for its final report (every step's spikes analysed, every
-        burst still open completed), and count it."""
-        online = self.online
-        if online is None or online.final:
-            return
-        if not online.announced:
-            online.lost = "the run ended before the burst observer had it"
-            return
-        if ("observer", OBSERVER) not in self.alive:
-            online.lost = online.lost or "the burst observer was not there at the run's end"
-            return
-        self._forward_spikes()  # the last steps'
-        self._take_reports()  # those that came before it
-        end = ObserverEnd(run=self.run_id, steps=self.k_done).encode()
-        key = self.keys.observer_run(OBSERVER)
-        for raw in self.link.query(key, end, timeout_s=OBSERVER_END_TIMEOUT_S):
-            try:
-                self.take_report(BurstReport.decode(raw))
-            except ProtocolError:
-                continue
-        if not online.final:
-            online.lost = online.lost or "the burst observer did not answer at the run's end"
 
     def _take_reports(self) -> None:
         """After the steps: handle the burst observer's reports waiting; nothing else
@@ -1071,59 +824,26 @@ class Hub:
             if item[0] in ("report", "report_refused"):
                 self.handle(item)
 
-    def _end_run(self, session: zenoh.Session, outcome: str) -> None:
+    def _final_counters(self) -> dict[str, dict]:
+        """Each endpoint's own counters at the end (drops, steps, busy time), if it answers."""
+        return self.roster.final_counters(
+            [(r, i) for r, i in self.ids.items() if (r, i) in self.alive]
+        )
+
+    def _end_run(self, outcome: str) -> None:
         """Tell each endpoint still there that the run is over (it makes itself safe)."""
-        end = RunEnd(run=self.run_id, outcome=outcome).encode()
-        for role, i in self.ids.items():
-            if (role, i) in self.alive and role in self.descriptions:
-                self.link.query(self.keys.run(role, i), end, timeout_s=1.0)
+        there = [(r, i) for r, i in self.ids.items() if (r, i) in self.alive]
+        self.roster.end([(r, i) for r, i in there if r in self.descriptions], self.run_id, outcome)
 
     def _take_description(self, desc: Description) -> None:
-        """Keep an endpoint's description, and what its replies are checked against.
-
-        A real device (``realtime_only``) in a lockstep run is a fault before the run is
-        announced; one whose own cycle is longer than the period gets a warning.
-        """
-        who = f"{desc.role}/{desc.id} ({desc.kind})"
-        period_ms = self.cfg.loop.period_ms
-        if desc.realtime_only and self.cfg.loop.mode != "realtime":
-            raise HubError(
-                f"{who} is a real device: it runs in real time only and cannot take a "
-                f'lockstep run; set loop.mode = "realtime"'
-            )
-        if (
-            desc.answers_after_window
-            and self.cfg.loop.mode == "realtime"
-            and not period_ms < self.cfg.loop.deadline_s * 1e3 < 2 * period_ms
-        ):
-            raise HubError(
-                f"{who} answers each window after it has passed: its reply comes during the "
-                f"next step, so loop.deadline_ms must lie between one and two periods "
-                f"({period_ms:g} and {2 * period_ms:g} ms; e.g. {1.8 * period_ms:g})"
-            )
-        if desc.cycle_ms is not None and desc.cycle_ms > period_ms:
-            warning = (
-                f"{who}: its own I/O cycle takes {desc.cycle_ms:.1f} ms, longer than the "
-                f"period of {period_ms:g} ms: each step gets its freshest reading, up to "
-                f"~{desc.cycle_ms:.0f} ms old (the readings' ages are recorded)"
-            )
+        """Keep an endpoint's description, and what its replies are checked against (one
+        that cannot take this run's loop is a fault before the run is announced)."""
+        warning = check_fits_loop(desc, self.cfg.loop)
+        if warning:
             log.warning("%s", warning)
             self._record_event("warning", role=desc.role, id=desc.id, reason=warning)
         self.descriptions[desc.role] = desc
         self.checker.take_description(desc)
-
-    def _final_counters(self, session: zenoh.Session) -> dict[str, dict]:
-        """Each endpoint's own counters at the end (drops, steps, busy time), if it answers."""
-        out = {}
-        for role, i in self.ids.items():
-            if (role, i) not in self.alive:
-                continue
-            for raw in self.link.query(self.keys.describe(role, i), timeout_s=2.0):
-                try:
-                    out[role] = Description.decode(raw).counters or {}
-                except ProtocolError:
-                    pass
-        return out
 
     def prepare(self, descriptions: dict[str, Description]) -> None:
         """Take the endpoints' descriptions and build what the loop needs of them: the input
@@ -1216,6 +936,7 @@ class Hub:
     def status(self) -> HubStatus:
         wall = self.times.wall_s()
         done = self.k_done
+        tally = self.online.tally if self.online else None
         return HubStatus(
             step=self.k,
             t_s=done * self.cfg.loop.period_ms / 1e3,
@@ -1229,12 +950,12 @@ class Hub:
             steps_per_s=done / wall if wall > 0 else 0.0,
             extra={
                 "late_steps": self.times.late_steps,
-                "single_channel_bursts": self.online.bursts if self.online else 0,
-                "network_bursts": self.online.network_bursts if self.online else 0,
-                "network_burst_under_way_ms": self.online.onset_ms if self.online else None,
+                "single_channel_bursts": tally.bursts if tally else 0,
+                "network_bursts": tally.network_bursts if tally else 0,
+                "network_burst_under_way_ms": tally.onset_ms if tally else None,
                 # [onset_ms, last seen under way (ms)] each, the latest 8
                 "recent_network_bursts_under_way": [
-                    [round(v, 3) for v in u] for u in (self.online.under_way if self.online else ())
+                    [round(v, 3) for v in u] for u in (tally.under_way if tally else ())
                 ],
                 "round_trip_ms": dict(self._last_round_trip_ms),
                 # a stop asked for (or decided) takes effect after the current step
@@ -1245,7 +966,7 @@ class Hub:
                 "n_steps": self.cfg.n_steps,
                 # [start_ms, end_ms, n_channels, core_start_ms, core_end_ms] each
                 "recent_network_bursts": [
-                    [round(v, 3) for v in nb] for nb in (self.online.recent if self.online else ())
+                    [round(v, 3) for v in nb] for nb in (tally.recent if tally else ())
                 ],
                 **self.times.lateness_now(done),
             },
@@ -1291,4 +1012,5 @@ class Hub:
     def counts(self) -> dict:
         """Online bursts, late, missing and dropped messages so far."""
         ledger = self.ledger
-        return counts(self.online, ledger.late, ledger.missed, ledger.dropped)
+        tally = self.online.tally if self.online else None
+        return counts(tally, ledger.late, ledger.missed, ledger.dropped)

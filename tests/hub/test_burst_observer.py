@@ -224,7 +224,7 @@ def _run_doing_to_the_observer(h, monkeypatch, act):
         started.append(start_burst_observer(*args))
         return started[-1]
 
-    monkeypatch.setattr("hub.loop.start_burst_observer", start)
+    monkeypatch.setattr("hub.online.start_burst_observer", start)
 
     def act_when_running():
         wait_for(lambda: h.hub is not None and h.hub.k > 50, timeout_s=60)
@@ -244,7 +244,7 @@ def _run_freezing_the_observer(h, monkeypatch):
     def freeze_until_vanished(observer):
         observer.popen.send_signal(signal.SIGSTOP)
         try:
-            wait_for(lambda: h.hub.online.lost, timeout_s=30)
+            wait_for(lambda: h.hub.online.tally.lost, timeout_s=30)
         finally:
             observer.popen.send_signal(signal.SIGCONT)
 
@@ -271,7 +271,7 @@ def test_an_observer_frozen_past_its_lease_catches_up_on_its_return(
 def test_an_observer_back_after_the_spikes_kept_for_it_counts_the_steps_it_missed(
     tmp_path, bus_overrides, monkeypatch
 ):
-    monkeypatch.setattr("hub.loop.OBSERVER_KEEP_S", 0.1)  # less than any lease
+    monkeypatch.setattr("hub.online.OBSERVER_KEEP_S", 0.1)  # less than any lease
     overrides = ["online.enabled=true", 'loop.mode="realtime"', "experiment.duration_s=8"]
     with harness(tmp_path, bus_overrides, *overrides) as h:
         result = _run_freezing_the_observer(h, monkeypatch)

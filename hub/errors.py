@@ -1,0 +1,17 @@
+"""The errors that end a run as a fault (the manifest's ``outcome = "fault"``, its
+``reason`` the message)."""
+
+from __future__ import annotations
+
+
+class HubError(RuntimeError):
+    """A run could not start or had to stop; the message says why."""
+
+
+class EndpointDied(HubError):
+    """An endpoint's liveliness token vanished during the steps (``policy.endpoint_death =
+    "stop"``)."""
+
+    def __init__(self, role: str, id: str, step: int):
+        super().__init__(f"{role}/{id} died at step {step} (its liveliness token vanished)")
+        self.role, self.id, self.step = role, id, step

@@ -1,0 +1,239 @@
+"""The run's endpoints as the hub meets them: each describes itself, takes the run, is told
+when the run pauses and resumes, and is told its end (ARCHITECTURE.md, "Start-up"; the wire
+contract's ``describe`` and ``run`` queryables).
+
+:class:`Roster` asks and checks; what the hub keeps of the answers (the descriptions, each
+endpoint's host and clock offset) it returns as plain data. A description that does not
+suit the run's loop (:func:`check_fits_loop`), a second endpoint answering under the same
+name, or one serving other settings than the hub's experiment is a :class:`HubError`
+before the first step.
+"""
+
+from __future__ import annotations
+
+import time
+
+import zenoh
+
+from hub.config import ExperimentConfig, LoopSection
+from hub.errors import HubError
+from hub.launch import settings_digest
+from hub.link import HubLink
+from hub.protocol import Description, ProtocolError, RunEnd, RunHold, RunReply, RunStart
+from hub.record import Recorder
+
+DESCRIBE_TIMEOUT_S = 5.0
+ANNOUNCE_TIMEOUT_S = 5.0
+HOLD_TIMEOUT_S = 1.0
+END_TIMEOUT_S = 1.0
+FINAL_COUNTERS_TIMEOUT_S = 2.0
+
+
+class Roster:
+    """Asks the run's endpoints (``cfg``'s ``body`` and ``culture``) over ``link``.
+
+    Parameters
+    ----------
+    cfg : ExperimentConfig
+    link : HubLink
+        The hub's declarations on the bus (its queries go through it).
+    recorder : Recorder or None
+        Where each description is recorded as it came (``rx`` on the ``describe`` key).
+    """
+
+    def __init__(self, cfg: ExperimentConfig, link: HubLink, recorder: Recorder | None = None):
+        self.cfg = cfg
+        self.link = link
+        self.keys = link.keys
+        self.recorder = recorder
+        self._digests: dict[str, str | None] = {}
+
+    def describe(self, role: str, i: str) -> tuple[Description, dict]:
+        """Ask ``role/i`` to describe itself: its description, and what the manifest keeps
+        of where it runs (``host``, ``clock_offset_ms``: its clock minus the hub's at the
+        middle of the query, ± half ``describe_round_trip_ms``; ``settings_digest``).
+
+        Raises
+        ------
+        HubError
+            No description, an invalid one, several endpoints answering as ``role/i``, or
+            one serving other settings than this hub's experiment.
+        """
+        key = self.keys.describe(role, i)
+        desc = None
+        t0 = time.time()
+        replies = self.link.query(key, timeout_s=DESCRIBE_TIMEOUT_S)
+        t1 = time.time()
+        described = []
+        for raw in replies:
+            if self.recorder:
+                self.recorder.message("rx", key, raw)
+            try:
+                desc = Description.decode(raw)
+            except ProtocolError as exc:
+                raise HubError(f"{role}/{i} sent an invalid description: {exc}") from None
+            described.append(desc)
+        if len(described) > 1:
+            raise self.several(role, i, [d.counters for d in described])
+        if desc is None or desc.role != role or desc.id != i:
+            raise HubError(f"{role}/{i} did not describe itself on {key}")
+        counters = desc.counters or {}
+        theirs, ours = counters.get("settings_digest"), self._settings_digest(role)
+        if isinstance(theirs, str) and ours is not None and theirs != ours:
+            raise HubError(
+                f"{role}/{i} serves other settings than this hub's experiment ({role}.kind and "
+                f"{role}.params as resolved, the seed included, differ: its {theirs[:12]}, "
+                f"the hub's {ours[:12]}): start it with the hub's experiment file and the "
+                f"same --set items"
+            )
+        their_time = counters.get("unix_time_s")
+        where = {
+            "host": counters.get("host", {}),
+            "clock_offset_ms": (their_time - (t0 + t1) / 2) * 1e3
+            if isinstance(their_time, float)
+            else None,
+            "describe_round_trip_ms": (t1 - t0) * 1e3,
+            "settings_digest": theirs if isinstance(theirs, str) else None,
+        }
+        return desc, where
+
+    def announce(self, role: str, i: str, start: RunStart) -> None:
+        """Give ``role/i`` the run (again, when it rejoins: the same id, timing and key).
+
+        Raises
+        ------
+        HubError
+            It did not answer, refused, or more than one endpoint answered.
+        """
+        replies = self.link.query(
+            self.keys.run(role, i), start.encode(), timeout_s=ANNOUNCE_TIMEOUT_S
+        )
+        answers = []
+        for raw in replies:
+            try:
+                answers.append(RunReply.decode(raw))
+            except ProtocolError:
+                continue
+        if not answers:
+            raise HubError(f"{role}/{i} did not answer the run's announcement")
+        if len(answers) > 1:  # another one came up since the description
+            raise self.several(role, i, [None] * len(answers))
+        refusals = [a.reason for a in answers if not a.ok or a.run != start.run]
+        if refusals:
+            raise HubError(f"{role}/{i} refused the run: {refusals[0]}")
+
+    def hold(self, who: list[tuple[str, str]], run: str, hold: bool) -> dict[str, bool]:
+        """Tell each of ``who`` that ``run`` is paused (it makes itself safe at once: the
+        wheels stop, nothing is delivered) or resumed: whether each acknowledged, by role."""
+        message = RunHold(run=run, hold=hold).encode()
+        taken = {}
+        for role, i in who:
+            answers = []
+            for raw in self.link.query(self.keys.run(role, i), message, timeout_s=HOLD_TIMEOUT_S):
+                try:
+                    answers.append(RunReply.decode(raw))
+                except ProtocolError:
+                    continue
+            taken[role] = any(a.ok for a in answers)
+        return taken
+
+    def end(self, who: list[tuple[str, str]], run: str, outcome: str) -> None:
+        """Tell each of ``who`` (role, id) that the run is over (each makes itself safe)."""
+        end = RunEnd(run=run, outcome=outcome).encode()
+        for role, i in who:
+            self.link.query(self.keys.run(role, i), end, timeout_s=END_TIMEOUT_S)
+
+    def final_counters(self, who: list[tuple[str, str]]) -> dict[str, dict]:
+        """Each of ``who``'s own counters at the end (drops, steps, busy time), by role, from
+        those that answer."""
+        out = {}
+        for role, i in who:
+            for raw in self.link.query(
+                self.keys.describe(role, i), timeout_s=FINAL_COUNTERS_TIMEOUT_S
+            ):
+                try:
+                    out[role] = Description.decode(raw).counters or {}
+                except ProtocolError:
+                    pass
+        return out
+
+    def several(self, role: str, i: str, counters: list) -> HubError:
+        """More than one endpoint answers as ``role/i`` (one left running elsewhere): each
+        would take the run and step, and the hub take whichever reply came first."""
+        where = []
+        for c in counters:
+            host = (c or {}).get("host") or {}
+            if host.get("pid") is not None:
+                where.append(f"{host.get('hostname', '?')} pid {host['pid']}")
+        named = f" ({', '.join(where)})" if where else ""
+        return HubError(
+            f"{len(counters)} endpoints answer as {role}/{i} on session "
+            f"{self.cfg.bus.session!r}{named}: stop all but one"
+        )
+
+    def elsewhere(self, missing: set[tuple[str, str]]) -> str:
+        """Where on this hub's bus the ``missing`` participants are, under other sessions
+        (an endpoint started with another ``--session`` reaches the router, not the run):
+        "; body/0 is on this hub's bus under session 'lab3' ..." or ""."""
+        found = []
+        session = self.cfg.bus.session
+        for role, i in sorted(missing):
+            sessions = set()
+            try:
+                replies = self.link.session.liveliness().get(f"nv/*/alive/{role}/{i}", timeout=0.5)
+                for reply in replies:
+                    if reply.ok is not None:
+                        parts = str(reply.ok.key_expr).split("/")
+                        if len(parts) > 1 and parts[1] != session:
+                            sessions.add(parts[1])
+            except zenoh.ZError:
+                continue
+            if sessions:
+                names = " and ".join(repr(n) for n in sorted(sessions))
+                found.append(f"{role}/{i} is on this hub's bus under session {names}")
+        if not found:
+            return ""
+        return f"; {', '.join(found)}: start it with --session {session}"
+
+    def _settings_digest(self, role: str) -> str | None:
+        """The digest of this hub's ``role`` settings (:func:`hub.launch.settings_digest`),
+        worked out once; None when its kind does not load here."""
+        if role not in self._digests:
+            self._digests[role] = settings_digest(self.cfg, role)
+        return self._digests[role]
+
+
+def check_fits_loop(desc: Description, loop: LoopSection) -> str | None:
+    """Whether an endpoint so described can take a run of ``loop``: a warning to record, or
+    None.
+
+    Raises
+    ------
+    HubError
+        A real device (``realtime_only``) in a lockstep run; or one that answers each window
+        after it has passed, in realtime with a deadline not between one and two periods.
+    """
+    who = f"{desc.role}/{desc.id} ({desc.kind})"
+    period_ms = loop.period_ms
+    if desc.realtime_only and loop.mode != "realtime":
+        raise HubError(
+            f"{who} is a real device: it runs in real time only and cannot take a "
+            f'lockstep run; set loop.mode = "realtime"'
+        )
+    if (
+        desc.answers_after_window
+        and loop.mode == "realtime"
+        and not period_ms < loop.deadline_s * 1e3 < 2 * period_ms
+    ):
+        raise HubError(
+            f"{who} answers each window after it has passed: its reply comes during the "
+            f"next step, so loop.deadline_ms must lie between one and two periods "
+            f"({period_ms:g} and {2 * period_ms:g} ms; e.g. {1.8 * period_ms:g})"
+        )
+    if desc.cycle_ms is not None and desc.cycle_ms > period_ms:
+        return (
+            f"{who}: its own I/O cycle takes {desc.cycle_ms:.1f} ms, longer than the "
+            f"period of {period_ms:g} ms: each step gets its freshest reading, up to "
+            f"~{desc.cycle_ms:.0f} ms old (the readings' ages are recorded)"
+        )
+    return None
