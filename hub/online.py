@@ -31,8 +31,8 @@ from hub.protocol import (
     ObserverEnd,
     ObserverStart,
     ProtocolError,
-    RunReply,
 )
+from hub.roster import ANNOUNCE_TIMEOUT_S, run_replies
 
 log = logging.getLogger(__name__)
 
@@ -135,12 +135,7 @@ class OnlineAnalysis:
         )
         self._link = link
         link.watch_observer(NAME, self.key, keep=math.ceil(OBSERVER_KEEP_S / self.forward_s))
-        answers = []
-        for raw in link.query(link.keys.observer_run(NAME), start.encode(), timeout_s=5.0):
-            try:
-                answers.append(RunReply.decode(raw))
-            except ProtocolError:
-                continue
+        answers = run_replies(link, link.keys.observer_run(NAME), start, ANNOUNCE_TIMEOUT_S)
         if not answers:
             raise HubError("the burst observer did not answer the run's announcement")
         refused = [a.reason for a in answers if not a.ok or a.run != self.run_id]

@@ -105,15 +105,7 @@ class Roster:
         HubError
             It did not answer, refused, or more than one endpoint answered.
         """
-        replies = self.link.query(
-            self.keys.run(role, i), start.encode(), timeout_s=ANNOUNCE_TIMEOUT_S
-        )
-        answers = []
-        for raw in replies:
-            try:
-                answers.append(RunReply.decode(raw))
-            except ProtocolError:
-                continue
+        answers = run_replies(self.link, self.keys.run(role, i), start, ANNOUNCE_TIMEOUT_S)
         if not answers:
             raise HubError(f"{role}/{i} did not answer the run's announcement")
         if len(answers) > 1:  # another one came up since the description
@@ -125,17 +117,14 @@ class Roster:
     def hold(self, who: list[tuple[str, str]], run: str, hold: bool) -> dict[str, bool]:
         """Tell each of ``who`` that ``run`` is paused (it makes itself safe at once: the
         wheels stop, nothing is delivered) or resumed: whether each acknowledged, by role."""
-        message = RunHold(run=run, hold=hold).encode()
-        taken = {}
-        for role, i in who:
-            answers = []
-            for raw in self.link.query(self.keys.run(role, i), message, timeout_s=HOLD_TIMEOUT_S):
-                try:
-                    answers.append(RunReply.decode(raw))
-                except ProtocolError:
-                    continue
-            taken[role] = any(a.ok for a in answers)
-        return taken
+        message = RunHold(run=run, hold=hold)
+        return {
+            role: any(
+                a.ok
+                for a in run_replies(self.link, self.keys.run(role, i), message, HOLD_TIMEOUT_S)
+            )
+            for role, i in who
+        }
 
     def end(self, who: list[tuple[str, str]], run: str, outcome: str) -> None:
         """Tell each of ``who`` (role, id) that the run is over (each makes itself safe)."""
@@ -201,6 +190,17 @@ class Roster:
         if role not in self._digests:
             self._digests[role] = settings_digest(self.cfg, role)
         return self._digests[role]
+
+
+def run_replies(link: HubLink, key: str, request, timeout_s: float) -> list[RunReply]:
+    """The ``RunReply``s to a request on a ``run`` queryable (a malformed one left out)."""
+    answers = []
+    for raw in link.query(key, request.encode(), timeout_s=timeout_s):
+        try:
+            answers.append(RunReply.decode(raw))
+        except ProtocolError:
+            continue
+    return answers
 
 
 def check_fits_loop(desc: Description, loop: LoopSection) -> str | None:
