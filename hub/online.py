@@ -174,11 +174,13 @@ class OnlineAnalysis:
             )
 
     def came_or_went(self, present: bool) -> dict | None:
-        """The observer vanished, or is back, during the steps. Live analysis
-        only: the loop goes on and the record keeps every spike. Back, it asks for the
-        spikes after the last it had; those the hub no longer keeps (``OBSERVER_KEEP_S``)
-        its final report counts as missing steps. Returns the rejoin's entry for the
-        manifest when it is back."""
+        """The observer vanished, or is back, during the steps: the rejoin's entry for the
+        manifest when it is back, else None.
+
+        Live analysis only: the loop goes on and the record keeps every spike. Back, the
+        observer asks for the spikes after the last it had; those the hub no longer keeps
+        (``OBSERVER_KEEP_S``) its final report counts as missing steps.
+        """
         tally, step = self.tally, self._step_now()
         if tally.final:
             return None
