@@ -67,7 +67,15 @@ from hub.protocol import (
     StepWindow,
 )
 from hub.realtime import Realtime
-from hub.record import Recorder, experiment_text, host, utc_now, versions, write_manifest
+from hub.record import (
+    Recorder,
+    RecordError,
+    experiment_text,
+    host,
+    utc_now,
+    versions,
+    write_manifest,
+)
 from hub.replies import ReplyChecker
 from hub.report import LoopTimes, counts, steps_share
 from hub.roster import Roster, check_fits_loop
@@ -309,6 +317,11 @@ class Hub:
             outcome, reason = "fault", str(exc)
             log.error("%s", exc)
             self._record_event("fault", reason=reason)
+        except RecordError as exc:  # a full disk, the run folder gone: a run not recorded stops
+            outcome, reason = "fault", str(exc)
+            log.error("%s", exc)
+            self.recorder.abandon()
+            self.recorder = None
         except KeyboardInterrupt:
             outcome, reason = "interrupted", "KeyboardInterrupt"
             raise
@@ -316,51 +329,70 @@ class Hub:
             outcome, reason = "fault", f"hub crashed: {exc!r}"
             raise
         finally:
-            self._safe_stop_body()
-            endpoint_stats = self._final_counters()  # those alive, whatever the outcome
-            self._end_run(outcome)
-            if self.online is not None:
-                self.online.end(
-                    self.k_done, there=OBSERVER in self.alive, take_waiting=self._take_reports
+            # whatever fails in the close-up, the session closes (its callback threads would
+            # keep the process from ever exiting) and the burst observer is stopped
+            try:
+                self._safe_stop_body()
+                endpoint_stats = self._final_counters()  # those alive, whatever the outcome
+                self._end_run(outcome)
+                if self.online is not None:
+                    self.online.end(
+                        self.k_done, there=OBSERVER in self.alive, take_waiting=self._take_reports
+                    )
+                self._publish_view(time.monotonic(), last=True)  # the last steps, for displays
+                self.state = "stopped"
+                self._publish_status()
+                timing, counts = self.timing(), self.counts()
+                unrecorded = self._close_record(
+                    manifest,
+                    outcome,
+                    reason,
+                    steps=self.k_done,
+                    timing=timing,
+                    counts=counts,
+                    rejoins=self.rejoins,
+                    endpoints={
+                        r: {
+                            "kind": d.kind,
+                            "id": d.id,
+                            **self.participants.get(r, {}),
+                            **steps_share(d, endpoint_stats),
+                        }
+                        for r, d in self.descriptions.items()
+                    },
                 )
-            self._publish_view(time.monotonic(), last=True)  # the last steps, for live displays
-            self.state = "stopped"
-            self._publish_status()
-            timing, counts = self.timing(), self.counts()
-            self._close_record(
-                manifest,
-                outcome,
-                reason,
-                steps=self.k_done,
-                timing=timing,
-                counts=counts,
-                rejoins=self.rejoins,
-                endpoints={
-                    r: {
-                        "kind": d.kind,
-                        "id": d.id,
-                        **self.participants.get(r, {}),
-                        **steps_share(d, endpoint_stats),
-                    }
-                    for r, d in self.descriptions.items()
-                },
-            )
-            if self.link is not None and self.link.view_observed():
-                self.link.views.wait_had(LAST_VIEW_WAIT_S)  # a live display's last view
-            session.close()
-            self._release(observer)
+                if unrecorded and outcome != "fault":  # the record is not whole: a fault
+                    outcome, reason = "fault", unrecorded
+                if self.link is not None and self.link.view_observed():
+                    self.link.views.wait_had(LAST_VIEW_WAIT_S)  # a live display's last view
+            finally:
+                session.close()
+                self._release(observer)
         return RunResult(
             outcome, reason, self.k_done, timing, counts, self.run_dir, self.descriptions
         )
 
-    def _close_record(self, manifest: dict, outcome: str, reason: str, **results) -> None:
-        """The run's end in its record and its manifest, whatever ended it."""
+    def _close_record(self, manifest: dict, outcome: str, reason: str, **results) -> str:
+        """The run's end in its record and its manifest, whatever ended it; what could not be
+        written (a full disk, the run folder gone), said in the log, or ``""``."""
+        failed = []
         if self.recorder:
-            self._record_event("end", outcome=outcome, reason=reason)
-            self.recorder.close()
+            try:
+                self._record_event("end", outcome=outcome, reason=reason)
+                self.recorder.close()
+            except RecordError as exc:
+                failed.append(str(exc))
         if self.run_dir:
             manifest.update(end_utc=utc_now(), outcome=outcome, reason=reason, **results)
-            write_manifest(self.run_dir, manifest)
+            try:
+                write_manifest(self.run_dir, manifest)
+            except OSError as exc:
+                failed.append(f"its manifest could not be written to {self.run_dir}: {exc}")
+        if not failed:
+            return ""
+        why = "the run's record could not be closed: " + "; ".join(failed)
+        log.error("%s", why)
+        return why
 
     def _release(self, observer: LocalProcess | None) -> None:
         """The CPUs as they were before the run, and the burst observer it started stopped."""

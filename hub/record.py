@@ -214,8 +214,15 @@ def _json_default(obj):
     raise TypeError(f"not JSON serialisable: {type(obj).__name__}")
 
 
+class RecordError(OSError):
+    """The record could not be written (its disk full, its folder gone): the message names
+    the file and the system's reason."""
+
+
 class Recorder:
     """Appends frames to ``record.nvrec``, flushing at least every ``flush_s``.
+
+    A write that fails raises :class:`RecordError`.
 
     Frames are held, and packed and written by :meth:`tick` (or once HELD_FRAMES are
     held), so that recording a message costs the loop's critical path one append."""
@@ -252,7 +259,13 @@ class Recorder:
 
     def _write_held(self) -> None:
         held, self._held = self._held, []
-        self._file.write(b"".join(map(self._pack, held)))
+        try:
+            self._file.write(b"".join(map(self._pack, held)))
+        except OSError as exc:
+            raise self._failed(exc) from exc
+
+    def _failed(self, exc: OSError) -> RecordError:
+        return RecordError(f"the run's record could not be written to {self.path}: {exc}")
 
     def message(self, direction: str, key: str, payload: bytes, t_wall_ns: int | None = None):
         """Record a message sent or received, with the loop's verdict on it.
@@ -287,8 +300,19 @@ class Recorder:
             self._write_held()
         now = time.monotonic()
         if now - self._last_flush >= self.flush_s:
-            self._file.flush()
+            try:
+                self._file.flush()
+            except OSError as exc:
+                raise self._failed(exc) from exc
             self._last_flush = now
+
+    def abandon(self) -> None:
+        """Close the file without writing what is held (after a :class:`RecordError`)."""
+        self._held = []
+        try:
+            self._file.close()
+        except OSError:
+            pass  # it cannot write what its buffer holds: the error said so already
 
     def close(self) -> None:
         if not self._file.closed:
@@ -299,10 +323,19 @@ class Recorder:
                     n_bytes=self.drop_bytes_not_stored,
                     budget_bytes=self.drop_budget_bytes,
                 )
-            self._write_held()
-            self._file.flush()
-            os.fsync(self._file.fileno())
-            self._file.close()
+            try:
+                self._write_held()
+                self._file.flush()
+                os.fsync(self._file.fileno())
+            except RecordError:
+                raise
+            except OSError as exc:
+                raise self._failed(exc) from exc
+            finally:
+                try:
+                    self._file.close()
+                except OSError:
+                    pass  # what it could not write is said above
 
 
 # --------------------------------------------------------------------------- reading
