@@ -14,12 +14,16 @@
    The page also checks that the dashboard kept showing the run: the longest its step stood
    still (``dashboard_page_still_s_max``), and the runs whose page froze before the end
    (``dashboard_pages_frozen``; a frozen dashboard costs the loop less, and its run would
-   pass for a cheap one).
+   pass for a cheap one). With ``--dashboard-mode realtime`` the runs are realtime
+   instead, at the paper's 10 ms period, and what is compared is what watching costs a
+   realtime run: its late steps, the lateness of its step starts and its late and missing
+   replies (``dashboard_rt_*``).
 
     python bench/closed_loop.py                 # 60 s lockstep + 60 s realtime + 3 A/B pairs
     python bench/closed_loop.py --seconds 20
     python bench/closed_loop.py --realtime-priority 0   # realtime under the ordinary scheduler
     python bench/closed_loop.py --only-dashboard --dashboard-pairs 4
+    python bench/closed_loop.py --only-dashboard --dashboard-mode realtime --seconds 30
 
 The last line printed is one JSON object.
 """
@@ -125,12 +129,14 @@ def _frame_step(text: str) -> int | None:
     return int(found.group(1)) if found else None
 
 
-def dashboard_ab(seconds: float, pairs: int, sets: list[str] = ()) -> dict:
-    """Lockstep without (A) and with (B) the dashboard, interleaved A B B A ...; each B run
+def dashboard_ab(seconds: float, pairs: int, sets: list[str] = (), mode: str = "lockstep") -> dict:
+    """Runs without (A) and with (B) the dashboard, interleaved A B B A ...; each B run
     with a page connected. Besides the speed, the hub's CPU time per step (the lockstep
     loop's bound on two cores), the dashboard process's own CPU share (its log), and the
     CPU per step of the loop's processes, the dashboard's and the page's.
-    ``sets``: more ``--set KEY=VALUE`` for the B runs (``dashboard.yield_cpu=false``)."""
+    ``sets``: more ``--set KEY=VALUE`` for the B runs (``dashboard.yield_cpu=false``).
+    ``mode``: ``lockstep`` (the cost is the speed lost) or ``realtime`` (the cost is in
+    late steps and replies: :func:`_realtime_figures`)."""
     x = {"A": [], "B": []}
     hub_us = {"A": [], "B": []}
     # CPU per step: the loop's processes (hub, endpoints, burst observer), and with B the
@@ -139,6 +145,7 @@ def dashboard_ab(seconds: float, pairs: int, sets: list[str] = ()) -> dict:
     fps, dash_cpu, dash_cpu_stepping = [], [], []
     still_s, behind = [], []  # the page's longest stand-still; steps it never showed
     frozen = 0  # pages that stood still before their run's end
+    timings = {"A": [], "B": []}  # each run's timing and counts (realtime: lateness)
     order = [("A", "B") if i % 2 == 0 else ("B", "A") for i in range(pairs)]
     with StealMeter() as steal:
         for pair in order:
@@ -151,7 +158,7 @@ def dashboard_ab(seconds: float, pairs: int, sets: list[str] = ()) -> dict:
                     page = PageClient(port)
                 page_cpu = time.process_time()
                 with tempfile.TemporaryDirectory() as tmp:
-                    m, _ = run("lockstep", seconds, Path(tmp) / "runs", *extra)
+                    m, _ = run(mode, seconds, Path(tmp) / "runs", *extra)
                     log = next(Path(tmp).glob("runs/*/dashboard.log"), None)
                     text = log.read_text() if log else ""
                     share = _dashboard_cpu(text)
@@ -174,11 +181,18 @@ def dashboard_ab(seconds: float, pairs: int, sets: list[str] = ()) -> dict:
                     if stepping is not None:
                         dash_cpu_stepping.append(stepping)
                 t = m["timing"]
+                timings[which].append((t, m["counts"]))
                 x[which].append(t["x_realtime"])
                 hub_us[which].append(t["hub_cpu_s"] / t["steps"] * 1e6)
+                late = ""
+                if mode == "realtime":
+                    late = (
+                        f", {t['late_steps']} late steps, lateness p99 "
+                        f"{t['lateness_ms_p99']:.3f} ms, max {t['lateness_ms_max']:.2f} ms"
+                    )
                 print(
                     f"  {which}: {t['x_realtime']:.2f}x real time, hub "
-                    f"{hub_us[which][-1]:.0f} us CPU per step",
+                    f"{hub_us[which][-1]:.0f} us CPU per step{late}",
                     flush=True,
                 )
     a, b = statistics.median(x["A"]), statistics.median(x["B"])
@@ -186,6 +200,15 @@ def dashboard_ab(seconds: float, pairs: int, sets: list[str] = ()) -> dict:
     ratios = [xb / xa for xa, xb in zip(x["A"], x["B"], strict=True)]
     paired, lo, hi = paired_cost(ratios)
     cpu = {k: {part: _median(v) for part, v in parts.items()} for k, parts in cpu_us.items()}
+    if mode == "realtime":
+        out = _realtime_figures(timings, fps, still_s, frozen, steal.share, seconds)
+        print(
+            f"hub CPU per step {ha:.0f} us without, {hb:.0f} us with; the dashboard's process "
+            f"{_median(dash_cpu_stepping):.1%} of a core from the first step it showed"
+        )
+        out["dashboard_hub_cpu_us_per_step"] = {"A": round(ha, 1), "B": round(hb, 1)}
+        out["dashboard_process_cpu_share_stepping"] = round(_median(dash_cpu_stepping), 4)
+        return out
     print(
         f"dashboard A/B, {pairs} pairs of {seconds:g} s lockstep: without {a:.2f}x, with "
         f"{b:.2f}x real time (medians; cost {1 - b / a:+.1%}; pairs' ratios "
@@ -226,6 +249,47 @@ def dashboard_ab(seconds: float, pairs: int, sets: list[str] = ()) -> dict:
         "dashboard_cpu_us_per_step": {
             k: {part: round(v, 1) for part, v in parts.items()} for k, parts in cpu.items()
         },
+    }
+
+
+def _realtime_figures(
+    timings: dict, fps: list, still_s: list, frozen: int, steal: float, seconds: float
+) -> dict:
+    """What watching cost realtime runs: per side, each run's late steps, the lateness of
+    its step starts (p99, max) and its late and missing replies (all roles)."""
+    side = {}
+    for which, runs in timings.items():
+        side[which] = {
+            "late_steps": [t["late_steps"] for t, _ in runs],
+            "p99_lateness_ms": [round(t["lateness_ms_p99"], 4) for t, _ in runs],
+            "max_lateness_ms": [round(t["lateness_ms_max"], 3) for t, _ in runs],
+            "late_replies": [sum(c["late"].values()) for _, c in runs],
+            "missing_replies": [sum(c["missing"].values()) for _, c in runs],
+        }
+    for which, name in (("A", "without"), ("B", "with")):
+        f = side[which]
+        print(
+            f"realtime 10 ms, {len(f['late_steps'])} runs of {seconds:g} s {name} the "
+            f"dashboard: late steps {f['late_steps']}, lateness p99 "
+            f"{_median(f['p99_lateness_ms']):.3f} ms (median of runs), max "
+            f"{max(f['max_lateness_ms']):.2f} ms; late replies {f['late_replies']}, missing "
+            f"{f['missing_replies']}"
+        )
+    print(
+        f"the page got {statistics.median(fps):.1f} frames/s; longest stand-still of its step "
+        f"{max(still_s):.2f} s; {frozen} of {len(still_s)} pages frozen; CPU steal {steal:.1%}"
+    )
+    return {
+        "dashboard_rt_runs": side,
+        "dashboard_rt_late_steps": {k: sum(v["late_steps"]) for k, v in side.items()},
+        "dashboard_rt_p99_lateness_ms": {
+            k: round(_median(v["p99_lateness_ms"]), 4) for k, v in side.items()
+        },
+        "dashboard_rt_max_lateness_ms": {k: max(v["max_lateness_ms"]) for k, v in side.items()},
+        "dashboard_page_fps": round(statistics.median(fps), 1),
+        "dashboard_page_still_s_max": round(max(still_s), 3),
+        "dashboard_pages_frozen": frozen,
+        "dashboard_ab_steal_share": round(steal, 4),
     }
 
 
@@ -299,11 +363,19 @@ def main() -> None:
         "--dashboard-set", action="append", default=[], metavar="KEY=VALUE",
         help="a --set for the runs with the dashboard (e.g. dashboard.yield_cpu=false)",
     )  # fmt: skip
+    parser.add_argument(
+        "--dashboard-mode", choices=("lockstep", "realtime"), default="lockstep",
+        help="the A/B's runs: lockstep (the speed lost) or realtime (late steps and replies)",
+    )  # fmt: skip
     args = parser.parse_args()
     end_children_on_signal()
     out = {}
     if args.only_dashboard:
-        out.update(dashboard_ab(args.seconds, args.dashboard_pairs, args.dashboard_set))
+        out.update(
+            dashboard_ab(
+                args.seconds, args.dashboard_pairs, args.dashboard_set, args.dashboard_mode
+            )
+        )
         out["dashboard_sets"] = args.dashboard_set
         out["seconds"] = args.seconds
         print(json.dumps(out))
@@ -372,7 +444,11 @@ def main() -> None:
     out["rt10_max_lateness_ms"] = round(t["lateness_ms_max"], 3)
     out["rt_scheduling"] = _scheduling(sched)
     if args.dashboard_pairs > 0:
-        out.update(dashboard_ab(args.seconds, args.dashboard_pairs, args.dashboard_set))
+        out.update(
+            dashboard_ab(
+                args.seconds, args.dashboard_pairs, args.dashboard_set, args.dashboard_mode
+            )
+        )
         out["dashboard_sets"] = args.dashboard_set
     out["seconds"] = args.seconds
     print(json.dumps(out))

@@ -10,7 +10,14 @@ from pathlib import Path
 
 import pytest
 
-from bench.closed_loop import PageClient, _dashboard_cpu_s, _frame_step, _loop_cpu_s, paired_cost
+from bench.closed_loop import (
+    PageClient,
+    _dashboard_cpu_s,
+    _frame_step,
+    _loop_cpu_s,
+    _realtime_figures,
+    paired_cost,
+)
 from bench.loop_ab import run_order
 from bench.page import browser_cpu_s
 
@@ -55,6 +62,26 @@ def test_the_bench_page_times_the_longest_its_step_stood_still_between_two_moves
     assert page.step == 30 and page.still_s_max == pytest.approx(1.6)  # 9 from 1.1 s to 2.7 s
     page._saw(30, 9.0)  # still at the end: counted by the run's last step, not here
     assert page.still_s_max == pytest.approx(1.6)
+
+
+def test_a_realtime_ab_reports_each_sides_late_steps_lateness_and_replies(capsys):
+    def run(late_steps, p99_ms, max_ms, late, missing):
+        timing = {"late_steps": late_steps, "lateness_ms_p99": p99_ms, "lateness_ms_max": max_ms}
+        return timing, {"late": late, "missing": missing}
+
+    timings = {
+        "A": [run(0, 0.10, 0.5, {}, {}), run(1, 0.30, 2.5, {"culture": 1}, {})],
+        "B": [run(2, 0.20, 1.5, {"body": 1}, {"culture": 2}), run(0, 0.40, 0.9, {}, {})],
+    }
+    out = _realtime_figures(timings, [30.1, 29.9], [0.1, 0.2], 0, 0.0, 30.0)
+    assert out["dashboard_rt_late_steps"] == {"A": 1, "B": 2}
+    assert out["dashboard_rt_p99_lateness_ms"] == {"A": 0.2, "B": 0.3}
+    assert out["dashboard_rt_max_lateness_ms"] == {"A": 2.5, "B": 1.5}
+    assert out["dashboard_rt_runs"]["B"]["late_replies"] == [1, 0]
+    assert out["dashboard_rt_runs"]["B"]["missing_replies"] == [2, 0]
+    said = capsys.readouterr().out
+    assert "without the dashboard: late steps [0, 1]" in said
+    assert "with the dashboard: late steps [2, 0]" in said
 
 
 def test_the_loops_cpu_is_the_hub_its_endpoints_and_the_burst_observer():
