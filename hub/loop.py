@@ -18,7 +18,7 @@ announcement), handles events and closes up; the two schedulers,
 :class:`~hub.lockstep.Lockstep` and :class:`~hub.realtime.Realtime`, keep the steps' own
 state and call the hub's loop services (``send``, ``wait_event``, ``handle``, ``tick``);
 what crosses the bus goes through :mod:`hub.link`, and the questions to the endpoints
-(describe, take the run, its end) through :mod:`hub.roster`; each step's inputs come from
+(describe, take the run, pause, its end) through :mod:`hub.roster`; each step's inputs come from
 :mod:`hub.policy`, each reply is checked by :mod:`hub.replies` and judged by
 :mod:`hub.ledger`; the burst observer's run is :mod:`hub.online`'s, and the run's
 figures are kept by :mod:`hub.report`.
