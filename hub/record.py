@@ -32,6 +32,7 @@ everything up to a truncated or damaged tail without error.
 
 from __future__ import annotations
 
+import contextlib
 import datetime as _dt
 import hashlib
 import json
@@ -200,10 +201,16 @@ def experiment_text(source: str | Path | None) -> str | None:
 
 
 def write_manifest(run_dir: Path, manifest: dict[str, Any]) -> None:
-    """Write ``manifest.json`` atomically (a reader never sees half a file)."""
+    """Write ``manifest.json`` atomically (a reader never sees half a file; a write that
+    fails, on a full disk, leaves the manifest as it was and no temporary file)."""
     tmp = run_dir / (MANIFEST_FILE + ".tmp")
-    tmp.write_text(json.dumps(manifest, indent=2, default=_json_default))
-    os.replace(tmp, run_dir / MANIFEST_FILE)
+    try:
+        tmp.write_text(json.dumps(manifest, indent=2, default=_json_default))
+        os.replace(tmp, run_dir / MANIFEST_FILE)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            tmp.unlink(missing_ok=True)
+        raise
 
 
 def _json_default(obj):

@@ -1,10 +1,12 @@
 """The run record: append-only, readable after a kill, typed views for analysis."""
 
+import errno
 import hashlib
 import json
 import socket
 import subprocess
 import sys
+from pathlib import Path
 
 import msgpack
 import numpy as np
@@ -92,6 +94,24 @@ def test_run_folders_are_unique_and_manifests_atomic(tmp_path):
     write_manifest(a, {"outcome": "running", "x": np.float32(1.5)})
     assert json.loads((a / "manifest.json").read_text()) == {"outcome": "running", "x": 1.5}
     assert read_run(b).frames == [] and read_run(b).manifest == {}
+
+
+def test_a_manifest_write_that_fails_leaves_the_manifest_as_it_was_and_no_stray_file(
+    tmp_path, monkeypatch
+):
+    write_manifest(tmp_path, {"outcome": "running"})
+    write_text = Path.write_text
+
+    def full_disk(path, text, *args, **kwargs):
+        write_text(path, text[:10], *args, **kwargs)  # some of it, then no room
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(Path, "write_text", full_disk)
+    with pytest.raises(OSError, match="No space left"):
+        write_manifest(tmp_path, {"outcome": "completed"})
+    monkeypatch.undo()
+    assert json.loads((tmp_path / "manifest.json").read_text()) == {"outcome": "running"}
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["manifest.json"]
 
 
 def test_a_dropped_payload_is_stored_as_its_head_length_and_digest_never_as_a_message(tmp_path):
