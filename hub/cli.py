@@ -13,6 +13,7 @@ neuvision ctl CMD [CONFIG]       status, pause, resume or stop a running hub
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import logging
 import math
@@ -43,16 +44,19 @@ class InputError(Exception):
     one line on stderr and exit status 3, like a config error."""
 
 
-def _positive(kind: type) -> Callable[[str], float | int]:
-    """An argparse type: a finite number of ``kind`` greater than 0."""
+def _positive(kind: type, *, zero: bool = False) -> Callable[[str], float | int]:
+    """An argparse type: a finite number of ``kind`` greater than 0 (or equal, with
+    ``zero``)."""
 
     def parse(text: str):
         try:
             value = kind(text)
         except ValueError:
             raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-        if not (math.isfinite(value) and value > 0):
-            raise argparse.ArgumentTypeError(f"must be > 0, got {text}")
+        if not (math.isfinite(value) and (value > 0 or (zero and value == 0))):
+            raise argparse.ArgumentTypeError(
+                f"must be >= 0, got {text}" if zero else f"must be > 0, got {text}"
+            )
         return value
 
     parse.__name__ = kind.__name__  # what argparse names in its own messages
@@ -315,7 +319,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("reproduce", help="run the paper's validation of the simulated culture")
     p.add_argument("--out", type=Path, help="output folder (default: a new run folder)")
     p.add_argument("--quick", action="store_true", help="a shortened version (for tests)")
-    p.add_argument("--seed", type=int, default=1)
+    p.add_argument("--seed", type=_positive(int, zero=True), default=1)
     p.add_argument(
         "--seeds", help="several seeds, e.g. 1-6 or 1,3,5: a table per seed and mean ± s.d."
     )
@@ -556,7 +560,22 @@ def _recorded_run(path, doing: str) -> Path:
             f"{run_dir} holds no {RECORD_FILE} (a run made with record.enabled = false "
             f"records its manifest only): nothing to {doing}"
         )
+    _readable_run(run_dir)
     return run_dir
+
+
+def _readable_run(run_dir: Path) -> None:
+    """InputError unless the run folder's manifest and its record's header can be read
+    (a damaged file, or one that is not a NeuVision run's, is named in one line)."""
+    from hub.record import RECORD_FILE, RunReadError, iter_frames, read_manifest
+
+    try:
+        read_manifest(run_dir)
+        if (run_dir / RECORD_FILE).exists():
+            with contextlib.closing(iter_frames(run_dir / RECORD_FILE)) as frames:
+                next(frames, None)
+    except (OSError, RunReadError) as exc:
+        raise InputError(f"cannot read the run in {run_dir}: {exc}") from None
 
 
 def record_summary(rec) -> dict:
@@ -571,6 +590,7 @@ def record_summary(rec) -> dict:
             per_key[name] = per_key.get(name, 0) + 1
     m = rec.manifest
     span_s = (rec.frames[-1].t_wall_ns - rec.frames[0].t_wall_ns) / 1e9 if rec.frames else 0.0
+    short = rec.short_note()
     return {
         "run_dir": str(rec.run_dir),
         "name": m.get("name"),
@@ -582,6 +602,8 @@ def record_summary(rec) -> dict:
         "timing": m.get("timing", {}),
         "counts": m.get("counts", {}),
         "frames": len(rec.frames),
+        "steps_recorded": rec.steps_recorded(),
+        **({"record_short": short} if short else {}),
         "recorded_span_s": round(span_s, 3),
         "messages": per_key,
         "events": events,
@@ -656,10 +678,18 @@ def cmd_analyze(args) -> int:
     manifest = read_manifest(run_dir)  # its outcome as read back
     if manifest.get("outcome") == UNFINISHED:
         print(f"neuvision: note: {run_dir} is unfinished: {manifest['reason']}", file=sys.stderr)
+    elif manifest.get("outcome") == "running":
+        print(
+            f"neuvision: note: {run_dir} is still running: this analyses what it has "
+            "recorded so far",
+            file=sys.stderr,
+        )
     try:
         metrics = analyze_run(run_dir, args.out)
     except AnalysisInputError as exc:
         raise InputError(f"cannot analyse {run_dir}: {exc}") from None
+    if "record_short" in metrics["metrics"]:
+        print(f"neuvision: note: {metrics['metrics']['record_short']}", file=sys.stderr)
     _emit(json.dumps(metrics, indent=2, default=str))
     return EXIT_OK
 
@@ -689,17 +719,23 @@ def cmd_reproduce(args) -> int:
 
 
 def cmd_export(args) -> int:
+    from lab.experiment import Run
     from lab.export_nwb import ExportError, export_nwb
 
     run_dir = _recorded_run(args.run_dir, "export")
     if args.nwb.is_dir():
         raise InputError(f"--nwb: {args.nwb} is a folder; give the file to write")
     make_output_folder(args.nwb.parent, "--nwb")
+    replaced = args.nwb.exists()
+    run = Run.open(run_dir)
     try:
-        path = export_nwb(run_dir, args.nwb)
+        path = export_nwb(run, args.nwb)
     except ExportError as exc:
         raise InputError(str(exc)) from None
-    print(f"neuvision: {run_dir} written to {path}", file=sys.stderr)
+    if short := run.record.short_note():
+        print(f"neuvision: note: {short}", file=sys.stderr)
+    replaced = " (it replaced the file there)" if replaced else ""
+    print(f"neuvision: {run_dir} written to {path}{replaced}", file=sys.stderr)
     return EXIT_OK
 
 
@@ -807,15 +843,24 @@ def cmd_dashboard(args) -> int:
         raise InputError(
             f"the dashboard needs its web server: pip install 'neuvision[dashboard]' ({exc})"
         ) from None
+    if args.replay and (args.connect or args.session):
+        raise InputError(
+            "--replay plays a recorded run folder; --connect and --session watch a live hub: "
+            "give one or the other"
+        )
     replay = _run_folder(args.replay) if args.replay else None
+    if replay is not None:
+        _readable_run(replay)
+    # through the config, whose checks name the key: dashboard.port must be <= 65535, ...
+    for flag, key in (("port", "dashboard.port"), ("host", "dashboard.host")):
+        if getattr(args, flag) is not None:
+            args.set = [*(args.set or []), f"{key}={json.dumps(getattr(args, flag))}"]
     cfg = load_config(args.config, _overrides(args)) if replay else _hub_config(args)[0]
     try:
         run_dashboard(
             cfg,
             replay=replay,
             speed=args.speed,
-            host=args.host,
-            port=args.port,
             announce=lambda line: print(f"neuvision: {line}", file=sys.stderr, flush=True),
         )
     except ReplayError as exc:

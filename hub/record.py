@@ -66,6 +66,7 @@ READABLE_VERSIONS = (1, 2)
 DIRECTIONS = ("tx", "rx", "late", "part", "drop", "ev", "final")
 # What the analysis reads as the culture's and body's real output.
 DATA_DIRECTIONS = ("rx", "late", "part")
+_STEP_DIRECTIONS = frozenset(("tx", "rx", "late"))  # one a step and key: inputs, replies
 WRITE_BUFFER_BYTES = 1 << 20
 HELD_FRAMES = 1024  # frames held at most before they are written
 # Dropped payloads: the first bytes kept, and what all drops stored may take per run
@@ -388,9 +389,9 @@ def iter_frames(path: str | Path) -> Iterator[Frame]:
         except (StopIteration, ValueError, msgpack.UnpackException):
             return
         if not isinstance(header, dict) or header.get("format") != FORMAT:
-            raise ValueError(f"{path} is not a NeuVision record")
+            raise RunReadError(f"{path} is not a NeuVision record")
         if header.get("v") not in READABLE_VERSIONS:
-            raise ValueError(f"{path}: record format version {header.get('v')!r} not readable")
+            raise RunReadError(f"{path}: record format version {header.get('v')!r} not readable")
         while True:
             try:
                 item = next(unpacker)
@@ -422,6 +423,30 @@ class RunRecord:
     @property
     def events(self) -> list[Frame]:
         return [f for f in self.frames if f.direction == "ev"]
+
+    def steps_recorded(self) -> int:
+        """The steps the record holds: the most messages of one key, sent or received (the
+        hub sends each endpoint an input a step, and takes a reply a step). A whole record
+        holds at least the manifest's ``steps``; one cut short (its hub killed before it
+        wrote, a damaged file) holds fewer."""
+        counts: dict[str, int] = {}
+        for f in self.frames:
+            if f.direction in _STEP_DIRECTIONS:
+                counts[f.key] = counts.get(f.key, 0) + 1
+        held = max(counts.values(), default=0)
+        steps = self.manifest.get("steps")
+        return min(held, steps) if isinstance(steps, int) else held  # not the robot's stop
+
+    def short_note(self) -> str:
+        """Why what the record holds is less than the run (empty: it is all there)."""
+        steps = self.manifest.get("steps")
+        held = self.steps_recorded()
+        if not isinstance(steps, int) or held >= steps:
+            return ""
+        return (
+            f"the record holds {held} of the run's {steps} steps: it was cut short or is "
+            "damaged past that point, and what is read from it covers those steps only"
+        )
 
     def network_bursts(self) -> list[dict]:
         """The network bursts the burst observer reported during the run (its
@@ -495,14 +520,35 @@ _SUFFIX = {
 }
 
 
+class RunReadError(ValueError):
+    """A run folder's manifest or record cannot be read: damaged, or not a NeuVision
+    run's. The message names the file and what is wrong with it."""
+
+
 def read_manifest(run_dir: str | Path) -> dict[str, Any]:
     """A run folder's manifest; a missing one (killed before start) reads as ``{}``.
 
     A manifest that says "running" while its hub is gone (:func:`hub_gone`) reads as
     outcome ``"unfinished"``, with the reason (the file is left as it is): the record
-    holds what the hub had written when it ended."""
+    holds what the hub had written when it ended.
+
+    Raises
+    ------
+    RunReadError
+        The manifest is not JSON, or not a JSON object.
+    """
     manifest_path = Path(run_dir) / MANIFEST_FILE
-    manifest = json.loads(manifest_path.read_text()) if manifest_path.exists() else {}
+    manifest: Any = {}
+    if manifest_path.exists():
+        try:
+            manifest = json.loads(manifest_path.read_text())
+        except (ValueError, UnicodeDecodeError) as exc:
+            raise RunReadError(f"{manifest_path} is damaged (not JSON: {exc})") from None
+    if not isinstance(manifest, dict):
+        raise RunReadError(
+            f"{manifest_path} is not a run's manifest (a JSON {type(manifest).__name__}, "
+            "not an object)"
+        )
     if hub_gone(manifest):
         manifest["outcome"] = UNFINISHED
         manifest.setdefault(

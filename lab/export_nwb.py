@@ -39,14 +39,19 @@ class ExportError(Exception):
     """The run cannot be exported (pynwb missing, not a run folder): said in one line."""
 
 
-def export_nwb(run_dir: str | Path, path: str | Path) -> Path:
-    """Write the run in ``run_dir`` to the NWB file ``path``; return the path.
+def export_nwb(run_dir: str | Path | Run, path: str | Path) -> Path:
+    """Write the run in ``run_dir`` (a folder, or a :class:`Run` opened on one) to the
+    NWB file ``path``; return the path.
+
+    A record cut short is exported as far as it goes, and its file's ``notes`` say so
+    (``record_short``).
 
     Raises
     ------
     ExportError
-        pynwb is not installed, ``run_dir`` is not a run folder, or ``path`` cannot be
-        written (a folder or a device is there, the file system refuses it).
+        pynwb is not installed, ``run_dir`` is not a run folder or its record holds no
+        step, or ``path`` cannot be written (a folder or a device is there, the file
+        system refuses it).
     """
     try:
         from pynwb import NWBHDF5IO, NWBFile, TimeSeries
@@ -59,15 +64,24 @@ def export_nwb(run_dir: str | Path, path: str | Path) -> Path:
             "NWB export needs pynwb: pip install 'neuvision[nwb]' (or pip install pynwb)"
         ) from None
     try:
-        run = Run.open(run_dir)
+        run = run_dir if isinstance(run_dir, Run) else Run.open(run_dir)
     except FileNotFoundError as exc:
         raise ExportError(str(exc)) from None
+    run_dir = run.run_dir
     m = run.manifest
     if _holds_nothing(run):
         raise ExportError(
             f"{run_dir} holds no data to export: the run ended before its first step "
             f"({m.get('outcome', 'no outcome')}: {m.get('reason') or 'no reason recorded'})"
         )
+    short = run.record.short_note()
+    if short and not run.record.steps_recorded():
+        raise ExportError(
+            f"{run_dir} holds no data to export: its record holds none of the run's "
+            f"{m['steps']} steps (empty, or damaged from its start)"
+        )
+    if short:
+        m = {**m, "record_short": short}
     start = dt.datetime.fromisoformat(m["start_utc"]) if m.get("start_utc") else None
     nwb = NWBFile(
         session_description=f"NeuVision run {m.get('name')} (seed {m.get('seed')}): "

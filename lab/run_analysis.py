@@ -149,6 +149,12 @@ def analyze_run(run_dir, out_dir=None, params: AnalysisParams | None = None) -> 
         raise AnalysisInputError(f"run_dir {run_dir} is not a folder")
     rec = read_run(run_dir)
     manifest = rec.manifest
+    short = rec.short_note()  # a record cut short: analysed, and said
+    if short and not rec.steps_recorded():
+        raise AnalysisInputError(
+            f"the record holds none of the run's {manifest['steps']} steps (empty, or "
+            "damaged from its start): nothing to analyse"
+        )
     config = manifest.get("config", {}) or {}
     if params is None:
         params = AnalysisParams.from_dict(config.get("analysis"))
@@ -183,6 +189,8 @@ def analyze_run(run_dir, out_dir=None, params: AnalysisParams | None = None) -> 
     if psth_note:
         metrics["psth_not_computed"] = psth_note
     metrics["n_unknown_channel_spikes"] = int((~keep).sum())
+    if short:
+        metrics["record_short"] = short
 
     stim_channels = None
     if stim_ids is not None and culture is not None and culture.channel is not None:
@@ -205,6 +213,8 @@ def analyze_run(run_dir, out_dir=None, params: AnalysisParams | None = None) -> 
     for key in ("outcome", "reason", "start_utc", "end_utc", "steps"):
         if manifest.get(key) not in (None, ""):
             timing[key] = manifest[key]
+    if short:
+        timing["record"] = short
     report_path = write_report(
         out / REPORT_FILE, metrics, config, figures, title=f"NeuVision run {name}", timing=timing
     )

@@ -106,6 +106,10 @@ TIMING: dict[str, tuple[str, str]] = {
         "completed, stopped, interrupted or fault; unfinished: its hub ended without closing it",
     ),
     "reason": ("reason", "why the run ended so (a fault, a stop request)"),
+    "record": (
+        "record",
+        "what the record holds, where it is less than the run: the analysis covers that",
+    ),
     "start_utc": ("start (UTC)", "when the run began"),
     "end_utc": ("end (UTC)", "when the run ended"),
 }

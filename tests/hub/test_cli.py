@@ -230,6 +230,46 @@ def test_an_emulators_bad_option_is_named_in_one_line(tmp_path, args, message):
     assert file.read_text() == "not a link"  # left as it was
 
 
+@pytest.mark.parametrize(
+    "manifest, record, message",
+    [
+        (b'{"outcome": "completed", ', b"", "manifest.json is damaged (not JSON: "),
+        (b"[1, 2]", b"", "manifest.json is not a run's manifest (a JSON list, not an object)"),
+        (b'{"steps": 1}', PNG, "record.nvrec is not a NeuVision record"),
+    ],
+)
+@pytest.mark.parametrize(
+    "command",
+    [
+        ["analyze", "{run}"],
+        ["record-info", "{run}"],
+        ["export", "{run}", "--nwb", "{nwb}"],
+        ["dashboard", "--replay", "{run}"],
+    ],
+)
+def test_a_damaged_run_folder_is_named_in_one_line(
+    capsys, tmp_path, no_process, command, manifest, record, message
+):
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "manifest.json").write_bytes(manifest)
+    (run / "record.nvrec").write_bytes(record)
+    err = refused(capsys, [c.format(run=run, nwb=tmp_path / "x.nwb") for c in command])
+    assert err.startswith(f"neuvision: cannot read the run in {run}: ") and message in err, err
+    assert sorted(p.name for p in run.iterdir()) == ["manifest.json", "record.nvrec"]
+    assert not (tmp_path / "x.nwb").exists()
+
+
+def test_a_replays_options_are_checked_before_it_serves(capsys, tmp_path, run_folder):
+    replay = ["dashboard", "--replay", str(run_folder)]
+    assert "dashboard.port must be <= 65535, got 99999" in refused(
+        capsys, [*replay, "--port", "99999"]
+    )
+    assert "--replay plays a recorded run folder; --connect and --session watch a live hub" in (
+        refused(capsys, [*replay, "--connect", "localhost"])
+    )
+
+
 def test_analyze_help_names_where_it_writes_by_default():
     from hub.cli import build_parser
     from lab.run_analysis import ANALYSIS_DIR  # where analyze_run writes without --out
@@ -245,6 +285,7 @@ def test_analyze_help_names_where_it_writes_by_default():
         (["compare", str(CLOSED_LOOP), "--jobs", "-1"], "argument --jobs: must be > 0, got -1"),
         (["ctl", "status", "--timeout-s", "-1"], "argument --timeout-s: must be > 0, got -1"),
         (["ctl", "status", "--timeout-s", "nan"], "argument --timeout-s: must be > 0, got nan"),
+        (["reproduce", "--quick", "--seed", "-1"], "argument --seed: must be >= 0, got -1"),
     ],
 )
 def test_a_count_or_a_wait_that_is_not_positive_is_refused_in_one_line(

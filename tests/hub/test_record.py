@@ -222,3 +222,24 @@ def test_a_run_written_on_another_host_is_not_judged(tmp_path):
     manifest["hosts"]["hub"]["hostname"] = "another-host.invalid"
     (tmp_path / "manifest.json").write_text(json.dumps(manifest))
     assert read_run(tmp_path).manifest["outcome"] == "running"
+
+
+def _steps(run_dir, inputs: int, replies: int, manifest_steps: int):
+    run_dir.mkdir()
+    write_manifest(run_dir, {"steps": manifest_steps, "outcome": "completed"})
+    rec = Recorder(run_dir)
+    for _ in range(inputs):
+        rec.message("tx", "nv/s/body/0/motor", b"m")
+    for k in range(replies):
+        rec.message("rx", "nv/s/body/0/sensors", _reading(k).encode())
+    rec.close()
+    return read_run(run_dir)
+
+
+def test_a_record_says_how_many_of_its_runs_steps_it_holds(tmp_path):
+    # an input a step, and the robot's stop after the last
+    whole = _steps(tmp_path / "whole", inputs=11, replies=10, manifest_steps=10)
+    assert whole.steps_recorded() == 10 and whole.short_note() == ""
+    cut = _steps(tmp_path / "cut", inputs=7, replies=6, manifest_steps=10)  # hub killed, say
+    assert cut.steps_recorded() == 7
+    assert cut.short_note().startswith("the record holds 7 of the run's 10 steps")

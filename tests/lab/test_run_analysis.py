@@ -1,5 +1,6 @@
 """`analyze_run` turns a recorded run into metrics.json, figures and a self-contained report."""
 
+import html
 import json
 
 import numpy as np
@@ -173,6 +174,39 @@ def test_a_silent_culture_still_gets_metrics_and_report(tmp_path):
     assert out["metrics"]["n_spikes"] == 0 and out["metrics"]["mfr_hz"] == 0.0
     assert out["metrics"]["nb_duration_ms"] is None
     assert out["report_path"].stat().st_size > 0
+
+
+def _silent_run(run_dir, recorded_steps: int, manifest_steps: int):
+    write_manifest(
+        run_dir,
+        {"name": "cut", "steps": manifest_steps, "config": {"loop": {"period_ms": 10.0}}},
+    )
+    rec = Recorder(run_dir)
+    for k in range(recorded_steps):
+        batch = SpikeBatch(step=k, run=RUN, t0_s=k * 0.01, t1_s=(k + 1) * 0.01)
+        rec.message("rx", "nv/s/culture/0/spikes", batch.encode())
+    rec.close()
+
+
+def test_a_record_cut_short_is_analysed_as_far_as_it_goes_and_says_so(tmp_path):
+    _silent_run(tmp_path, recorded_steps=100, manifest_steps=400)  # its hub killed, say
+    out = analyze_run(tmp_path)
+    note = "the record holds 100 of the run's 400 steps"
+    assert out["metrics"]["record_short"].startswith(note)
+    assert out["metrics"]["duration_s"] == pytest.approx(1.0)  # what it holds, not 4 s
+    assert note in html.unescape(out["report_path"].read_text())
+
+
+def test_a_whole_record_has_no_note(tmp_path):
+    _silent_run(tmp_path, recorded_steps=100, manifest_steps=100)
+    assert "record_short" not in analyze_run(tmp_path)["metrics"]
+
+
+def test_a_record_that_holds_no_step_of_its_run_is_refused(tmp_path):
+    _silent_run(tmp_path, recorded_steps=100, manifest_steps=100)
+    (tmp_path / "record.nvrec").write_bytes(b"")  # lost whole, or never flushed
+    with pytest.raises(AnalysisInputError, match="holds none of the run's 100 steps"):
+        analyze_run(tmp_path)
 
 
 def test_stimulus_onsets_are_window_starts_plus_pulse_onsets():
