@@ -15,6 +15,7 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from hub.analysis.figures import FORMATS
+from hub.coding import CultureFrame
 from hub.decoding import WINDOW_MS
 from hub.protocol import MotorCommand, SensorReading, SpikeBatch, Stimulation
 from hub.record import DATA_DIRECTIONS, RunRecord
@@ -37,9 +38,13 @@ class LoopSeries:
     wheels_mps: np.ndarray  # [w, 2] left, right
 
 
-def loop_series(rec: RunRecord, ca_window_ms: float = WINDOW_MS) -> LoopSeries:
+def loop_series(
+    rec: RunRecord, ca_window_ms: float = WINDOW_MS, centre_tau_s: float = 0.0
+) -> LoopSeries:
     """The loop's arrays from a record; the CA over the last ``ca_window_ms`` before the
-    end of each step, as the paper's decoder computes it (the culture's geometric centre)."""
+    end of each step, as the Center-of-Activity decoder computes it: from the culture's
+    geometric centre (the paper), or with ``centre_tau_s > 0`` from the decoder's running
+    mean of the CA (``decoding.params.centre_tau_s``, :func:`hub.decoding.center_of_activity`)."""
     readings = sorted(rec.decoded(SensorReading, *DATA_DIRECTIONS), key=lambda r: r.step)
     body = rec.descriptions().get("body")
     culture = rec.descriptions().get("culture")
@@ -49,7 +54,7 @@ def loop_series(rec: RunRecord, ca_window_ms: float = WINDOW_MS) -> LoopSeries:
     pulse_c = [np.asarray(s.channel) for s in stims]
     pulse_a = [np.asarray(s.amplitude_ua, np.float64) for s in stims]
     motors = sorted(rec.decoded(MotorCommand, "tx"), key=lambda m: m.step)
-    ca_t, ca_d, ca_a = _center_of_activity(rec, culture, ca_window_ms)
+    ca_t, ca_d, ca_a = _center_of_activity(rec, culture, ca_window_ms, centre_tau_s)
     return LoopSeries(
         sensor_t_s=np.array([r.t_s for r in readings], np.float64),
         ranges_m=np.array([r.ranges_m for r in readings], np.float64).reshape(-1, n_sensors),
@@ -65,8 +70,9 @@ def loop_series(rec: RunRecord, ca_window_ms: float = WINDOW_MS) -> LoopSeries:
     )
 
 
-def _center_of_activity(rec: RunRecord, culture, window_ms: float):
-    """Spike-weighted mean electrode position over a trailing window at each step's end."""
+def _center_of_activity(rec: RunRecord, culture, window_ms: float, centre_tau_s: float):
+    """Spike-weighted mean electrode position over a trailing window at each step's end,
+    from the culture's centre (or the decoder's running one: :func:`_running_centre`)."""
     empty = (np.zeros(0), np.zeros(0), np.zeros(0))
     if culture is None or culture.x_um is None:
         return empty
@@ -78,8 +84,8 @@ def _center_of_activity(rec: RunRecord, culture, window_ms: float):
     index = sort[pos][known]
     t_ms = t_ms[known]
     x, y = np.asarray(culture.x_um, np.float64), np.asarray(culture.y_um, np.float64)
-    cx, cy = (x.min() + x.max()) / 2, (y.min() + y.max()) / 2
-    radius = max(x.max() - x.min(), y.max() - y.min()) / 2 or 1.0
+    frame = CultureFrame.of(culture)  # the decoder's centre and radius
+    cx, cy, radius = frame.centre_x_um, frame.centre_y_um, frame.radius_um
     ends_ms = np.unique([b.t1_s * 1e3 for b in rec.decoded(SpikeBatch, *DATA_DIRECTIONS)])
     if ends_ms.size == 0:
         return empty
@@ -91,13 +97,33 @@ def _center_of_activity(rec: RunRecord, culture, window_ms: float):
     with np.errstate(invalid="ignore", divide="ignore"):
         dx = (cum_x[hi] - cum_x[lo]) / n
         dy = (cum_y[hi] - cum_y[lo]) / n
+    if centre_tau_s > 0 and ends_ms.size > 1:
+        period_s = float(np.median(np.diff(ends_ms))) / 1e3
+        dx, dy = _running_centre(dx, dy, min(1.0, period_s / centre_tau_s))
     distance = np.hypot(dx, dy) / radius
     angle = np.degrees(np.arctan2(-dx, dy))  # counter-clockwise from +y: -x is to the left
     return ends_ms / 1e3, distance, angle
 
 
+def _running_centre(dx: np.ndarray, dy: np.ndarray, follow: float):
+    """The CA from the decoder's running centre (:func:`hub.decoding.center_of_activity`
+    with ``centre_tau_s``): the centre starts at the culture's and moves ``follow`` of the
+    way to the CA at each step whose window has spikes (NaN: none)."""
+    rx, ry = np.full(dx.size, np.nan), np.full(dy.size, np.nan)
+    centre_x = centre_y = 0.0
+    for i in np.flatnonzero(np.isfinite(dx)):
+        rx[i], ry[i] = dx[i] - centre_x, dy[i] - centre_y
+        centre_x += follow * rx[i]
+        centre_y += follow * ry[i]
+    return rx, ry
+
+
 def plot_loop(
-    series: LoopSeries, out: str | Path, title: str = "", ca_window_ms: float = WINDOW_MS
+    series: LoopSeries,
+    out: str | Path,
+    title: str = "",
+    ca_window_ms: float = WINDOW_MS,
+    centre_tau_s: float = 0.0,
 ) -> list[Path]:
     """Four panels on one time axis: sensor ranges, pulses by channel (amplitude as
     colour), the CA's distance and angle, the wheel speeds. Returns the files written."""
@@ -133,9 +159,12 @@ def plot_loop(
     twin = ax.twinx()
     twin.plot(series.ca_t_s, series.ca_angle_deg, lw=0.6, color="tab:orange", alpha=0.8)
     twin.set_ylabel("CA angle (deg, + left)", color="tab:orange")
-    ax.set_title(
-        f"Center of Activity over the last {ca_window_ms:g} ms, from the culture's geometric centre"
+    centre = (
+        f"the decoder's running centre (its mean over ~{centre_tau_s:g} s)"
+        if centre_tau_s > 0
+        else "the culture's geometric centre"
     )
+    ax.set_title(f"Center of Activity over the last {ca_window_ms:g} ms, from {centre}")
     ax = axes[3]
     if series.wheels_mps.size:
         ax.step(series.wheel_t_s, series.wheels_mps[:, 0], where="post", lw=0.8, label="left")

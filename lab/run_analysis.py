@@ -202,9 +202,13 @@ def analyze_run(run_dir, out_dir=None, params: AnalysisParams | None = None) -> 
     title = f"{name} (seed {manifest.get('seed')})"
     figures += _trajectory(rec, config, out, title, metrics)
     if rec.trajectory()[0].size > 1:  # a closed loop: a body in it
-        window_ms = (config.get("decoding", {}).get("params") or {}).get("window_ms", WINDOW_MS)
-        series = loop_series(rec, ca_window_ms=float(window_ms))
-        figures += plot_loop(series, out / "loop", title=title, ca_window_ms=float(window_ms))
+        decoding = config.get("decoding", {}).get("params") or {}
+        window_ms = float(decoding.get("window_ms", WINDOW_MS))
+        centre_tau_s = float(decoding.get("centre_tau_s", 0.0))
+        series = loop_series(rec, ca_window_ms=window_ms, centre_tau_s=centre_tau_s)
+        figures += plot_loop(
+            series, out / "loop", title=title, ca_window_ms=window_ms, centre_tau_s=centre_tau_s
+        )
         figures += plot_stimulation_sites(rec, series, out / "stimulation_sites")
 
     metrics_path = out / METRICS_FILE

@@ -19,7 +19,7 @@ from matplotlib.colors import to_rgba
 from matplotlib.figure import Figure
 
 from hub.analysis.center_of_activity import Cat
-from hub.analysis.network_bursts import NetworkBursts
+from hub.analysis.network_bursts import NetworkBursts, inter_burst_intervals_ms
 from hub.analysis.spikes import (
     EXCITATORY,
     INHIBITORY,
@@ -35,6 +35,7 @@ FORMATS = ("png", "svg")
 EXC_COLOR = "tab:red"
 INH_COLOR = "tab:blue"
 OTHER_COLOR = "0.2"
+RASTER_KINDS = (EXC_COLOR, INH_COLOR, OTHER_COLOR)
 NB_SHADE = "gold"
 
 
@@ -135,9 +136,12 @@ def plot_raster(
         colors = _type_colors(ch, cell_type)
         # dense rasters (long records) use pixel markers: faster and less over-plotting
         marker, size = ("|", 2.0) if t.size < 200_000 else (",", 1.0)
-        for color in (EXC_COLOR, INH_COLOR, OTHER_COLOR):
+        # The most numerous kind first: a marker is taller than a row of a large culture,
+        # and the culture's few fast-spiking cells would otherwise hide the rest.
+        kinds = [(int((colors == c).sum()), i, c) for i, c in enumerate(RASTER_KINDS)]
+        for count, _, color in sorted(kinds, key=lambda kind: (-kind[0], kind[1])):
             sel = colors == color
-            if sel.any():
+            if count:
                 ax.plot(
                     t[sel] / 1000.0,
                     ch[sel],
@@ -556,7 +560,7 @@ def plot_all(
     }
     paths += plot_rates(series, out / "rate", formats)
     paths += plot_isi_histogram(isi_ms(ch, t), out / "isi", formats=formats)
-    paths += plot_ibi_histogram(np.diff(nbs.start_ms), out / "ibi", formats=formats)
+    paths += plot_ibi_histogram(inter_burst_intervals_ms(nbs), out / "ibi", formats=formats)
     if result.psth is not None:
         paths += plot_psth(result.psth, out / "psth", formats)
     if result.cats and x_um is not None and y_um is not None:

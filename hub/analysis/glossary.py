@@ -40,7 +40,7 @@ METRICS: dict[str, tuple[str, str]] = {
         "fraction of the spikes inside network bursts fired by excitatory channels",
     ),
     "isi_median_ms": ("median ISI (ms)", "median interval between a channel's spikes"),
-    "ibi_mean_ms": ("mean IBI (ms)", "mean interval between network-burst starts"),
+    "ibi_mean_ms": ("mean IBI (ms)", "mean interval between network-burst starts (their cores')"),
     "ibi_cv": ("IBI CV", "coefficient of variation of those intervals (0: periodic)"),
     "psth_peak_ms": ("PSTH peak (ms)", "latency of the peak response after the stimuli"),
     "psth_not_computed": ("PSTH", "why no peri-stimulus histogram was computed"),
@@ -123,7 +123,7 @@ FIGURES: dict[str, str] = {
     "rate": "Instantaneous firing rate of the population (all, excitatory, inhibitory), "
     "spikes per second per channel in 10 ms bins.",
     "isi": "Inter-spike intervals within channels (ms).",
-    "ibi": "Intervals between network-burst starts (ms).",
+    "ibi": "Intervals between network-burst starts (their cores'; ms).",
     "psth": "Peri-stimulus time histogram: the population's response after each stimulus.",
     "cat_single": "The Center-of-Activity trajectory of the longest network burst on the "
     "culture (µm).",

@@ -23,7 +23,7 @@ Metric keys (NaN becomes ``None`` so the dict is valid JSON):
 ``nb_participation``        mean fraction of channels taking part in a network burst
 ``isi_median_ms``           median inter-spike interval within channels
 ``ibi_mean_ms``, ``ibi_cv``  mean and coefficient of variation of the intervals between
-                            network-burst starts (IBI)
+                            network-burst starts (IBI; the cores' starts)
 ``psth_peak_ms``            PSTH peak latency after the stimuli (only with ``stim_ms``)
 ``n_evoked_nb``             network bursts starting within ``evoked_max_latency_ms`` of a
                             stimulus (only with ``stim_ms``)

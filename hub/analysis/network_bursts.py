@@ -222,7 +222,12 @@ def _participants(bursts: np.ndarray, start_ms: np.ndarray, end_ms: np.ndarray):
 
 
 def inter_burst_intervals_ms(network_bursts: NetworkBursts) -> np.ndarray:
-    """IBI: intervals between the starts of consecutive network bursts.
+    """IBI: intervals between the starts of consecutive network bursts' cores.
+
+    The core's start (the threshold reached), not the extent's: a channel that bursts
+    for seconds (one stimulated every step of a closed loop) takes part in every network
+    burst it overlaps and pulls each one's extent back to its own start, where the cores
+    keep their times. In spontaneous activity the two starts differ by a few ms.
 
     Parameters
     ----------
@@ -231,9 +236,9 @@ def inter_burst_intervals_ms(network_bursts: NetworkBursts) -> np.ndarray:
     Returns
     -------
     float64[len - 1]
-        Intervals between the extents' starts (ms).
+        Intervals between the cores' starts (ms).
     """
-    return np.diff(network_bursts.start_ms)
+    return np.diff(network_bursts.core_start_ms)
 
 
 def evoked_mask(

@@ -10,6 +10,7 @@ from matplotlib.figure import Figure
 
 from hub.analysis import figures
 from hub.analysis.metrics import analyze
+from hub.analysis.network_bursts import inter_burst_intervals_ms
 from hub.analysis.report import write_report
 from hub.analysis.spikes import AnalysisInputError, instantaneous_rate, isi_ms, psth
 from tests.analysis.analysis_synth import merge, network_burst, sparse_background
@@ -56,7 +57,8 @@ def test_all_figures_write_png_and_svg(tmp_path, record):
     }
     _check(figures.plot_rates(series, tmp_path / "rate"))
     _check(figures.plot_isi_histogram(isi_ms(ch, t), tmp_path / "isi"))
-    _check(figures.plot_ibi_histogram(np.diff(res.network_bursts.start_ms), tmp_path / "ibi"))
+    ibi = inter_burst_intervals_ms(res.network_bursts)
+    _check(figures.plot_ibi_histogram(ibi, tmp_path / "ibi"))
     _check(figures.plot_psth(psth(ch, t, [1_950.0], N), tmp_path / "psth"))
     _check(figures.plot_cats(res.cats[:1], X_UM, Y_UM, tmp_path / "cat1", CELL_TYPE, [0, 1]))
     _check(figures.plot_cats(res.cats, X_UM, Y_UM, tmp_path / "cats", CELL_TYPE))
@@ -88,6 +90,18 @@ def test_the_raster_title_names_only_what_it_shows(record):
         "Raster (shaded and ▼: network bursts, their cores darker)",  # an MEA's: no cell type
         "Raster",
     ]
+
+
+def test_the_raster_draws_the_most_numerous_kind_first_and_the_rarer_on_top():
+    # inhibitory cells fire far more often in the default culture: drawn last, their
+    # markers (taller than a row of 1,024 channels) would hide the excitatory ones
+    cell_type = np.array([0, 0, 0, 1], dtype=np.uint8)
+    t = np.arange(0.0, 1_000.0, 10.0)
+    ch = np.where(np.arange(t.size) % 10 == 0, 0, 3)  # 10 excitatory spikes, 90 inhibitory
+    ax = Figure().add_subplot()
+    figures.plot_raster(ch, t, ax, cell_type)
+    assert [line.get_color() for line in ax.lines] == [figures.INH_COLOR, figures.EXC_COLOR]
+    assert [len(line.get_xdata()) for line in ax.lines] == [90, 10]
 
 
 def test_figure_input_errors_are_named(tmp_path):

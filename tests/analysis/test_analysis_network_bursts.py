@@ -103,3 +103,13 @@ def test_bad_parameters_are_named():
         detect_network_bursts(detect_bursts([7, 7, 7], [0.0, 1.0, 2.0]), 5)
     with pytest.raises(AnalysisInputError, match="dtype"):
         detect_network_bursts(np.zeros(3), 5)
+
+
+def test_ibi_is_timed_by_the_cores_when_a_long_burst_stretches_every_extent():
+    # a closed loop's stimulated channel: one burst of 10 s, every 10 ms
+    long_ch, long_t = network_burst([9], 0.0, 10_000.0)
+    starts = [2_000.0, 5_000.0, 9_000.0]
+    ch, t = merge((long_ch, long_t), *[network_burst(range(4), s, 60.0) for s in starts])
+    nbs = detect_network_bursts(detect_bursts(ch, t), 10)
+    assert nbs.start_ms.tolist() == [0.0, 0.0, 0.0]  # each extent starts with the long burst
+    assert inter_burst_intervals_ms(nbs) == pytest.approx([3_000.0, 4_000.0], abs=10.0)

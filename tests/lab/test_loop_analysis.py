@@ -37,3 +37,14 @@ def test_a_closed_loop_run_gets_the_loop_figure_and_no_psth(tmp_path):
     assert series.ranges_m.shape == (200, 7) and series.wheels_mps.shape == (201, 2)
     assert series.ca_t_s.size == 200 and np.all(series.ca_distance_frac[1:] <= 1.5)
     assert series.pulse_t_s.size == run.stimulation["t_ms"].size
+
+
+def test_the_ca_is_drawn_from_the_decoders_running_centre_when_it_has_one():
+    # decoding.params.centre_tau_s > 0: the decoder steers by the CA's departure from its
+    # own running mean, which moves `follow` of the way at each step with spikes
+    from lab.loop_figure import _running_centre
+
+    dx = np.array([10.0, 10.0, np.nan, 10.0])  # a CA held off-centre; no spike at step 2
+    rx, ry = _running_centre(dx, np.zeros(4), follow=0.1)
+    assert rx[[0, 1, 3]] == pytest.approx([10.0, 9.0, 8.1])  # the centre catches up
+    assert np.isnan(rx[2]) and ry[[0, 1, 3]] == pytest.approx([0.0, 0.0, 0.0])
