@@ -286,7 +286,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--drop-every", type=int, default=0, metavar="N", help="fault: drop every N-th reply"
     )
-    p.add_argument("--seed", type=int, default=0, help="range-finder noise of the world, if any")
+    p.add_argument(
+        "--seed",
+        type=_positive(int, zero=True),
+        default=None,
+        help="the emulator's noise (khepera: range-finder noise of the world, default 0; "
+        "intan: the culture's seed, default 1)",
+    )
     p = sub.add_parser(
         "certs",
         help="make a certificate authority and a certificate per participant (bus.security)",
@@ -757,7 +763,7 @@ def cmd_emulate(args) -> int:
         try:
             emulator = IntanEmulator(
                 args.culture or DEFAULT_CULTURE,
-                seed=args.seed or 1,
+                seed=1 if args.seed is None else args.seed,
                 command_port=args.command_port,
                 spike_port=args.spike_port,
                 realtime_priority=args.realtime_priority,
@@ -790,7 +796,7 @@ def cmd_emulate(args) -> int:
         ir_table=table,
         baud=args.baud,
         stop_bits=args.stop_bits,
-        seed=args.seed,
+        seed=args.seed or 0,
     )
     emulator.faults.garbage_every, emulator.faults.drop_every = args.garbage_every, args.drop_every
     run_until_signalled(emulator, link=args.link)

@@ -31,6 +31,10 @@ class IRCalibration:
         table = np.asarray(table, dtype=np.float64)
         if table.ndim != 2 or table.shape[1] != 2 or len(table) < 2:
             raise ValueError("an IR table has two columns, distance_m and value, and 2+ rows")
+        if not np.isfinite(table).all():
+            raise ValueError("an IR table's distances and values must be numbers (not NaN or inf)")
+        if (table[:, 0] < 0).any():
+            raise ValueError("an IR table's distances must be >= 0 m")
         table = table[np.argsort(table[:, 0], kind="stable")]
         # Keep one distance per value: the nearest distance of a saturated value (1023).
         values, first = np.unique(table[:, 1], return_index=True)

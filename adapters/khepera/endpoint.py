@@ -109,6 +109,8 @@ class KheperaEndpoint(Endpoint):
             raise ConfigError("body.params.port: the serial port of the robot is required")
         out = {**DEFAULTS, **params}
         out["port"] = check_value("body.params.port", str, out["port"])
+        if not out["port"].strip():
+            raise ConfigError("body.params.port: the serial port of the robot is required, got ''")
         if out["dialect"] not in DIALECTS:
             raise ConfigError(
                 f"body.params.dialect must be one of {DIALECTS}, got {out['dialect']!r}"
@@ -199,8 +201,15 @@ class KheperaEndpoint(Endpoint):
     def warm_up(self) -> None:
         """Connect: the robot stopped, answering, its link's cycle timed."""
         if self.driver.cycle_ms == 0.0:
-            self.driver.connect()
             link = self.driver.link
+            try:
+                self.driver.connect()
+            except ReplyError as exc:  # something answers, but not as this robot
+                raise LinkFault(
+                    f"the device on {link.name} does not answer as a {self.model.name} "
+                    f"({link.dialect} dialect): {exc}. Is it that robot, switched on, at "
+                    "body.params.baud?"
+                ) from None
             log.info("khepera on %s: serial cycle %.1f ms", link.name, self.driver.cycle_ms)
             freeze_s = link.guard.freeze_s if link.guard is not None else 0.0
             if 0 < freeze_s < 3 * self.driver.cycle_ms / 1e3:

@@ -6,6 +6,7 @@ import pytest
 
 from adapters.khepera.emulator import KheperaEmulator
 from adapters.khepera.endpoint import KheperaEndpoint
+from adapters.khepera.link import LinkFault
 from hub import conformance
 from hub.config import ConfigError, load_config
 from tests.adapters.khepera_rig import make_endpoint
@@ -86,11 +87,26 @@ def test_a_lockstep_run_with_a_khepera_is_refused_before_it_starts():
         ("body.params.speed=3", r"unknown key\(s\) \['speed'\]"),
         ('body.params.dialect="khepera4"', "body.params.dialect must be one of"),
         ('body.params.dialect="khepera3"', "body.params.ir_table_file: no IR calibration"),
+        ('body.params.port=""', "body.params.port: the serial port of the robot is required"),
     ],
 )
 def test_bad_params_are_named_before_the_port_is_opened(override, named):
     with pytest.raises(ConfigError, match=named):
         check(config(override))
+
+
+@pytest.mark.parametrize(
+    "rows, named",
+    [
+        ("0.01,nan\n0.05,100\n", "must be numbers"),  # a gap in a lab's spreadsheet
+        ("-0.05,1000\n0.05,100\n", "distances must be >= 0 m"),
+    ],
+)
+def test_an_ir_table_with_a_gap_or_a_negative_distance_is_refused(tmp_path, rows, named):
+    table = tmp_path / "ir.csv"
+    table.write_text("distance_m,value\n" + rows)
+    with pytest.raises(ConfigError, match=f"body.params.ir_table_file: {table}: .*{named}"):
+        check(config(f'body.params.ir_table_file="{table}"'))
 
 
 def test_the_hybrid_experiment_file_checks_out():
@@ -122,3 +138,20 @@ def test_a_freeze_limit_under_three_serial_cycles_is_refused_once_the_cycle_is_m
                 endpoint.warm_up()
         finally:
             endpoint.close()
+
+
+def test_a_device_that_answers_but_not_as_the_robot_is_a_fault_naming_the_port():
+    """Something on the port that answers, but not as this robot (here an emulator of the
+    paper's 7-sensor robot, whose N reply has 7 fields; a modem, a robot at another baud):
+    a device fault that says where and what, not a parsing error's traceback."""
+    with KheperaEmulator("configs/worlds/paper.toml") as emulator:
+        cfg = config(f'body.params.port="{emulator.path}"')  # configured as a Khepera II
+        endpoint = KheperaEndpoint.from_config(cfg.body, cfg)
+        try:
+            with pytest.raises(LinkFault) as fault:
+                endpoint.warm_up()
+        finally:
+            endpoint.close()
+    message = str(fault.value)
+    assert message.startswith(f"the device on {emulator.path} does not answer as a Khepera II")
+    assert "body.params.baud" in message and "garbled: 7 fields" in message

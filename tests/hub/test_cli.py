@@ -210,6 +210,8 @@ def test_an_output_folder_that_cannot_be_made_is_named_with_the_reason(
         # a negative count fired on every reply (n % -1 == 0)
         (["khepera", "--garbage-every", "-1"], "--garbage-every must be >= 0, got -1"),
         (["khepera", "--drop-every", "-2"], "--drop-every must be >= 0, got -2"),
+        (["khepera", "--seed", "-1"], "emulate: argument --seed: must be >= 0, got -1"),
+        (["intan", "--seed", "-1"], "emulate: argument --seed: must be >= 0, got -1"),
         # argparse's own refusals: exit status 2 (a fault's) and a usage block, before
         (["khepera", "--dialect", "khepera4"], "emulate: argument --dialect: invalid choice"),
         (["khepera", "--baud", "fast"], "emulate: argument --baud: invalid int value"),
