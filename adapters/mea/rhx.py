@@ -233,17 +233,38 @@ class RhxDriver:
 
     def open(self) -> None:
         """Connect, stop the run mode, enable spike output and biphasic stimulation set-up
-        on every electrode, and start reading spikes."""
+        on every electrode, and start reading spikes.
+
+        The stop guard is armed once the command port answers as an RHX does (its sample
+        rate): a service that is not one is sent nothing more. If a later step fails (the
+        spike port not there, a setting refused), the instrument is made safe and the guard
+        released here, and the failure is what is raised."""
         self._cmd = self._connect(self.command_port)
+        try:
+            rate = self.get("sampleratehertz")
+            try:
+                self.sample_rate_hz = float(rate)
+            except ValueError:
+                raise RhxError(
+                    f"the service at {self.host}:{self.command_port} does not answer as the "
+                    f"RHX software (its sample rate: {rate!r})"
+                ) from None
+        except BaseException:
+            self._cmd.close()
+            self._cmd = None
+            raise
         self._guard()
-        self.sample_rate_hz = float(self.get("sampleratehertz"))
-        self.set("runmode", "stop")
-        for name in self.layout.names:
-            self.set(f"{name}.tcpdataoutputenabledspike", True)
-            self.set(f"{name}.shape", "Biphasic")
-            self.set(f"{name}.source", f"KeyPress{TRIGGER}")
-            self.set(f"{name}.stimenabled", False)
-        self._spk = self._connect(self.spike_port)
+        try:
+            self.set("runmode", "stop")
+            for name in self.layout.names:
+                self.set(f"{name}.tcpdataoutputenabledspike", True)
+                self.set(f"{name}.shape", "Biphasic")
+                self.set(f"{name}.source", f"KeyPress{TRIGGER}")
+                self.set(f"{name}.stimenabled", False)
+            self._spk = self._connect(self.spike_port)
+        except BaseException:
+            self.close()
+            raise
         self._spk.settimeout(0.2)
         self._reader = threading.Thread(target=self._read_spikes, name="rhx-spikes", daemon=True)
         self._reader.start()

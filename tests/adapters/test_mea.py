@@ -4,6 +4,7 @@ stimulation that evokes a response, the instrument's clock, and safety."""
 from __future__ import annotations
 
 import os
+import socket
 import subprocess
 import sys
 import threading
@@ -578,3 +579,47 @@ def test_the_stop_guard_disables_every_electrode_when_the_adapter_is_gone(emulat
     released.close()  # disables what it enabled, stops run mode, then releases the guard
     assert guard.wait(timeout=5) == 0
     assert "stop guard" not in capfd.readouterr().err  # it wrote nothing
+
+
+def test_an_open_that_fails_past_the_handshake_leaves_the_rhx_safe_and_says_why(emulator, capfd):
+    """The spike port wrong (a lab's typo): the failure raised is the port's, the
+    instrument is left with every electrode disabled and run mode stopped, and the stop
+    guard is released, not fired (its line would hide the cause)."""
+    with socket.socket() as spare:  # a port nobody listens on
+        spare.bind(("127.0.0.1", 0))
+        wrong = spare.getsockname()[1]
+    driver = RhxDriver(emulator.layout, command_port=emulator.command_port, spike_port=wrong)
+    with pytest.raises(RhxError, match=f"cannot reach the RHX software at 127.0.0.1:{wrong}"):
+        driver.open()
+    assert driver.guard is not None and driver.guard.process.wait(timeout=5) == 0
+    assert "stop guard" not in capfd.readouterr().err
+    assert emulator.values["runmode"] == "stop"
+    assert all(emulator.values[f"{n}.stimenabled"] == "false" for n in emulator.layout.names)
+
+
+def test_a_service_that_is_not_the_rhx_is_sent_nothing_but_the_first_question():
+    """The command port pointed at another program: it is asked its sample rate, and when
+    the answer is not an RHX's, nothing else (no guard's stop commands) is written to it."""
+    with socket.create_server(("127.0.0.1", 0)) as server:
+        received = []
+
+        def answer() -> None:
+            conn, _ = server.accept()
+            with conn:
+                received.append(conn.recv(4096))
+                conn.sendall(b"Return: sampleratehertz hello\n")
+                conn.settimeout(1.0)
+                try:
+                    while chunk := conn.recv(4096):
+                        received.append(chunk)
+                except TimeoutError:
+                    pass
+
+        thread = threading.Thread(target=answer)
+        thread.start()
+        port = server.getsockname()[1]
+        driver = RhxDriver(ElectrodeLayout.mcs60(), command_port=port, spike_port=port)
+        with pytest.raises(RhxError, match="does not answer as the RHX software"):
+            driver.open()
+        thread.join(timeout=5)
+    assert b"".join(received) == b"get sampleratehertz\n" and driver.guard is None
