@@ -315,6 +315,12 @@ def run_until_signalled(emulator: KheperaEmulator, *, link: str | None = None, r
     link_path = Path(link) if link else None
     if link_path is not None:
         if link_path.is_symlink():
+            if link_path.exists():  # a live device: another emulator's, most likely
+                print(
+                    f"neuvision: {link_path} linked to {os.readlink(link_path)}, which is "
+                    f"there; it now links to this emulator ({emulator.path})",
+                    file=sys.stderr,
+                )
             link_path.unlink()
         link_path.symlink_to(emulator.path)
     print(emulator.path, flush=True)
@@ -338,5 +344,14 @@ def run_until_signalled(emulator: KheperaEmulator, *, link: str | None = None, r
             )
     finally:
         emulator.stop()
-        if link_path is not None and link_path.is_symlink():
+        # only this emulator's link: another emulator may have taken the name over since
+        if link_path is not None and _links_to(link_path, emulator.path):
             link_path.unlink()
+
+
+def _links_to(link: Path, target: str) -> bool:
+    """Whether ``link`` is a symlink to ``target``."""
+    try:
+        return os.readlink(link) == str(target)
+    except OSError:  # gone, or not a link
+        return False

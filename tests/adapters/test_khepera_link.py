@@ -277,3 +277,39 @@ def test_a_stop_after_the_link_closed_is_no_error_the_close_stopped_the_motors(e
     driver.stop_motors()
     with pytest.raises(LinkFault, match="closed"):
         driver.link.transact("D", 0, 0)
+
+
+def test_an_emulators_link_taken_over_by_another_is_left_to_it_at_exit(tmp_path):
+    """Two emulators started on one --link name: the second takes it, and the first's exit
+    leaves the link to the second (an experiment file naming the link still reaches a robot)."""
+    import os
+    import subprocess
+    import sys
+
+    from hub.launch import die_with_parent
+
+    link = tmp_path / "khepera"
+
+    def start():
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "hub.cli", "emulate", "khepera", "--link", str(link)],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+            preexec_fn=die_with_parent,
+        )  # fmt: skip
+        return proc, proc.stdout.readline().strip()
+
+    first, first_path = start()
+    second, second_path = start()
+    try:
+        assert os.readlink(link) == second_path != first_path
+        first.terminate()
+        assert first.wait(timeout=10) == 0
+        assert f"which is there; it now links to this emulator ({second_path})" in (
+            second.stderr.readline() + second.stderr.readline()
+        )
+        assert os.readlink(link) == second_path
+    finally:
+        for proc in (first, second):
+            proc.terminate()
+            proc.wait(timeout=10)
+    assert not link.is_symlink()  # the second's own link, removed at its exit
