@@ -161,6 +161,9 @@ class IntanEmulator:
     # ------------------------------------------------------------ command port
 
     def _accept_commands(self) -> None:
+        """One command client at a time, as the RHX software serves them (it stops
+        listening while one is connected, and a second is refused; here a second waits,
+        unanswered, until the first leaves): two runs cannot drive one instrument."""
         while not self._stop.is_set():
             try:
                 conn, _ = self._cmd_server.accept()
@@ -168,9 +171,7 @@ class IntanEmulator:
                 continue
             except OSError:
                 return
-            threading.Thread(
-                target=self._raised, args=(self._serve_commands, conn), daemon=True
-            ).start()
+            self._serve_commands(conn)
 
     def _serve_commands(self, conn: socket.socket) -> None:
         conn.settimeout(0.2)

@@ -241,7 +241,14 @@ class RhxDriver:
         released here, and the failure is what is raised."""
         self._cmd = self._connect(self.command_port)
         try:
-            rate = self.get("sampleratehertz")
+            try:
+                rate = self.get("sampleratehertz")
+            except RhxError as exc:
+                raise RhxError(
+                    f"the RHX software at {self.host}:{self.command_port} did not answer its "
+                    f"first question ({exc}); it serves one client at a time: is another run "
+                    "or program connected to it?"
+                ) from None
             try:
                 self.sample_rate_hz = float(rate)
             except ValueError:

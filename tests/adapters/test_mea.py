@@ -623,3 +623,26 @@ def test_a_service_that_is_not_the_rhx_is_sent_nothing_but_the_first_question():
             driver.open()
         thread.join(timeout=5)
     assert b"".join(received) == b"get sampleratehertz\n" and driver.guard is None
+
+
+def test_a_second_client_of_one_instrument_is_refused_and_changes_nothing(emulator):
+    """Two runs pointed at one RHX: the software serves one command client at a time, so
+    the second cannot reach the instrument (its first question unanswered) and the first
+    run's settings stand."""
+    first = driver_for(emulator)
+    first.open()
+    first.start()
+    second = RhxDriver(
+        emulator.layout,
+        command_port=emulator.command_port,
+        spike_port=emulator.spike_port,
+        timeout_s=0.5,
+    )
+    try:
+        with pytest.raises(RhxError, match="serves one client at a time"):
+            second.open()
+        assert emulator.values["runmode"] == "run"  # the first run's, untouched
+        first.sample_clock()  # the first still talks to it
+    finally:
+        second.close()
+        first.close()
