@@ -23,6 +23,11 @@ from hub.security import CA_FILE, PARTICIPANTS, PASSWORDS_FILE, certificate_file
 
 CA_KEY_FILE = "ca.key"
 CA_NAME = "NeuVision experiment CA"
+MAX_DAYS = 36_500  # a hundred years: past that, dates overflow X.509's
+
+
+class CertsError(ValueError):
+    """A certificate folder that cannot be used as asked (the message says why)."""
 
 
 def default_hub_hosts() -> list[str]:
@@ -51,6 +56,10 @@ def make_certificates(
     ------
     ValueError
         A role that is not a participant, or a host name that is empty.
+    CertsError
+        ``folder`` holds the CA's certificate without its key, or the key without the
+        certificate: a participant's folder (which holds ``ca.pem`` only), where a new CA
+        would replace the one every other participant trusts.
     """
     from cryptography import x509
     from cryptography.hazmat.primitives import hashes, serialization
@@ -85,7 +94,15 @@ def make_certificates(
         )
 
     ca_path, ca_key_path = folder / CA_FILE, folder / CA_KEY_FILE
-    if ca_path.exists() and ca_key_path.exists():
+    if ca_path.exists() != ca_key_path.exists():
+        here, missing = (ca_path, ca_key_path) if ca_path.exists() else (ca_key_path, ca_path)
+        raise CertsError(
+            f"{folder} holds {here.name} but not {missing.name}: make certificates in the "
+            f"folder where the CA's key ({CA_KEY_FILE}) is kept and copy them here (a "
+            f"participant's folder holds {CA_FILE} only), or give an empty folder for a new "
+            "CA; nothing was written"
+        )
+    if ca_path.exists():
         ca = x509.load_pem_x509_certificate(ca_path.read_bytes())
         ca_key = serialization.load_pem_private_key(ca_key_path.read_bytes(), password=None)
     else:

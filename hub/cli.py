@@ -819,21 +819,27 @@ def _check_link(link: Path) -> None:
 
 def cmd_certs(args) -> int:
     try:
-        from hub.certs import make_certificates, make_passwords
+        from hub.certs import MAX_DAYS, CertsError, make_certificates, make_passwords
     except ImportError:
         raise InputError(
             "neuvision certs needs the 'cryptography' package: pip install 'neuvision[security]'"
         ) from None
     hosts = [h.strip() for h in args.hub_hosts.split(",")] if args.hub_hosts else None
-    if args.days < 1:
-        raise InputError(f"--days must be >= 1, got {args.days}")
+    if not 1 <= args.days <= MAX_DAYS:
+        raise InputError(f"--days must be 1 to {MAX_DAYS}, got {args.days}")
+    if Path(args.dir).exists() and not Path(args.dir).is_dir():
+        raise InputError(f"{args.dir} is not a folder: give the folder to write the files in")
     roles = [r.strip() for r in args.roles.split(",")]
     try:
         written = make_certificates(args.dir, roles, hub_hosts=hosts, days=args.days)
         if args.passwords:
             written += make_passwords(args.dir, roles)
+    except CertsError as exc:
+        raise InputError(str(exc)) from None
     except ValueError as exc:
         raise InputError(f"--roles / --hub-hosts: {exc}") from None
+    except OSError as exc:
+        raise InputError(f"cannot write in {args.dir}: {exc.strerror or exc}") from None
     for path in written:
         _emit(str(path))
     print(f"neuvision: {len(written)} files in {args.dir}", file=sys.stderr)

@@ -88,8 +88,10 @@ def tls_settings(
     for what, path in files.items():
         if not path.is_file():
             raise SecurityError(
-                f"no {what} file {str(path)!r} for the {role} (bus.certs_dir; make it with "
-                f"'neuvision certs {certs_dir} --roles {role}' and the same CA)"
+                f"no {what} file {str(path)!r} for the {role} (bus.certs_dir): make it "
+                f"with 'neuvision certs {certs_dir} --roles {role}' where the experiment's "
+                "CA key (ca.key) is kept, or in an empty folder for a new CA, and give each "
+                "participant its own files and ca.pem"
             )
     side = "listen" if listener else "connect"
     settings = {"root_ca_certificate": str(files["ca"]), "enable_mtls": mutual}

@@ -355,3 +355,36 @@ def test_a_command_called_from_another_thread_leaves_the_signals_alone(
     thread.join(30)
     assert len(statuses) == 1  # returned, without raising
     assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN
+
+
+def test_certs_in_a_participants_folder_are_refused_and_its_ca_kept(capsys, tmp_path):
+    """A participant's folder holds ca.pem without the CA's key: making certificates there
+    would make a new CA and replace the one every other participant trusts."""
+    made = tmp_path / "made"
+    assert main(["certs", str(made), "--roles", "body"]) == 0
+    capsys.readouterr()
+    participant = tmp_path / "participant"
+    participant.mkdir()
+    ca = (made / "ca.pem").read_bytes()
+    (participant / "ca.pem").write_bytes(ca)
+    err = refused(capsys, ["certs", str(participant), "--roles", "body"])
+    assert f"{participant} holds ca.pem but not ca.key" in err and "nothing was written" in err
+    assert [p.name for p in participant.iterdir()] == ["ca.pem"]
+    assert (participant / "ca.pem").read_bytes() == ca
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["--days", "10000000"], "--days must be 1 to 36500, got 10000000"),
+        (["--days", "0"], "--days must be 1 to 36500, got 0"),
+    ],
+)
+def test_certs_bad_options_are_one_line(capsys, tmp_path, argv, message):
+    assert message in refused(capsys, ["certs", str(tmp_path / "c"), *argv])
+    assert not (tmp_path / "c").exists()
+
+
+def test_certs_into_a_file_is_one_line(capsys, tmp_path):
+    (tmp_path / "file").write_text("x")
+    assert "is not a folder" in refused(capsys, ["certs", str(tmp_path / "file")])
