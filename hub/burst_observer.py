@@ -47,7 +47,15 @@ from hub import stopping, wire
 from hub.analysis.bursts import BurstParams
 from hub.analysis.network_bursts import NetworkBurstParams
 from hub.analysis.online import OnlineBurstDetector
-from hub.bus import LOOP_PUBLISH, open_session, payload_bytes
+from hub.bus import (
+    HUB_CHECK_S,
+    LOOP_PUBLISH,
+    UNSERVED,
+    hub_answers,
+    open_session,
+    payload_bytes,
+    reaches_anyone,
+)
 from hub.config import BusSection
 from hub.live import LiveBursts
 from hub.protocol import (
@@ -120,8 +128,13 @@ class BurstObserver:
             session.liveliness().declare_token(keys.alive("observer", NAME)),
         ]
 
-    def serve(self, stop: threading.Event | StopFlag, *, once: bool = False) -> None:
-        """Handle runs until ``stop`` is set (or, with ``once``, the first run ends)."""
+    def serve(self, stop: threading.Event | StopFlag, *, once: bool = False) -> bool:
+        """Handle runs until ``stop`` is set (or, with ``once``, the first run ends).
+
+        Returns False when, with ``once``, the hub it reached left before giving it a run
+        (it ended, faulted waiting for its endpoints, or runs under another session): it
+        will not get one, and waiting on would be for ever."""
+        hub_left = _HubWatch(self.session, self.keys) if once else None
         while not stop.is_set() and not (once and self.runs_done):
             try:
                 item = self._events.get(timeout=min(WAKE_S, ASK_S))
@@ -132,7 +145,14 @@ class BurstObserver:
             self._take_spikes()
             if self._ending is not None and self._events.empty():
                 self._try_end()
+            if hub_left is not None and self._run is None and not self.runs_done and hub_left():
+                log.error(
+                    "burst observer: the hub it reached left without giving it a run (did "
+                    "it end, or run under another session?): exiting (--once)"
+                )
+                return False
         self._close_run()
+        return True
 
     def _take_spikes(self) -> None:
         """Analyse the messages of spikes that came (in one feed: its cost is mostly per
@@ -381,6 +401,33 @@ class OnlineTally:
         }
 
 
+class _HubWatch:
+    """Called every loop, says (every ``HUB_CHECK_S``) whether the hub that was reached has
+    left: its token gone, or no one reached any more (a hub killed, or one under another
+    session ending, takes its router with it), two checks in a row."""
+
+    def __init__(self, session: zenoh.Session, keys: Keys):
+        self.session, self.keys = session, keys
+        self.reached = self.seen = False
+        self.unanswered = 0
+        self.next_check = 0.0
+
+    def __call__(self) -> bool:
+        now = time.monotonic()
+        if now < self.next_check:
+            return False
+        self.next_check = now + HUB_CHECK_S
+        connected = reaches_anyone(self.session)
+        self.reached = self.reached or connected
+        if hub_answers(self.session, self.keys):
+            self.seen, self.unanswered = True, 0
+        elif self.seen or (self.reached and not connected):
+            self.unanswered += 1
+        else:
+            self.unanswered = 0
+        return self.unanswered >= 2
+
+
 class _StoppedWaiting(Exception):
     """Asked to stop while still waiting for the hub."""
 
@@ -416,7 +463,7 @@ def main(bus: BusSection, *, once: bool = False) -> int:
             os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), ANALYSIS_NICE)
         except (AttributeError, OSError):
             pass
-        observer.serve(stop, once=once)
+        served = observer.serve(stop, once=once)
     finally:
         session.close()
-    return 0
+    return 0 if served else UNSERVED

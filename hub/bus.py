@@ -189,3 +189,29 @@ def payload_bytes(sample) -> bytes:
     """The payload of a Zenoh sample or query as bytes (empty if none)."""
     payload = sample.payload
     return b"" if payload is None else payload.to_bytes()
+
+
+def hub_answers(session, keys, timeout_s: float = 0.5) -> bool:
+    """Whether the hub's liveliness token is on the bus (asked, not waited for)."""
+    try:
+        replies = session.liveliness().get(keys.alive("hub", "0"), timeout=timeout_s)
+        return any(reply.ok is not None for reply in replies)
+    except zenoh.ZError:
+        return False
+
+
+def reaches_anyone(session) -> bool:
+    """Whether this session reaches anyone (a router or a peer): a hub killed takes its
+    router with it, and its clients then hear no liveliness change."""
+    try:
+        return bool(list(session.info.routers_zid()) or list(session.info.peers_zid()))
+    except zenoh.ZError:
+        return False
+
+
+#: how often a participant asks whether its hub is still there (an endpoint whose run's
+#: inputs stopped; an endpoint or observer serving one run, none taken yet)
+HUB_CHECK_S = 1.0
+#: the status of a participant serving one run (``--once``) whose hub left without
+#: starting it: ``neuvision endpoint --once`` and ``observe --once`` exit with it
+UNSERVED = 1

@@ -36,7 +36,16 @@ from collections.abc import Sequence
 import zenoh
 
 from hub import protocol, stopping, wire
-from hub.bus import LOOP_PUBLISH, TELEMETRY_PUBLISH, open_session, payload_bytes
+from hub.bus import (
+    HUB_CHECK_S,
+    LOOP_PUBLISH,
+    TELEMETRY_PUBLISH,
+    UNSERVED,
+    hub_answers,
+    open_session,
+    payload_bytes,
+    reaches_anyone,
+)
 from hub.config import BusSection, ConfigError, EndpointSection, ExperimentConfig
 from hub.limits import StimulationLimits, motor_violation
 from hub.protocol import (
@@ -92,31 +101,6 @@ def _host() -> dict:
 
 
 _HOST = _host()
-
-
-#: how often an endpoint whose run's inputs stopped asks whether its hub is still there
-HUB_CHECK_S = 1.0
-#: :meth:`Endpoint.serve`'s status when, serving one run (``once``), its hub left without
-#: starting it (``neuvision endpoint --once`` exits with it)
-UNSERVED = 1
-
-
-def _hub_answers(session, keys: Keys, timeout_s: float = 0.5) -> bool:
-    """Whether the hub's liveliness token is on the bus (asked, not waited for)."""
-    try:
-        replies = session.liveliness().get(keys.alive("hub", "0"), timeout=timeout_s)
-        return any(reply.ok is not None for reply in replies)
-    except zenoh.ZError:
-        return False
-
-
-def _connected(session) -> bool:
-    """Whether this session reaches anyone (a router or a peer): a hub killed takes its
-    router with it, and its clients then hear no liveliness change."""
-    try:
-        return bool(list(session.info.routers_zid()) or list(session.info.peers_zid()))
-    except zenoh.ZError:
-        return False
 
 
 class _StoppedWaiting(Exception):
@@ -531,6 +515,7 @@ class Endpoint(abc.ABC):
             "last_input": time.monotonic(),
             "serving": True,
             "hub_seen": False,  # the hub's token seen once, by query or by its PUT
+            "reached": False,  # a router or peer reached once (a hub, maybe another session's)
             "hub_token": False,  # the last news of the hub's token was a PUT
         }
         status = 0
@@ -573,9 +558,9 @@ class Endpoint(abc.ABC):
             """Whether the hub is on the bus: its token answers a liveliness query, or its
             last news was a PUT and the session still reaches someone. A query alone is not
             enough: Zenoh answered one with nothing while another participant joined."""
-            if _hub_answers(session, keys):
+            if hub_answers(session, keys):
                 return True
-            return state["hub_token"] and _connected(session)
+            return state["hub_token"] and reaches_anyone(session)
 
         try:
             # Zenoh undeclares what is garbage-collected: keep every declaration.
@@ -599,16 +584,25 @@ class Endpoint(abc.ABC):
                 if once and self.runs == 0 and time.monotonic() >= next_once_check:
                     # Serving one run, none taken yet: a hub that was there and left (it
                     # refused this endpoint, or ended) will not start it. Asked every second.
+                    # A hub under another session is never seen, but its going is: the
+                    # session then reaches no one.
                     next_once_check = time.monotonic() + HUB_CHECK_S
+                    connected = reaches_anyone(session)
+                    state["reached"] = state["reached"] or connected
                     if hub_there():
                         state["hub_seen"], once_unanswered = True, 0
-                    elif state["hub_seen"]:  # before it was seen, it may be starting
-                        once_unanswered += 1
-                    if state["hub_seen"] and once_unanswered >= 2:
+                    elif state["hub_seen"] or (state["reached"] and not connected):
+                        once_unanswered += 1  # before it was seen, it may be starting
+                    else:
+                        once_unanswered = 0
+                    if once_unanswered >= 2:
                         log.error(
-                            "%s/%s: the hub left without starting a run with it (did it "
-                            "refuse it? its log says why): exiting (--once)",
+                            "%s/%s: the hub %s left without starting a run with it (did it "
+                            "refuse it, or run under another session than %r? its log says "
+                            "why): exiting (--once)",
                             self.role, self.id,
+                            "it reached" if state["hub_seen"] else "or router it reached",
+                            bus.session,
                         )  # fmt: skip
                         status = UNSERVED
                         break

@@ -179,11 +179,14 @@ def test_ctrl_c_while_an_endpoint_builds_its_model_is_one_line(
 def test_an_endpoint_on_another_session_is_named_by_the_hub_waiting_for_it(tmp_path, bus_overrides):
     """An endpoint started with another --session reaches the hub's router but not its run:
     the hub waited and said only that body/0 did not appear on its session. Now it says
-    where body/0 is."""
+    where body/0 is; and the body, serving one run (--once), exits when that hub leaves,
+    though it never saw it (it waited for ever)."""
     other = f"other-{uuid.uuid4().hex[:8]}"
     body_items = [i for i in bus_overrides if not i.startswith("bus.session")]
     log = open(tmp_path / "body.log", "w")
-    body = neuvision("endpoint", "body", CONFIG, "--session", other, *sets(body_items), stderr=log)
+    body = neuvision(
+        "endpoint", "body", CONFIG, "--session", other, "--once", *sets(body_items), stderr=log
+    )
     culture = _serve("culture", bus_overrides, subprocess.DEVNULL)
     try:
         done = subprocess.run(
@@ -197,6 +200,10 @@ def test_an_endpoint_on_another_session_is_named_by_the_hub_waiting_for_it(tmp_p
         assert "body/0 did not appear on session" in last
         assert f"body/0 is on this hub's bus under session {other!r}" in last, last
         assert "culture/0" not in last.split("did not appear")[0]
+        assert body.wait(timeout=60) == 1  # UNSERVED
+        said = (tmp_path / "body.log").read_text()
+        assert "left without starting a run with it" in said
+        assert f"another session than {other!r}" in said
     finally:
         for p in (body, culture):
             p.terminate()
@@ -467,3 +474,31 @@ def test_an_endpoint_refused_under_mtls_says_which_side_refused(tmp_path, bus_ov
     assert expected in last, last
     if case != "another CA":
         assert "refused the body's certificate" not in last
+
+
+@pytest.mark.slow  # a hub's start-up and its wait for endpoints
+def test_a_burst_observer_serving_one_run_exits_when_its_hub_leaves_without_one(
+    tmp_path, bus_overrides
+):
+    """`neuvision observe bursts --once` waited for ever when its hub ended without giving
+    it a run (here a hub that faulted waiting for endpoints that never came): it now exits,
+    status 1, saying so."""
+    log = tmp_path / "observer.log"
+    with open(log, "w") as err:
+        observer = neuvision(
+            "observe", "bursts", CONFIG, "--once", *sets(bus_overrides), stderr=err
+        )
+    try:
+        done = subprocess.run(
+            [sys.executable, "-m", "hub.cli", "hub", CONFIG, "--quiet", "--duration-s", "0.2",
+             "--runs-dir", str(tmp_path / "runs"),
+             *sets([*bus_overrides, *EXTERNAL, 'online.launch="external"',
+                    "loop.wait_timeout_s=4"])],
+            capture_output=True, text=True, timeout=120,
+        )  # fmt: skip
+        assert done.returncode == 2, done.stderr[-2000:]  # no endpoint came
+        assert observer.wait(timeout=60) == 1, log.read_text()
+    finally:
+        if observer.poll() is None:
+            observer.kill()
+    assert "left without giving it a run" in log.read_text()
