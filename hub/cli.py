@@ -87,6 +87,8 @@ def _address(text: str, args) -> str:
     config's ``bus.listen`` port."""
     if "/" in text:
         return text  # already a locator: tcp/10.0.0.2:7447, tls/...
+    if not text.strip() or text.endswith(":"):
+        raise InputError(f"{text!r} is not an address: give HOST, HOST:PORT or [IPv6]:PORT")
     if text.startswith("["):  # [IPv6] or [IPv6]:PORT
         host, _, rest = text[1:].partition("]")
         port = rest[1:] if rest.startswith(":") else ""

@@ -173,6 +173,26 @@ class PolicySection:
     rejoin_s: float = field(default=0.0, metadata=bounds(ge=0))
 
 
+_IP_SCHEMES = ("tcp", "tls", "udp", "quic")
+
+
+def _locator_problem(locator: str) -> str:
+    """Why ``locator`` is not a Zenoh locator of an IP scheme (``tcp/HOST:PORT``, the
+    port 0 to 65535; ``[IPv6]`` in brackets), or "" (other schemes are left to Zenoh)."""
+    scheme, slash, rest = locator.partition("/")
+    if not slash:
+        return "is not an address: give tcp/HOST:PORT (or tls/HOST:PORT)"
+    if scheme not in _IP_SCHEMES:
+        return ""
+    address = re.split(r"[?#]", rest, maxsplit=1)[0]  # Zenoh's options after ? or #
+    host, colon, port = address.rpartition(":")
+    if not colon or not host or host in ("[]",):
+        return f"has no host and port: give {scheme}/HOST:PORT"
+    if not (port.isdigit() and int(port) <= 65535):
+        return f"has no port 0 to 65535 (got {port!r})"
+    return ""
+
+
 @dataclass(frozen=True)
 class BusSection:
     session: str = field(default="default", metadata=bounds(check=_session))
@@ -205,6 +225,13 @@ class BusSection:
     certs_dir: str = ""
 
     def __post_init__(self) -> None:
+        if not self.listen:
+            raise ConfigError("listen: at least one address, where the hub listens")
+        for key in ("listen", "connect"):
+            for locator in getattr(self, key):
+                why = _locator_problem(locator)
+                if why:
+                    raise ConfigError(f"{key}: {locator!r} {why}")
         if self.security == "none":
             return
         for key in ("listen", "connect"):

@@ -96,6 +96,11 @@ def test_a_shipped_config_named_from_another_folder_is_refused_with_where_it_is(
         ('body.kind="no_such_module:Body"', "body.kind: cannot load"),
         ('coding.scheme="no_such_module:f"', "coding.scheme: cannot import"),
         ("online.burst={min_spikes=0}", "online.burst"),
+        # an address Zenoh would refuse only once the run's folder and processes exist
+        ('bus.listen=["tcp/127.0.0.1:99999"]', "bus.listen: 'tcp/127.0.0.1:99999' has no port"),
+        ('bus.listen=["garbage"]', "bus.listen: 'garbage' is not an address"),
+        ("bus.listen=[]", "bus.listen: at least one address"),
+        ('bus.connect=["tcp/hub.lab"]', "bus.connect: 'tcp/hub.lab' has no host and port"),
     ],
 )
 def test_a_bad_value_is_named_by_its_key(capsys, tmp_path, no_process, override, message):
@@ -114,6 +119,17 @@ def test_the_hub_alone_checks_the_same(capsys, tmp_path, no_process):
     argv = ["hub", str(CLOSED_LOOP), "--quiet", "--runs-dir", str(runs)]
     err = refused(capsys, argv + ["--set", "body.params.seed=-1"])
     assert "body.params.seed must be >= 0" in err and not runs.exists()
+
+
+@pytest.mark.parametrize(
+    "address, message",
+    [
+        ("127.0.0.1:abc", "bus.connect: 'tcp/127.0.0.1:abc' has no port 0 to 65535"),
+        ("127.0.0.1:", "'127.0.0.1:' is not an address"),
+    ],
+)
+def test_a_bad_connect_address_is_one_line_before_anything_waits(capsys, address, message):
+    assert message in refused(capsys, ["ctl", "status", "--connect", address])
 
 
 def test_a_missing_run_folder_is_one_line(capsys, tmp_path):
