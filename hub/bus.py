@@ -24,7 +24,7 @@ os.environ.setdefault("ZENOH_RUNTIME", ZENOH_RUNTIME)
 import zenoh  # noqa: E402
 
 from hub import security  # noqa: E402
-from hub.config import BusSection  # noqa: E402
+from hub.config import BusSection, ConfigError  # noqa: E402
 
 # Loop messages must not be dropped under load, and should leave at once.
 LOOP_PUBLISH = dict(
@@ -109,6 +109,17 @@ def zenoh_config(bus: BusSection, *, listener: bool, role: str | None = None) ->
         if listener:
             put("access_control", security.access_control(bus.keys, bus.security))
     return cfg
+
+
+def check_security_files(bus: BusSection, roles) -> None:
+    """With ``bus.security`` on: each of ``roles`` (``hub``, ``body``, ...) has its
+    certificate or password in ``bus.certs_dir``, before a folder or a process exists
+    (or a model is built). Raises :class:`ConfigError` naming the file and how to make it."""
+    for role in roles if bus.security != "none" else ():
+        try:
+            zenoh_config(bus, listener=role == "hub", role=role)
+        except BusError as exc:
+            raise ConfigError(str(exc)) from None
 
 
 #: an endpoint tries to reach its hub for this long at a time, saying so between tries

@@ -477,10 +477,12 @@ def _emit(text: str) -> None:
 
 
 def cmd_endpoint(args) -> int:
+    from hub.bus import check_security_files
     from hub.endpoint import DeviceFault
     from hub.launch import make_endpoint, settings_digest
 
     cfg = load_config(args.config, _overrides(args))
+    check_security_files(cfg.bus, [args.role])  # before its model is built
     priority = endpoint_priority(cfg.loop.mode, cfg.loop.realtime_priority)
     cpus = cfg.endpoint(args.role).cpus
     try:
@@ -501,8 +503,10 @@ def cmd_endpoint(args) -> int:
 
 def cmd_observe(args) -> int:
     from hub.burst_observer import main as observe_bursts
+    from hub.bus import check_security_files
 
     cfg = load_config(args.config, _overrides(args))
+    check_security_files(cfg.bus, ["observer"])
     return observe_bursts(cfg.bus, once=args.once)
 
 

@@ -205,7 +205,7 @@ class BusSection:
     listen: tuple[str, ...] = ("tcp/127.0.0.1:7447",)
     connect: tuple[str, ...] = ()
     scouting: bool = False
-    # An endpoint gives up (exit status 1, message naming the address) if it cannot
+    # An endpoint gives up (exit status 2, message naming the address) if it cannot
     # reach the hub within this long.
     connect_timeout_s: float = field(default=30.0, metadata=bounds(gt=0))
     lease_ms: int = field(default=1000, metadata=bounds(ge=100))

@@ -404,3 +404,22 @@ def test_certs_bad_options_are_one_line(capsys, tmp_path, argv, message):
 def test_certs_into_a_file_is_one_line(capsys, tmp_path):
     (tmp_path / "file").write_text("x")
     assert "is not a folder" in refused(capsys, ["certs", str(tmp_path / "file")])
+
+
+@pytest.mark.parametrize("command", [["endpoint", "body"], ["observe", "bursts"]])
+def test_a_participant_without_its_certificate_is_refused_before_it_builds(
+    capsys, tmp_path, monkeypatch, command
+):
+    """Started on its own machine with bus.security on and its files not there: a config
+    error naming the file, before its model is built or the hub is sought."""
+    import hub.launch
+
+    def no_model(*args, **kwargs):
+        raise AssertionError("the endpoint was built")
+
+    monkeypatch.setattr(hub.launch, "make_endpoint", no_model)
+    secured = ['bus.security="mtls"', f'bus.certs_dir="{tmp_path}"',
+               'bus.listen=["tls/127.0.0.1:7555"]']  # fmt: skip
+    argv = [*command, str(CLOSED_LOOP), *[a for s in secured for a in ("--set", s)]]
+    err = refused(capsys, argv)
+    assert err.startswith(f"neuvision: config error: no ca file '{tmp_path}/ca.pem' for the ")
