@@ -85,6 +85,7 @@ def run_experiment(
     from hub.bus import free_tcp_port
     from hub.launch import (
         dashboard_address,
+        last_line,
         start_local_dashboard,
         start_local_endpoints,
         stop_local_endpoints,
@@ -166,11 +167,12 @@ def run_experiment(
                     announce(
                         f"the dashboard ended early (status {ended_early}); see {dash.log_path}"
                     )
+    logs = {p.role: p.log_path for p in procs}
     for role, code in codes.items():
         if code == -signal.SIGTERM:  # stopped above while still starting, before its handler
             log.debug("%s endpoint stopped while it was starting up", role)
-        elif code != 0:
-            announce(f"{role} endpoint exited with status {code}")
+        elif code != 0:  # its own last word: the cause the hub saw only as its vanishing
+            announce(f"{role} endpoint exited with status {code}{last_line(logs[role])}")
     if result.outcome != "fault":
         try:
             summary = after_run(result, cfg)

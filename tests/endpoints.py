@@ -17,7 +17,7 @@ import time
 import numpy as np
 
 from hub.config import ConfigError
-from hub.endpoint import Endpoint
+from hub.endpoint import DeviceFault, Endpoint
 from hub.protocol import (
     Description,
     MotorCommand,
@@ -98,6 +98,25 @@ class DeviceBody(EchoBody):
 
     def describe(self):
         return dataclasses.replace(super().describe(), realtime_only=True, cycle_ms=80.0)
+
+
+class FailingDeviceBody(EchoBody):
+    """An echo body whose device fails at step ``params.fail_at`` (a serial line lost)."""
+
+    kind = "test_failing_device_body"
+
+    def __init__(self, id="0", fail_at: int = 20):
+        super().__init__(id)
+        self.fail_at = fail_at
+
+    @classmethod
+    def from_config(cls, section, cfg):
+        return cls(section.id, **section.params)
+
+    def step(self, m: MotorCommand, window) -> SensorReading:
+        if m.step == self.fail_at:
+            raise DeviceFault(f"the test device's line failed at step {m.step}")
+        return super().step(m, window)
 
 
 class BodyStoppedWhileBuilding(EchoBody):

@@ -13,6 +13,7 @@ from hub.analysis.bursts import detect_bursts
 from hub.analysis.network_bursts import NetworkBurstParams, detect_network_bursts
 from hub.protocol import MotorCommand, SensorReading, SpikeBatch, Stimulation
 from hub.record import read_run
+from tests.conftest import TEST_ENDPOINTS
 from tests.stall_witness import StallWitness
 
 pytestmark = pytest.mark.bus
@@ -142,6 +143,22 @@ def test_an_endpoint_that_cannot_start_ends_the_run_at_once_with_its_reason(tmp_
     assert proc.returncode == 2
     assert "body endpoint exited with status 3" in proc.stderr
     assert "body.params.nope is not a parameter" in proc.stderr
+
+
+@pytest.mark.slow  # a whole run's start-up
+def test_an_endpoint_that_fails_mid_run_is_named_with_its_own_last_word(tmp_path):
+    """The hub sees a failed endpoint only vanish ("died at step N"); the cause is the
+    endpoint's, and `neuvision run` now says it too, not only the endpoint's log."""
+    sets = [*TEST_ENDPOINTS, 'body.kind="tests.endpoints:FailingDeviceBody"',
+            "body.params={fail_at=20}"]  # fmt: skip
+    proc = neuvision(
+        "run", *[a for s in sets for a in ("--set", s)],
+        "--duration-s", "2", "--runs-dir", str(tmp_path), "--quiet",
+    )  # fmt: skip
+    assert proc.returncode == 2, proc.stderr[-2000:]
+    assert "body/0 died at step 20" in proc.stderr
+    assert "body endpoint exited with status 2: " in proc.stderr
+    assert "the test device's line failed at step 20" in proc.stderr
 
 
 @pytest.mark.slow  # a run, then its analysis and figures
