@@ -154,6 +154,19 @@ class LoopSection:
     def deadline_s(self) -> float:
         return (self.deadline_ms or self.period_ms) / 1e3
 
+    def late_window_problem(self) -> str:
+        """Why a device that answers each window after it has passed (its reply comes
+        during the next step) cannot take this realtime loop, or "" when it can: the
+        deadline must lie between one and two periods."""
+        period_ms = self.period_ms
+        if self.mode != "realtime" or period_ms < self.deadline_s * 1e3 < 2 * period_ms:
+            return ""
+        return (
+            f"loop.deadline_ms must lie between one and two periods ({period_ms:g} and "
+            f"{2 * period_ms:g} ms; e.g. {1.8 * period_ms:g}): a device that answers each "
+            "window after it has passed replies during the next step"
+        )
+
 
 @dataclass(frozen=True)
 class PolicySection:

@@ -220,16 +220,8 @@ def check_fits_loop(desc: Description, loop: LoopSection) -> str | None:
             f"{who} is a real device: it runs in real time only and cannot take a "
             f'lockstep run; set loop.mode = "realtime"'
         )
-    if (
-        desc.answers_after_window
-        and loop.mode == "realtime"
-        and not period_ms < loop.deadline_s * 1e3 < 2 * period_ms
-    ):
-        raise HubError(
-            f"{who} answers each window after it has passed: its reply comes during the "
-            f"next step, so loop.deadline_ms must lie between one and two periods "
-            f"({period_ms:g} and {2 * period_ms:g} ms; e.g. {1.8 * period_ms:g})"
-        )
+    if desc.answers_after_window and (problem := loop.late_window_problem()):
+        raise HubError(f"{who} answers each window after it has passed: {problem}")
     if desc.cycle_ms is not None and desc.cycle_ms > period_ms:
         return (
             f"{who}: its own I/O cycle takes {desc.cycle_ms:.1f} ms, longer than the "

@@ -143,6 +143,8 @@ class MeaEndpoint(Endpoint):
         """Check ``[culture.params]`` and the mode, opening nothing."""
         if cfg.loop.mode != "realtime":
             raise ConfigError(f"loop.mode: {LOCKSTEP_REFUSAL}")
+        if problem := cfg.loop.late_window_problem():  # an MEA answers after its window
+            raise ConfigError(problem)
         params = dict(section.params)
         driver = params.get("driver", "rhx")
         if driver not in DRIVER_PARAMS:

@@ -285,7 +285,8 @@ def test_the_spike_stream_lost_mid_run_ends_the_endpoint(source):
 
 def lsl_config(*more: str):
     return load_config(None, ['culture.kind="mea"', 'loop.mode="realtime"',
-                              'culture.params.driver="lsl"', *more])  # fmt: skip
+                              "loop.deadline_ms=18", 'culture.params.driver="lsl"',
+                              *more])  # fmt: skip
 
 
 @pytest.mark.parametrize(
