@@ -766,6 +766,11 @@ def cmd_emulate(args) -> int:
         ):
             if not 1 <= port <= 65535:
                 raise InputError(f"{option} must be a TCP port, 1 to 65535, got {port}")
+        if not 0 <= args.realtime_priority <= 99:
+            raise InputError(
+                f"--realtime-priority must be 0 (ordinary scheduling) to 99, got "
+                f"{args.realtime_priority}"
+            )
         try:
             emulator = IntanEmulator(
                 args.culture or DEFAULT_CULTURE,

@@ -19,6 +19,7 @@ from its module, ``__main__`` included. :meth:`Run.open` reads any run folder.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import signal
@@ -214,8 +215,15 @@ def check_hub_sections(cfg: ExperimentConfig) -> None:
         check_scheme(name, section.scheme, section.params, cfg.loop.period_ms, cfg.experiment.seed)
     if cfg.online.enabled:
         for name, kind in (("burst", BurstParams), ("network", NetworkBurstParams)):
+            given = getattr(cfg.online, name)
+            known = [f.name for f in dataclasses.fields(kind)]
+            unknown = sorted(set(given) - set(known))
+            if unknown:
+                raise ConfigError(
+                    f"online.{name}.{unknown[0]} is not a known key (known: {', '.join(known)})"
+                )
             try:
-                kind(**getattr(cfg.online, name))
+                kind(**given)
             except (TypeError, ValueError) as exc:
                 raise ConfigError(f"online.{name}: {exc}") from None
 

@@ -96,6 +96,7 @@ def test_a_shipped_config_named_from_another_folder_is_refused_with_where_it_is(
         ('body.kind="no_such_module:Body"', "body.kind: cannot load"),
         ('coding.scheme="no_such_module:f"', "coding.scheme: cannot import"),
         ("online.burst={min_spikes=0}", "online.burst"),
+        ("online.burst={bogus=1}", "online.burst.bogus is not a known key (known: min_spikes"),
         # an address Zenoh would refuse only once the run's folder and processes exist
         ('bus.listen=["tcp/127.0.0.1:99999"]', "bus.listen: 'tcp/127.0.0.1:99999' has no port"),
         ('bus.listen=["garbage"]', "bus.listen: 'garbage' is not an address"),
@@ -220,6 +221,8 @@ def test_an_output_folder_that_cannot_be_made_is_named_with_the_reason(
     [
         (["intan", "--command-port", "70000"], "--command-port must be a TCP port, 1 to 65535"),
         (["intan", "--spike-port", "-1"], "--spike-port must be a TCP port, 1 to 65535"),
+        (["intan", "--realtime-priority", "200"], "--realtime-priority must be 0 (ordinary"),
+        (["intan", "--realtime-priority", "-1"], "--realtime-priority must be 0 (ordinary"),
         (["khepera", "--link", "/nonexistent/dir/x"], "--link: /nonexistent/dir is not a folder"),
         (["khepera", "--link", "{file}"], "--link: {file} is a file, not a link"),
         (["khepera", "--link", "{dir}"], "--link: {dir} is a folder, not a link"),
