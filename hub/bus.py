@@ -165,7 +165,8 @@ def open_session(
             if time.monotonic() - start >= bus.connect_timeout_s:
                 proof = {"mtls": "certificate", "password": "password"}.get(bus.security)
                 refused = (
-                    f" (bus.security = {bus.security!r}: or the hub refused the {role}'s {proof})"
+                    f" (bus.security = {bus.security!r}: its TLS link goes through, so the "
+                    f"hub most likely refused the {role}'s {proof})"
                     if proof
                     else ""
                 )

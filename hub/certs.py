@@ -199,6 +199,8 @@ def make_passwords(folder: str | Path, roles: list[str]) -> list[Path]:
             continue
         known[role] = secrets.token_urlsafe(24)
         written.append(_write_secret(password_file(folder, role), known[role] + "\n"))
+    if not known:  # only the hub asked for: no password, and no dictionary to write
+        return written
     text = "".join(f"{user}:{password}\n" for user, password in known.items())
     written.append(_write_secret(dictionary, text))
     return written

@@ -636,9 +636,12 @@ class Hub:
 
     def _endpoint_dead(self, role: str, id: str) -> None:
         """An endpoint is gone for good: ``policy.endpoint_death`` applies."""
-        log.error("%s/%s died at step %d", role, id, self.k)
         if self.cfg.policy.endpoint_death == "stop":
-            raise EndpointDied(role, id, self.k)
+            raise EndpointDied(role, id, self.k)  # logged once, where the run ends
+        log.error(
+            "%s/%s died at step %d; the run goes on (policy.endpoint_death = %r)",
+            role, id, self.k, self.cfg.policy.endpoint_death,
+        )  # fmt: skip
 
     def _rejoin(self, role: str) -> None:
         """An endpoint that vanished is back within ``policy.rejoin_s``: describe it and give
