@@ -410,7 +410,11 @@ def main(argv: list[str] | None = None) -> int:
         # handler is in; even when the parent left it ignored (a shell does so for a
         # background job), and remembered where a library swallows its KeyboardInterrupt.
         signal.signal(signal.SIGINT, stopping.interrupt_while_starting)
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    args, extra = parser.parse_known_args(argv)
+    if extra:  # said by the command's own parser, which names its own --help
+        commands = parser._subparsers._group_actions[0].choices
+        commands[args.command].error(f"unrecognized arguments: {' '.join(extra)}")
     if in_main_thread and args.command in ("endpoint", "observe"):
         # Its runner stops it with SIGTERM, maybe while it starts up (its imports, compiled
         # kernels, its model): as Ctrl-C then (below), not a death by signal.

@@ -234,7 +234,7 @@ def test_an_output_folder_that_cannot_be_made_is_named_with_the_reason(
         # argparse's own refusals: exit status 2 (a fault's) and a usage block, before
         (["khepera", "--dialect", "khepera4"], "emulate: argument --dialect: invalid choice"),
         (["khepera", "--baud", "fast"], "emulate: argument --baud: invalid int value"),
-        (["khepera", "--bawd", "9600"], "unrecognized arguments: --bawd 9600"),
+        (["khepera", "--bawd", "9600"], "emulate: unrecognized arguments: --bawd 9600"),
     ],
 )
 def test_an_emulators_bad_option_is_named_in_one_line(tmp_path, args, message):
