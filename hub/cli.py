@@ -914,7 +914,7 @@ def _hub_config(args):
         raise InputError(str(exc)) from None
     if found is None:
         return cfg, (
-            f" (no 'neuvision run' on this machine runs session {cfg.bus.session!r}; "
+            f" (no hub on this machine (neuvision run or hub) runs session {cfg.bus.session!r}; "
             "for a hub elsewhere give --connect HOST[:PORT])"
         )
     print(

@@ -63,6 +63,16 @@ def _prefix(session: str) -> str:
     return quote(session, safe="") + "--"
 
 
+def reachable_here(locator: str) -> str:
+    """``locator`` as this machine reaches it: a hub listening on every address
+    (``tcp/0.0.0.0:7447``, ``tcp/[::]:7447``) is reached on loopback."""
+    scheme, slash, rest = locator.partition("/")
+    for anywhere, here in (("0.0.0.0:", "127.0.0.1:"), ("[::]:", "[::1]:")):
+        if slash and rest.startswith(anywhere):
+            return f"{scheme}/{here}{rest.removeprefix(anywhere)}"
+    return locator
+
+
 @contextlib.contextmanager
 def announced(session: str, locators: list[str], run_dir: str | Path) -> Iterator[Path]:
     """Say, while the block runs, that a hub of this process listens on ``locators``

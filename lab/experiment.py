@@ -25,7 +25,6 @@ import logging
 import signal
 import threading
 from collections.abc import Callable
-from contextlib import nullcontext
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -187,18 +186,18 @@ def run_experiment(
 
 
 def _said_where(cfg: ExperimentConfig, port: int | None, run_dir: Path, announce):
-    """A hub on a port of its own (``port``) says where it listens, to the user and, while
-    it runs, to ``neuvision ctl`` and ``neuvision dashboard`` on this machine."""
-    from hub.local_hubs import announced
+    """A hub says where it listens, while it runs, to ``neuvision ctl`` and ``neuvision
+    dashboard`` on this machine (found by session alone); one on a port of its own
+    (``port``: ``neuvision run``'s) says it to the user too."""
+    from hub.local_hubs import announced, reachable_here
 
-    if port is None:
-        return nullcontext()
     session = cfg.bus.session
-    announce(
-        f"the hub listens on 127.0.0.1:{port}, session {session!r} (neuvision ctl "
-        f"status|pause|resume|stop --session {session}; neuvision dashboard likewise)"
-    )
-    return announced(session, cfg.bus.listen, run_dir)
+    if port is not None:
+        announce(
+            f"the hub listens on 127.0.0.1:{port}, session {session!r} (neuvision ctl "
+            f"status|pause|resume|stop --session {session}; neuvision dashboard likewise)"
+        )
+    return announced(session, [reachable_here(loc) for loc in cfg.bus.listen], run_dir)
 
 
 def check_hub_sections(cfg: ExperimentConfig) -> None:

@@ -109,5 +109,43 @@ def test_neuvision_ctl_with_no_address_and_no_hub_here_says_where_it_looked(hub_
     code = main(["ctl", "status", "--session", "nobody-here", "--timeout-s", "0.5"])
     err = capsys.readouterr().err
     assert code == EXIT_FAULT
-    assert "no 'neuvision run' on this machine runs session 'nobody-here'" in err
+    assert "no hub on this machine (neuvision run or hub) runs session 'nobody-here'" in err
     assert "for a hub elsewhere give --connect HOST[:PORT]" in err
+
+
+def test_a_hub_listening_everywhere_is_found_on_loopback():
+    assert local_hubs.reachable_here("tcp/0.0.0.0:7447") == "tcp/127.0.0.1:7447"
+    assert local_hubs.reachable_here("tls/[::]:7447") == "tls/[::1]:7447"
+    assert local_hubs.reachable_here("tcp/10.0.0.1:7447") == "tcp/10.0.0.1:7447"
+
+
+def test_neuvision_ctl_reaches_a_neuvision_hub_by_its_session_alone(tmp_path, bus_overrides):
+    """`neuvision hub` (endpoints started elsewhere) is announced as `run`'s hub is: ctl
+    stops it by session while it waits for its endpoints."""
+    from tests.harness import wait_for
+
+    session = json.loads(bus_overrides[0].split("=", 1)[1])
+    sets = [*TEST_ENDPOINTS, *bus_overrides, 'body.launch="external"',
+            'culture.launch="external"', "loop.wait_timeout_s=60"]  # fmt: skip
+    hub = subprocess.Popen(
+        [sys.executable, "-m", "hub.cli", "hub", "--quiet", "--runs-dir", str(tmp_path),
+         *(a for s in sets for a in ("--set", s))],
+        stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        wait_for(lambda: local_hubs.find(session) is not None, 30)
+        stop = subprocess.run(
+            [sys.executable, "-m", "hub.cli", "ctl", "stop", "--session", session],
+            capture_output=True, text=True, timeout=60,
+        )  # fmt: skip
+        hub.wait(timeout=60)
+    finally:
+        if hub.poll() is None:
+            hub.kill()
+    assert stop.returncode == 0, stop.stderr
+    assert f"the hub of session {session!r} on this machine listens on tcp/127.0.0.1:" in (
+        stop.stderr
+    )
+    (run_dir,) = [p for p in tmp_path.iterdir() if p.is_dir()]
+    assert read_run(run_dir).manifest["outcome"] == "stopped"
+    assert local_hubs.find(session) is None
