@@ -11,7 +11,8 @@ It reads the record with ``hub.record.read_run`` and uses, from it:
   ``step * loop.period_ms + onset_ms`` is one stimulus of the PSTH (pulses into several
   channels at the same time count once) -- unless the stimuli come closer together than the
   PSTH's window (a closed loop stimulating every step): then no PSTH, and
-  ``psth_not_computed`` says why;
+  ``psth_not_computed`` says why; network bursts whose extents a channel bursting
+  throughout has stretched are said so (``nb_extents_stretched``);
 - in a closed loop (a body with poses), the loop figure (``loop.png``: sensor ranges,
   pulses, the Center of Activity, wheel commands on one time axis) and the map of the
   stimulation sites (``stimulation_sites.png``);
@@ -79,6 +80,29 @@ def psth_applies(stim_ms: np.ndarray | None, params: AnalysisParams) -> str:
     return (
         f"stimuli every {median_ms:g} ms (median), closer than the PSTH window of "
         f"{window_ms:g} ms: their responses overlap"
+    )
+
+
+#: extents this many times their cores' length (and over a second, in the median) are
+#: stretched by a channel that bursts throughout, not by the network burst itself
+STRETCHED_RATIO = 20.0
+
+
+def extents_note(nbs) -> str:
+    """What to read instead when the network bursts' extents are stretched (empty: they
+    are not): a channel stimulated every step of a closed loop bursts for seconds and takes
+    part in every network burst it overlaps (docs/analysis.md, "read the core")."""
+    if len(nbs) == 0:
+        return ""
+    extent_ms = float(np.median(nbs.duration_ms))
+    core_ms = float(np.median(nbs.core_duration_ms))
+    if extent_ms < 1000.0 or extent_ms < STRETCHED_RATIO * max(core_ms, 1e-9):
+        return ""
+    return (
+        f"network-burst extents span {extent_ms / 1e3:.1f} s (median) against cores of "
+        f"{core_ms:.0f} ms: channels bursting throughout (stimulated every step in a closed "
+        "loop) stretch them. Read the cores (nb_core_duration_ms, the IBI); "
+        "nb_duration_ms and the CATs follow the extents"
     )
 
 
@@ -189,6 +213,9 @@ def analyze_run(run_dir, out_dir=None, params: AnalysisParams | None = None) -> 
     if psth_note:
         metrics["psth_not_computed"] = psth_note
     metrics["n_unknown_channel_spikes"] = int((~keep).sum())
+    stretched = extents_note(result.network_bursts)
+    if stretched:
+        metrics["nb_extents_stretched"] = stretched
     if short:
         metrics["record_short"] = short
 

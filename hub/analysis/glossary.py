@@ -44,6 +44,10 @@ METRICS: dict[str, tuple[str, str]] = {
     "ibi_cv": ("IBI CV", "coefficient of variation of those intervals (0: periodic)"),
     "psth_peak_ms": ("PSTH peak (ms)", "latency of the peak response after the stimuli"),
     "psth_not_computed": ("PSTH", "why no peri-stimulus histogram was computed"),
+    "nb_extents_stretched": (
+        "network-burst extents",
+        "stretched by channels bursting throughout: what to read instead",
+    ),
     "n_evoked_nb": (
         "evoked network bursts",
         "network bursts starting soon enough after a stimulus to count as evoked",

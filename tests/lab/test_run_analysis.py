@@ -219,3 +219,20 @@ def test_stimulus_onsets_are_window_starts_plus_pulse_onsets():
     onsets, chans = stimulus_onsets_ms(msgs)
     assert onsets.tolist() == [30.0, 52.5]
     assert chans.tolist() == [1, 2, 4]
+
+
+def test_network_bursts_stretched_by_a_channel_bursting_throughout_are_said_so():
+    from hub.analysis.bursts import detect_bursts
+    from hub.analysis.network_bursts import detect_network_bursts
+    from lab.run_analysis import extents_note
+    from tests.analysis.analysis_synth import merge, network_burst
+
+    starts = [2_000.0, 5_000.0, 9_000.0]
+    spontaneous = merge(*[network_burst(range(4), s, 60.0) for s in starts])
+    # a closed loop's stimulated channel: one burst of 10 s
+    stimulated = merge(network_burst([9], 0.0, 10_000.0), spontaneous)
+    plain = detect_network_bursts(detect_bursts(*spontaneous), 10)
+    stretched = detect_network_bursts(detect_bursts(*stimulated), 10)
+    assert extents_note(plain) == ""
+    note = extents_note(stretched)
+    assert note.startswith("network-burst extents span") and "Read the cores" in note
