@@ -15,6 +15,7 @@ status 2.
 
 from __future__ import annotations
 
+import datetime
 import json
 import os
 import subprocess
@@ -133,7 +134,12 @@ def compare(
     result = _tabulate(queue, names)
     (out_dir / "compare.json").write_text(json.dumps(result, indent=2))
     table = format_table(result, names)
-    (out_dir / "compare.md").write_text(table + "\n")
+    durations = sorted({f"{c.experiment.duration_s:g} s" for c in cfgs})
+    heading = (
+        f"# {' vs '.join(names)}: seeds 1-{seeds}, runs of {' / '.join(durations)} "
+        f"(compared {datetime.date.today().isoformat()})\n\n"
+    )
+    (out_dir / "compare.md").write_text(heading + table + "\n")
     print(table)
     figure = _draw(queue, names, out_dir)
     result["figures"] = [p.name for p in figure]
@@ -302,24 +308,34 @@ def format_table(result: dict, names: list[str]) -> str:
 
 def _draw(queue: list[Job], names: list[str], out_dir: Path) -> list[Path]:
     seeds = sorted({j.seed for j in queue})
-    fig = Figure(figsize=(2.2 * len(seeds), 2.4 * len(names)), layout="constrained")
+    fig = Figure(figsize=(2.2 * len(seeds) + 0.8, 2.4 * len(names) + 0.4), layout="constrained")
     axes = fig.subplots(len(names), len(seeds), squeeze=False)
+    paths_of = {}  # (name, seed) -> (world, t_s, poses) of each run that ran
+    for job in queue:
+        if not job.reason and job.run_dir is not None:
+            rec = read_run(job.run_dir)
+            paths_of[job.name, job.seed] = (world_of(rec.manifest.get("config", {})),
+                                            *rec.trajectory())  # fmt: skip
+    # one colour scale for every run: the same colour is the same run time
+    longest_s = max((float(t[-1]) for _, t, _ in paths_of.values() if t.size), default=1.0)
+    shown = None
     for row, name in enumerate(names):
         for col, seed in enumerate(seeds):
             ax = axes[row][col]
             ax.set_axis_off()
-            job = next(j for j in queue if j.name == name and j.seed == seed)
-            if job.reason or job.run_dir is None:
+            if (name, seed) not in paths_of:
                 ax.set_title(f"{name} s{seed}: failed", fontsize=7)
                 continue
-            rec = read_run(job.run_dir)
-            world = world_of(rec.manifest.get("config", {}))
+            world, t_s, poses = paths_of[name, seed]
             if world is None:
                 continue
-            t_s, poses = rec.trajectory()
             draw_world(world, ax)
-            ax.scatter(poses[:, 0], poses[:, 1], c=t_s, s=0.3, cmap="viridis")
+            shown = ax.scatter(poses[:, 0], poses[:, 1], c=t_s, s=0.3, cmap="viridis",
+                               vmin=0.0, vmax=longest_s)  # fmt: skip
             ax.set_title(f"{name} seed {seed}", fontsize=7)
+    if shown is not None:
+        fig.colorbar(shown, ax=axes, label="run time (s)", shrink=0.8)
+    fig.suptitle("The robot's path in each run (the arena drawn to scale; colour: run time)")
     paths = []
     for suffix in (".png", ".svg"):
         path = out_dir / f"trajectories{suffix}"

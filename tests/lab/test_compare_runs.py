@@ -37,6 +37,7 @@ def test_parallel_runs_of_eight_seeds_lose_nothing_and_name_an_injected_failure(
     for name in ("closed_loop", "closed_loop_blind"):
         assert result["stats"][name]["distance_m"]["n"] == 8  # none of them lost
     table = (out / "compare.md").read_text()
+    assert table.startswith("# closed_loop vs closed_loop_blind vs broken: seeds 1-8, runs of")
     assert "**Failed runs: 8**" in table and "| broken | 8 | exit status 2" in table
     assert any(t["b"] == "closed_loop_blind" and t["n_a"] == t["n_b"] == 8
                for t in result["tests"])  # fmt: skip

@@ -108,5 +108,6 @@ def test_quick_reproduction_over_seeds_tabulates_each_seed(tmp_path):
     assert set(saved["per_seed"]["1"]["verdicts"]) >= {"mbr_per_min", "psth_peak_ms"}
     table = (tmp_path / "reproduction.md").read_text()
     assert "| 2 | " in table and "| mean ± s.d. | " in table
+    assert "NB duration s.d. (ms)" in table  # shown against the paper's, not judged
     assert QUICK_CAVEAT in table
     assert lines[-1] == table  # the table is printed
