@@ -108,8 +108,9 @@ class Roster:
         answers = run_replies(self.link, self.keys.run(role, i), start, ANNOUNCE_TIMEOUT_S)
         if not answers:
             raise HubError(f"{role}/{i} did not answer the run's announcement")
-        if len(answers) > 1:  # another one came up since the description
-            raise self.several(role, i, [None] * len(answers))
+        if len(answers) > 1:  # another one came up since the description: ask who
+            found = self._counters_of(role, i)
+            raise self.several(role, i, found + [None] * (len(answers) - len(found)))
         refusals = [a.reason for a in answers if not a.ok or a.run != start.run]
         if refusals:
             raise HubError(f"{role}/{i} refused the run: {refusals[0]}")
@@ -144,6 +145,17 @@ class Roster:
                     out[role] = Description.decode(raw).counters or {}
                 except ProtocolError:
                     pass
+        return out
+
+    def _counters_of(self, role: str, i: str) -> list:
+        """The counters (host and process id among them) of every endpoint describing
+        itself as ``role/i`` now; those that do not decode are left out."""
+        out = []
+        for raw in self.link.query(self.keys.describe(role, i), timeout_s=DESCRIBE_TIMEOUT_S):
+            try:
+                out.append(Description.decode(raw).counters)
+            except ProtocolError:
+                continue
         return out
 
     def several(self, role: str, i: str, counters: list) -> HubError:

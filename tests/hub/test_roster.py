@@ -51,3 +51,36 @@ def test_a_cycle_longer_than_the_period_is_a_warning_not_a_refusal():
     warning = check_fits_loop(slow, loop('loop.mode="realtime"', "loop.period_ms=10"))
     assert "35.0 ms, longer than the period of 10 ms" in warning
     assert check_fits_loop(slow, loop('loop.mode="realtime"', "loop.period_ms=50")) is None
+
+
+def test_a_second_endpoint_that_came_up_after_the_description_is_named_where_it_runs():
+    """Two answers to the run's announcement (the second endpoint came up after the hub
+    had the first's description): the refusal names each one's host and process id, as a
+    refusal at the description does, by asking them again."""
+    from hub.protocol import Keys, RunReply, RunStart
+    from hub.roster import Roster
+    from tests.windows import RUN
+
+    cfg = load_config(None, [])
+    keys = Keys(cfg.bus.session)
+    described = []
+    for pid in (101, 202):
+        host = {"hostname": "lab-pc", "pid": pid}
+        desc = dataclasses.replace(EchoBody().describe(), counters={"host": host})
+        described.append(desc.encode())
+
+    class Link:  # the hub's side of the bus, as the roster asks it
+        def __init__(self):
+            self.keys = keys
+
+        def query(self, key, payload=None, *, timeout_s):
+            if key == keys.describe("body", "0"):
+                return described
+            return [RunReply(ok=True, run=RUN).encode()] * 2  # to the announcement
+
+    start = RunStart(run=RUN, period_ms=10.0, n_steps=10, mode="lockstep",
+                     start_unix_s=1.0, deadline_ms=10.0, key=bytes(16))  # fmt: skip
+    with pytest.raises(HubError) as refused:
+        Roster(cfg, Link()).announce("body", "0", start)
+    assert "2 endpoints answer as body/0" in str(refused.value)
+    assert "(lab-pc pid 101, lab-pc pid 202)" in str(refused.value)
