@@ -77,8 +77,13 @@ class Keys:
 
     def __post_init__(self):
         bad = set("/*$?#") & set(self.session)
-        if not self.session or bad:
-            raise ValueError(f"session name must be non-empty without {sorted(bad)}")
+        if not self.session:
+            raise ValueError("a session name is needed (it may not be empty)")
+        if bad:
+            raise ValueError(
+                f"session name {self.session!r} may not hold {' '.join(sorted(bad))} (they "
+                "are Zenoh's key separators and wildcards)"
+            )
 
     @property
     def root(self) -> str:

@@ -101,6 +101,8 @@ def test_a_shipped_config_named_from_another_folder_is_refused_with_where_it_is(
         ('bus.listen=["tcp/127.0.0.1:99999"]', "bus.listen: 'tcp/127.0.0.1:99999' has no port"),
         ('bus.listen=["garbage"]', "bus.listen: 'garbage' is not an address"),
         ("bus.listen=[]", "bus.listen: at least one address"),
+        ('bus.session=""', "bus.session: a session name is needed"),
+        ('bus.session="lab/3"', "bus.session: session name 'lab/3' may not hold /"),
         ('bus.connect=["tcp/hub.lab"]', "bus.connect: 'tcp/hub.lab' has no host and port"),
     ],
 )
