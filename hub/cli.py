@@ -743,7 +743,10 @@ def cmd_export(args) -> int:
         raise InputError(f"--nwb: {args.nwb} is a folder; give the file to write")
     make_output_folder(args.nwb.parent, "--nwb")
     replaced = args.nwb.exists()
-    run = Run.open(run_dir)
+    try:
+        run = Run.open(run_dir)
+    except FileNotFoundError as exc:  # a record without its manifest: no metadata to write
+        raise InputError(f"{exc}: an NWB file needs the run's metadata") from None
     try:
         path = export_nwb(run, args.nwb)
     except ExportError as exc:

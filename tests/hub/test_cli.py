@@ -283,6 +283,14 @@ def test_a_damaged_run_folder_is_named_in_one_line(
     assert not (tmp_path / "x.nwb").exists()
 
 
+def test_an_export_of_a_record_without_its_manifest_is_one_line(capsys, tmp_path):
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "record.nvrec").write_bytes(b"")
+    err = refused(capsys, ["export", str(run), "--nwb", str(tmp_path / "x.nwb")])
+    assert "is not a run folder (no manifest.json): an NWB file needs the run's metadata" in err
+
+
 def test_a_replays_options_are_checked_before_it_serves(capsys, tmp_path, run_folder):
     replay = ["dashboard", "--replay", str(run_folder)]
     assert "dashboard.port must be <= 65535, got 99999" in refused(
