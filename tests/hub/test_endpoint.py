@@ -343,7 +343,7 @@ def test_serving_once_it_stays_while_the_hubs_token_stands_though_a_query_finds_
         asked.append(True)
         return False
 
-    monkeypatch.setattr(hub.endpoint, "_hub_answers", finds_none)
+    monkeypatch.setattr(hub.endpoint, "hub_answers", finds_none)
     body = RecordingBody()
     s = served(body, once=True)
     wait_for(lambda: len(asked) >= 3, timeout_s=10)
