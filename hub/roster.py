@@ -173,28 +173,40 @@ class Roster:
         )
 
     def elsewhere(self, missing: set[tuple[str, str]]) -> str:
-        """Where on this hub's bus the ``missing`` participants are, under other sessions
-        (an endpoint started with another ``--session`` reaches the router, not the run):
-        "; body/0 is on this hub's bus under session 'lab3' ..." or ""."""
+        """Where on this hub's bus the ``missing`` participants are: under other sessions
+        (an endpoint started with another ``--session`` reaches the router, not the run), or
+        under another id on this one: "; body/0 is on this hub's bus under session 'lab3'
+        (start it with --session default)" or "; ... a body/1 is (body.id ...)", or ""."""
         found = []
         session = self.cfg.bus.session
         for role, i in sorted(missing):
-            sessions = set()
+            sessions, ids = set(), set()
             try:
-                replies = self.link.session.liveliness().get(f"nv/*/alive/{role}/{i}", timeout=0.5)
+                replies = self.link.session.liveliness().get(f"nv/*/alive/{role}/*", timeout=0.5)
                 for reply in replies:
                     if reply.ok is not None:
-                        parts = str(reply.ok.key_expr).split("/")
-                        if len(parts) > 1 and parts[1] != session:
+                        parts = str(reply.ok.key_expr).split("/")  # nv/<session>/alive/role/id
+                        if len(parts) != 5:
+                            continue
+                        if parts[1] != session and parts[4] == i:
                             sessions.add(parts[1])
+                        elif parts[1] == session and parts[4] != i:
+                            ids.add(parts[4])
             except zenoh.ZError:
                 continue
             if sessions:
                 names = " and ".join(repr(n) for n in sorted(sessions))
-                found.append(f"{role}/{i} is on this hub's bus under session {names}")
-        if not found:
-            return ""
-        return f"; {', '.join(found)}: start it with --session {session}"
+                found.append(
+                    f"{role}/{i} is on this hub's bus under session {names} (start it with "
+                    f"--session {session})"
+                )
+            if ids:
+                others = " and ".join(f"{role}/{n}" for n in sorted(ids))
+                found.append(
+                    f"on session {session!r} {others} is, not {role}/{i} ({role}.id in the "
+                    "hub's and the endpoint's experiment files must agree)"
+                )
+        return f"; {', '.join(found)}" if found else ""
 
     def _settings_digest(self, role: str) -> str | None:
         """The digest of this hub's ``role`` settings (:func:`hub.launch.settings_digest`),

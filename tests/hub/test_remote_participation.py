@@ -502,3 +502,29 @@ def test_a_burst_observer_serving_one_run_exits_when_its_hub_leaves_without_one(
         if observer.poll() is None:
             observer.kill()
     assert "left without giving it a run" in log.read_text()
+
+
+@pytest.mark.slow  # a hub's wait for its endpoints
+def test_an_endpoint_under_another_id_is_named_by_the_hub_waiting_for_it(tmp_path, bus_overrides):
+    """A body started with body.id = "1" where the hub's file says "0": the hub said only
+    that body/0 did not appear. It now says that body/1 is there."""
+    log = open(tmp_path / "body.log", "w")
+    body = neuvision("endpoint", "body", CONFIG, *sets([*bus_overrides, 'body.id="1"']),
+                     stderr=log)  # fmt: skip
+    culture = _serve("culture", bus_overrides, subprocess.DEVNULL)
+    try:
+        done = subprocess.run(
+            [sys.executable, "-m", "hub.cli", "hub", CONFIG, "--quiet", "--duration-s", "0.2",
+             "--runs-dir", str(tmp_path / "runs"),
+             *sets([*bus_overrides, *EXTERNAL, "loop.wait_timeout_s=8"])],
+            capture_output=True, text=True, timeout=120,
+        )  # fmt: skip
+        assert done.returncode == 2, done.stderr[-2000:]
+        last = done.stderr.strip().splitlines()[-1]
+        assert "body/0 did not appear on session" in last
+        assert "body/1 is, not body/0 (body.id in the hub's and the endpoint's" in last, last
+    finally:
+        for p in (body, culture):
+            p.terminate()
+            p.wait(timeout=20)
+        log.close()
