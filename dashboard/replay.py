@@ -26,6 +26,11 @@ from .state import BURSTS_KEPT_S, RASTER_S, RATE_HISTORY_S, FrameState
 
 # A network burst's core, noted since 2026-11-26; an older record's extent stands for it.
 SPEEDS = (0.1, 0.25, 0.5, 1.0, 2.0, 5.0, 10.0, 20.0, 50.0)
+MIN_SPEED, MAX_SPEED = 0.01, 1000.0  # x real time; the page offers SPEEDS and the one given
+
+
+def _speed_ok(speed: float) -> bool:
+    return MIN_SPEED <= speed <= MAX_SPEED  # NaN and infinity fail too
 
 
 class ReplayError(ValueError):
@@ -42,8 +47,10 @@ class ReplaySource:
     """
 
     def __init__(self, run_dir: str | Path, state: FrameState, speed: float = 1.0):
-        if not speed > 0:
-            raise ReplayError(f"the speed must be > 0, got {speed}")
+        if not _speed_ok(speed):
+            raise ReplayError(
+                f"the speed must be {MIN_SPEED:g} to {MAX_SPEED:g} (x real time), got {speed}"
+            )
         self.run_dir = Path(run_dir)
         self.state = state
         self.speed = float(speed)
@@ -262,8 +269,9 @@ class ReplaySource:
                     speed = float(message.get("x"))
                 except (TypeError, ValueError):
                     speed = 0.0
-                if not speed > 0:
-                    return {"ok": False, "state": "", "reason": "speed needs x > 0"}
+                if not _speed_ok(speed):
+                    reason = f"speed needs x from {MIN_SPEED:g} to {MAX_SPEED:g}"
+                    return {"ok": False, "state": "", "reason": reason}
                 self.speed = speed
             else:
                 return {"ok": False, "state": "", "reason": f"a replay cannot {cmd!r}"}

@@ -119,7 +119,11 @@ def test_pause_speed_and_bad_commands(run_dir):
     _advance(source, 1.0)
     assert source.t_s == 0.0
     assert source.command({"cmd": "speed", "x": 4})["ok"] and source.speed == 4.0
-    assert not source.command({"cmd": "speed", "x": 0})["ok"]
+    for bad in (0, float("inf"), float("nan"), 5000):  # inf showed as "null×" on the page
+        assert not source.command({"cmd": "speed", "x": bad})["ok"]
+    assert source.speed == 4.0
+    with pytest.raises(ReplayError, match="the speed must be 0.01 to 1000"):
+        ReplaySource(run_dir, FrameState(), speed=float("inf"))
     assert not source.command({"cmd": "seek"})["ok"]
     assert not source.command({"cmd": "stop"})["ok"]  # a replay has no run to stop
 
