@@ -18,6 +18,7 @@ def run_dashboard(
     host: str | None = None,
     port: int | None = None,
     announce: Callable[[str], None] = print,
+    follow_local: bool = False,
 ) -> None:
     """Serve the dashboard until SIGINT/SIGTERM.
 
@@ -34,6 +35,9 @@ def run_dashboard(
         Override ``dashboard.host`` and ``dashboard.port`` (0: a free port).
     announce : callable
         Called with the line that says where the page is.
+    follow_local : bool
+        No address was given: follow the session's hub on this machine from run to run
+        (:mod:`hub.local_hubs`; each ``neuvision run`` listens on a port of its own).
 
     Raises
     ------
@@ -58,7 +62,12 @@ def run_dashboard(
         # before the bus's and the server's threads start: they inherit it
         scheduling = yield_cpu() if cfg.dashboard.yield_cpu else "normal: dashboard.yield_cpu"
         # the dashboard's own experiment file, if it was given one, stands in for the hub's
-        source = BusObserver(cfg.bus, state, cfg.to_dict() if cfg.source else None)
+        source = BusObserver(
+            cfg.bus,
+            state,
+            cfg.to_dict() if cfg.source else None,
+            find_hub=_local_hub_finder(cfg.bus.session) if follow_local else None,
+        )
         what = f"live: session {cfg.bus.session!r}, hub at {source.where}; scheduling {scheduling}"
     serve(
         source,
@@ -68,3 +77,18 @@ def run_dashboard(
         fps=cfg.dashboard.fps,
         on_ready=lambda url: announce(f"dashboard at {url} ({what}); Ctrl-C ends it"),
     )
+
+
+def _local_hub_finder(session: str) -> Callable[[], tuple[str, ...] | None]:
+    """Where the one hub of ``session`` on this machine listens, asked anew each time
+    (None: none, or several)."""
+    from hub import local_hubs
+
+    def find() -> tuple[str, ...] | None:
+        try:
+            found = local_hubs.find(session)
+        except (local_hubs.AmbiguousSession, OSError):
+            return None
+        return tuple(found.locators) if found is not None else None
+
+    return find

@@ -43,6 +43,7 @@ import logging
 import threading
 import time
 from collections import Counter
+from collections.abc import Callable
 
 import zenoh
 
@@ -75,9 +76,17 @@ class BusObserver:
     """The dashboard's live source on ``bus`` (the experiment's ``[bus]`` section: the
     session, and where the hub listens or ``bus.connect``). ``config`` (a plain config
     dict, the dashboard's own experiment file) stands in for the hub's when the hub does
-    not give it."""
+    not give it. ``find_hub`` (given when no address was): where the session's hub on this
+    machine listens now, or None; asked while no hub is there, so that the dashboard
+    follows ``neuvision run`` from run to run (each run's hub on a port of its own)."""
 
-    def __init__(self, bus: BusSection, state: FrameState, config: dict | None = None):
+    def __init__(
+        self,
+        bus: BusSection,
+        state: FrameState,
+        config: dict | None = None,
+        find_hub: Callable[[], tuple[str, ...] | None] | None = None,
+    ):
         # The run's own transport (``bus.low_latency``, as the loop's links). Over Zenoh's
         # queued transport the hub's link to a dashboard beside a lockstep closed loop got
         # stuck, in 10 of 15 runs within 2.5-35 s: every *drop* message to it (the status, the
@@ -119,6 +128,8 @@ class BusObserver:
         self._heard_at = 0.0  # time.monotonic() of the hub's last status or view taken
         self._ticked_at = 0.0  # ... and of the last tick, which takes them
         self._why: str | None = None  # why the last try failed, as said
+        self._find_hub = find_hub
+        self._next_look = 0.0  # when to ask find_hub again
 
     # ------------------------------------------------------------------ life
 
@@ -226,6 +237,8 @@ class BusObserver:
     def _watch(self) -> None:
         next_counters = 0.0
         while not self._closed.is_set():
+            if not self._hub_alive and self._follow():
+                continue
             if self.session is None and not self._connect():
                 self._closed.wait(RETRY_S)
                 continue
@@ -279,6 +292,31 @@ class BusObserver:
             asker.mark = views.mark
             with self.state.lock:
                 self._views = asker
+
+    def _follow(self) -> bool:
+        """With no hub there, whether the session's hub on this machine now listens
+        elsewhere (a new ``neuvision run``): if so, the link goes there, and the page
+        starts afresh with that run (True)."""
+        now = time.monotonic()
+        if self._find_hub is None or now < self._next_look:
+            return False
+        self._next_look = now + RETRY_S
+        locators = self._find_hub()
+        if not locators or tuple(locators) == tuple(self.bus.connect):
+            return False
+        self.bus = dataclasses.replace(self.bus, connect=tuple(locators))
+        self.where = ", ".join(self.bus.connect)
+        log.info("the hub of session %r listens on %s now: following it", self.bus.session,
+                 self.where)  # fmt: skip
+        with self.state.lock:
+            session, self.session, self._status, self._views = self.session, None, None, None
+            self.state.source = {**self.state.source, "hub": self.where}
+        self._declared = []
+        if session is not None:
+            session.close()
+        self._hub_config, self._rejoining = None, False
+        self._need_scene.set()
+        return True
 
     def _connect(self) -> bool:
         try:

@@ -885,11 +885,24 @@ def cmd_dashboard(args) -> int:
     for flag, key in (("port", "dashboard.port"), ("host", "dashboard.host")):
         if getattr(args, flag) is not None:
             args.set = [*(args.set or []), f"{key}={json.dumps(getattr(args, flag))}"]
-    cfg = load_config(args.config, _overrides(args)) if replay else _hub_config(args)[0]
+    not_found = ""
+    if replay:
+        cfg = load_config(args.config, _overrides(args))
+    else:
+        cfg, not_found = _hub_config(args)
+    # no address given: follow the session's hub on this machine from run to run
+    follow = not replay and not load_config(args.config, _overrides(args)).bus.connect
+    if not_found and follow:
+        print(
+            f"neuvision: no hub yet{not_found}: the dashboard waits, and follows the "
+            "session's next run on this machine",
+            file=sys.stderr,
+        )
     try:
         run_dashboard(
             cfg,
             replay=replay,
+            follow_local=follow,
             speed=args.speed,
             announce=lambda line: print(f"neuvision: {line}", file=sys.stderr, flush=True),
         )

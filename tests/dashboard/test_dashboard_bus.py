@@ -373,3 +373,45 @@ def test_a_link_to_a_live_hub_that_goes_silent_is_joined_again(bus_overrides, ca
     assert observer.rejoins == 1 and state.observer["rejoins"] == 1
     said = [r.getMessage() for r in caplog.records if "joining again" in r.getMessage()]
     assert len(said) == 1 and "while it is there" in said[0]
+
+
+def test_the_observer_follows_the_sessions_next_hub_on_this_machine(tmp_path, bus_overrides):
+    """`neuvision run` puts each run's hub on a port of its own: a dashboard given no
+    address asks where the session's hub listens now (hub/local_hubs.py) while none is
+    there, and goes on to the next run. It stayed on the first run's port for ever."""
+    from hub.bus import free_tcp_port
+
+    second = [
+        *[o for o in bus_overrides if not o.startswith("bus.listen")],
+        f'bus.listen=["tcp/127.0.0.1:{free_tcp_port()}"]',
+    ]
+    runs = ["loop.mode=realtime", "experiment.duration_s=1.5"]
+    where: dict = {}
+    state = FrameState()
+    ticking = threading.Event()
+
+    def tick() -> None:  # as the page's frames do
+        while not ticking.wait(0.05):
+            with state.lock:
+                observer.tick()
+
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    with harness(tmp_path / "a", bus_overrides, *runs) as a:
+        where["now"] = a.cfg.bus.listen
+        observer = BusObserver(a.cfg.bus, state, find_hub=lambda: where.get("now"))
+        observer.start()
+        ticker = threading.Thread(target=tick)
+        ticker.start()
+        try:
+            assert a.run().outcome == "completed"
+            wait_for(lambda: observer.run == a.hub.run_id, 10)
+            with harness(tmp_path / "b", second, *runs) as b:
+                where["now"] = b.cfg.bus.listen  # as the run's hub file says
+                assert b.run().outcome == "completed"
+                wait_for(lambda: observer.run == b.hub.run_id, 20)
+                assert state.source["hub"] == b.cfg.bus.listen[0]
+        finally:
+            ticking.set()
+            ticker.join(5)
+            observer.close()

@@ -92,7 +92,8 @@ def test_a_live_dashboard_takes_the_cpu_only_when_the_run_leaves_it_idle(
         text=True,
     )
     try:
-        line = proc.stderr.readline()  # the first line: where, and how it is scheduled
+        # where, and how it is scheduled (after a line that no hub is there yet)
+        line = next(ln for ln in proc.stderr if "dashboard at" in ln)
         url = re.search(r"dashboard at (http://\S+)", line).group(1)
         if "SCHED_IDLE refused" in line:
             pytest.skip(f"this machine refuses SCHED_IDLE: {line.strip()}")
