@@ -302,8 +302,8 @@ class BusObserver:
             return False
         self._next_look = now + RETRY_S
         locators = self._find_hub()
-        if not locators or tuple(locators) == tuple(self.bus.connect):
-            return False
+        if not locators or tuple(locators) == tuple(self.bus.connect or self.bus.listen):
+            return False  # none, or the one already tried
         self.bus = dataclasses.replace(self.bus, connect=tuple(locators))
         self.where = ", ".join(self.bus.connect)
         log.info("the hub of session %r listens on %s now: following it", self.bus.session,
