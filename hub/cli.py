@@ -113,7 +113,7 @@ def _add_config_args(p: argparse.ArgumentParser, *, shortcuts: bool = True) -> N
         "--set",
         action="append",
         metavar="KEY=VALUE",
-        help="override a config key, e.g. --set loop.period_ms=5 (repeatable)",
+        help="override a config key, e.g. --set loop.period_ms=20 (repeatable)",
     )
     if shortcuts:
         p.add_argument("--duration-s", type=float, help="experiment.duration_s")

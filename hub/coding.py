@@ -215,11 +215,15 @@ def _amplitude_params(ctx: SchemeContext) -> dict:
             f"{ctx.section}.params.min_amplitude_ua must be <= max_amplitude_ua ({max_ua}), "
             f"got {min_ua}"
         )
+    given = "pulse_period_ms" in ctx.params
     pulse_period_ms = ctx.param("pulse_period_ms", float(ctx.period_ms), gt=0.0)
     if pulse_period_ms < width_ms:
+        source = "" if given else " (its default: loop.period_ms)"
         raise ConfigError(
-            f"{ctx.section}.params.pulse_period_ms must be >= width_ms ({width_ms}) so that a "
-            f"site's pulses do not overlap, got {pulse_period_ms}"
+            f"{ctx.section}.params.pulse_period_ms{source} must be >= width_ms ({width_ms}) "
+            f"so that a site's pulses do not overlap, got {pulse_period_ms}: set "
+            f"{ctx.section}.params.width_ms to at most {pulse_period_ms:g}, or "
+            f"pulse_period_ms to at least {width_ms:g}"
         )
     site_params(ctx)
     return dict(

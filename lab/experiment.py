@@ -234,7 +234,9 @@ class Experiment:
     Parameters
     ----------
     config : path, optional
-        The experiment file (TOML); None: the defaults (a simulated closed loop).
+        The experiment file (TOML); None: the defaults (the simulated culture and robot,
+        with no coding and no decoding: nothing stimulated, the robot still; the paper's
+        closed loop is ``configs/closed_loop.toml``).
     overrides : dict, optional
         ``{"dotted.key": value}`` changes, checked at once.
 
@@ -249,19 +251,30 @@ class Experiment:
 
     def __post_init__(self):
         self.overrides = dict(self.overrides)
-        self.cfg  # noqa: B018 -- checked now, not at run time
+        self._check()  # now, not at run time
 
     @property
     def cfg(self) -> ExperimentConfig:
-        """The experiment as it would run (validated)."""
+        """The experiment as it would run (its keys validated)."""
         return load_config(self.config, self._items())
 
+    def _check(self) -> None:
+        """Every check ``neuvision run`` makes before a run folder exists: the keys, each
+        endpoint's kind and parameters (culture and world files read), the schemes' and the
+        live analysis's parameters."""
+        cfg = self.cfg.resolved()
+        check_hub_sections(cfg)
+
     def set(self, key: str, value) -> Experiment:
-        """Change one key (``"loop.period_ms"``, ``"culture.params.config"``); checked now."""
+        """Change one key (``"loop.period_ms"``, ``"culture.params.config"``); checked now
+        as ``neuvision run`` checks it (a bad one is not kept)."""
+        return self._set({key: value})
+
+    def _set(self, items: dict) -> Experiment:
         before = dict(self.overrides)
-        self.overrides[key] = value
+        self.overrides.update(items)
         try:
-            self.cfg  # noqa: B018
+            self._check()
         except ConfigError:
             self.overrides = before
             raise
@@ -278,8 +291,7 @@ class Experiment:
     def _use(self, section: str, scheme, params: dict) -> Experiment:
         if callable(scheme):
             scheme = f"{scheme.__module__}:{scheme.__qualname__}"
-        self.set(f"{section}.scheme", scheme)
-        return self.set(f"{section}.params", params)
+        return self._set({f"{section}.scheme": scheme, f"{section}.params": params})
 
     def _items(self) -> list[str]:
         return [f"{k}={format_value(v)}" for k, v in self.overrides.items()]

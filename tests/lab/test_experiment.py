@@ -16,7 +16,28 @@ def test_a_bad_change_is_named_and_leaves_the_experiment_as_it_was():
     with pytest.raises(ConfigError, match="loop.period_ms must be >= 0.1"):
         exp.set("loop.period_ms", 0.0)
     assert exp.overrides == {"experiment.duration_s": 1.0}
-    assert exp.set("loop.period_ms", 5.0).cfg.loop.period_ms == 5.0
+    assert exp.set("loop.period_ms", 20.0).cfg.loop.period_ms == 20.0
+
+
+@pytest.mark.parametrize(
+    "key, value, named",
+    [
+        ("culture.params.noise.sd", -1, "culture.params.noise.sd must be >= 0"),
+        ("culture.params.config", "/nope.toml", "culture.params.config: culture file"),
+        ("body.params.world", "/nope.toml", "body.params.world: world file"),
+        ("coding.scheme", "nomod:x", "coding.scheme: cannot import 'nomod'"),
+        ("coding.params.sites_per_sensor", -5, "coding.params.sites_per_sensor must be >= 1"),
+        # a change that breaks a key it leaves alone (the pulses' period follows the loop's)
+        ("loop.period_ms", 5.0, r"pulse_period_ms \(its default: loop.period_ms\) must be"),
+    ],
+)
+def test_a_change_is_checked_as_neuvision_run_checks_it(key, value, named):
+    """`set` checked only the keys' types and bounds: a culture file that is not there, a
+    scheme's parameter, were found only at `run`."""
+    exp = Experiment(CONFIG)
+    with pytest.raises(ConfigError, match=named):
+        exp.set(key, value)
+    assert exp.overrides == {}
 
 
 def test_a_bad_file_or_key_fails_when_the_experiment_is_made(tmp_path):
