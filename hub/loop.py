@@ -190,6 +190,7 @@ class Hub:
         self.period_s = cfg.loop.period_ms / 1e3
         self.checker = ReplyChecker(self.run_id, self.period_s)
         self.state = "waiting"
+        self.ended: tuple[str, str] | None = None  # (outcome, reason) once stopped
         self.alive: set[tuple[str, str]] = set()
         # What each role owes and what came (the verdicts and their counts).
         self.ledger = Ledger(on_event=self._record_event)
@@ -341,6 +342,7 @@ class Hub:
                     )
                 self._publish_view(time.monotonic(), last=True)  # the last steps, for displays
                 self.state = "stopped"
+                self.ended = (outcome, reason)  # said in the final status, for observers
                 self._publish_status()
                 timing, counts = self.timing(), self.counts()
                 unrecorded = self._close_record(
@@ -1004,6 +1006,8 @@ class Hub:
                     [round(v, 3) for v in nb] for nb in (tally.recent if tally else ())
                 ],
                 **self.times.lateness_now(done),
+                # how the run ended: in the final status (state "stopped")
+                **({"outcome": self.ended[0], "reason": self.ended[1]} if self.ended else {}),
             },
         )
 

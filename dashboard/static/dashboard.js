@@ -35,12 +35,16 @@ const drawnAt = [];
 let ws = null;
 function connect() {
   ws = new WebSocket(`${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/ws`);
-  ws.onopen = () => { nv.stats.connected = true; message(""); };
+  ws.onopen = () => { nv.stats.connected = true; document.body.classList.remove("stale"); message(""); };
   ws.onclose = () => {
     nv.stats.connected = false;
     const badge = $("source");
     badge.textContent = "dashboard not reachable (it ended with its run?) — retrying";
     badge.className = "badge down";
+    // what the page shows is the last it heard, not the run's present: greyed, and said
+    document.body.classList.add("stale");
+    $("state").textContent = "unknown (no news since the dashboard went)";
+    for (const id of ["btn-pause", "btn-resume", "btn-stop"]) $(id).disabled = true;
     setTimeout(connect, 1000);
   };
   ws.onmessage = (event) => {
@@ -209,8 +213,13 @@ function drawHeader() {
   }
   // a stop takes effect after the current step: the hub says why meanwhile
   const stopping = !!(st.extra && st.extra.stop_reason) && st.state !== "stopped";
+  // the final status says how the run ended: completed, stopped, interrupted or fault
+  const ended = st.state === "stopped" && st.extra && st.extra.outcome;
+  const why = ended && st.extra.reason ? ` (${st.extra.reason})` : "";
   $("state").textContent = stopping ? `stopping (${st.extra.stop_reason})`
+    : ended ? `ended: ${st.extra.outcome}${why.length > 90 ? why.slice(0, 88) + "…)" : why}`
     : st.state || (src.kind === "live" ? "waiting for the hub" : "—");
+  $("state").title = ended ? `${st.extra.outcome}${why}` : "";
   $("step").textContent = nv.step >= 0 ? nv.step : "—";
   const n = (st.extra && st.extra.n_steps) || (nv.scene && nv.scene.n_steps);
   $("n-steps").textContent = n ? ` / ${n}` : "";

@@ -224,6 +224,8 @@ def test_a_run_watched_paused_resumed_and_stopped_in_a_browser_then_replayed(
             page.wait_for_function(
                 "nv.status.state === 'stopped' || !nv.stats.connected", timeout=TIMEOUT_MS
             )
+            # what the header says now: how the run ended, or that the news stopped
+            ended_text = page.inner_text("#state")
             live_trace = page.evaluate("nv.trace")
             browser.close()
         code = run.wait(timeout=120)
@@ -241,6 +243,10 @@ def test_a_run_watched_paused_resumed_and_stopped_in_a_browser_then_replayed(
     rec = read_run(run_dir)
     assert rec.manifest["outcome"] == "stopped", rec.manifest.get("reason")
     assert rec.manifest["reason"] == "stopped by control"
+    assert ended_text in (
+        "ended: stopped (stopped by control)",  # the final status came
+        "unknown (no news since the dashboard went)",  # the dashboard ended with the run first
+    ), ended_text
 
     # the lag behind the hub: the page's drawing of a step minus the hub's receipt of it
     received_ms = {}

@@ -59,6 +59,7 @@ def test_the_observer_shows_the_run_and_pauses_resumes_and_stops_it(
                 wait_for(lambda: frame()["status"]["step"] > paused_at + 10)
                 out["stop"] = observer.command({"cmd": "stop"})
                 wait_for(lambda: frame()["status"]["state"] == "stopped", 10)
+                out["ended"] = frame()["status"]["extra"]
                 out["bad"] = observer.command({"cmd": "config"})
             finally:
                 observer.close()
@@ -97,6 +98,8 @@ def test_the_observer_shows_the_run_and_pauses_resumes_and_stops_it(
     assert [(p["ok"], p["state"]) for p in printed] == [(True, "paused"), (True, "running")]
     assert out["stop"]["ok"] and not out["bad"]["ok"]
     assert result.outcome == "stopped"
+    # the final status says how the run ended (a page showed "stopped" for a fault too)
+    assert (out["ended"]["outcome"], out["ended"]["reason"]) == ("stopped", "stopped by control")
     # an observer: it asked the hub for the config once, and put nothing on the loop's keys
     commands = [e.payload["cmd"] for e in h.record.events if e.key == "control"]
     assert commands == ["config", "pause", "status", "resume", "stop"]
