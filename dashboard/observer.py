@@ -399,10 +399,16 @@ class BusObserver:
         return True
 
     def _fetch_counters(self) -> None:
+        """Each endpoint's counters, asked; one that does not answer keeps what was last
+        known of it (its kind, its last counters), marked not answering."""
         endpoints = {}
         for role, i in self.ids.items():
             replies = wire.get(self.session, self.keys.describe(role, i), timeout_s=1.0)
-            entry = {"id": i, "alive": bool(replies)}
+            known = self.state.endpoints.get(role) or {}
+            last = {
+                k: known[k] for k in ("kind", "counters") if k in known and known.get("id") == i
+            }
+            entry = {"id": i, "alive": bool(replies), **({} if replies else last)}
             for raw in replies:
                 try:
                     desc = Description.decode(raw)

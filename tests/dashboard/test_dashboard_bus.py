@@ -418,3 +418,24 @@ def test_the_observer_follows_the_sessions_next_hub_on_this_machine(tmp_path, bu
             ticking.set()
             ticker.join(5)
             observer.close()
+
+
+def test_an_endpoint_that_stops_answering_keeps_what_was_known_of_it(monkeypatch):
+    """Its panel lost its kind and counters and showed dashes once it stopped answering:
+    what was last known stays, marked as not answering."""
+    from hub.config import load_config
+
+    state = FrameState()
+    observer = BusObserver(load_config(None, []).bus, state)
+    observer.ids = {"body": "0"}
+    state.set_endpoints(
+        {"body": {"id": "0", "alive": True, "kind": "sim_robot", "counters": {"steps": 57}}}
+    )
+    monkeypatch.setattr("dashboard.observer.wire.get", lambda *a, **k: [])  # no answer
+    observer._fetch_counters()
+    assert state.endpoints["body"] == {
+        "id": "0",
+        "alive": False,
+        "kind": "sim_robot",
+        "counters": {"steps": 57},
+    }
