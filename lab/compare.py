@@ -136,7 +136,8 @@ def compare(
     table = format_table(result, names)
     durations = sorted({f"{c.experiment.duration_s:g} s" for c in cfgs})
     heading = (
-        f"# {' vs '.join(names)}: seeds 1-{seeds}, runs of {' / '.join(durations)} "
+        f"# {' vs '.join(names)}: {'seed 1' if seeds == 1 else f'seeds 1-{seeds}'}, runs of "
+        f"{' / '.join(durations)} "
         f"(compared {datetime.date.today().isoformat()})\n\n"
     )
     (out_dir / "compare.md").write_text(heading + table + "\n")
@@ -308,7 +309,7 @@ def format_table(result: dict, names: list[str]) -> str:
 
 def _draw(queue: list[Job], names: list[str], out_dir: Path) -> list[Path]:
     seeds = sorted({j.seed for j in queue})
-    fig = Figure(figsize=(2.2 * len(seeds) + 0.8, 2.4 * len(names) + 0.4), layout="constrained")
+    fig = Figure(figsize=(2.2 * len(seeds) + 1.2, 2.4 * len(names) + 0.6), layout="constrained")
     axes = fig.subplots(len(names), len(seeds), squeeze=False)
     paths_of = {}  # (name, seed) -> (world, t_s, poses) of each run that ran
     for job in queue:
@@ -335,7 +336,9 @@ def _draw(queue: list[Job], names: list[str], out_dir: Path) -> list[Path]:
             ax.set_title(f"{name} seed {seed}", fontsize=7)
     if shown is not None:
         fig.colorbar(shown, ax=axes, label="run time (s)", shrink=0.8)
-    fig.suptitle("The robot's path in each run (the arena drawn to scale; colour: run time)")
+    # on two lines where the figure is narrow (a few seeds), else it is cut at both sides
+    sep = "\n" if len(seeds) < 4 else " "
+    fig.suptitle(f"The robot's path in each run{sep}(arena to scale; colour: run time)")
     paths = []
     for suffix in (".png", ".svg"):
         path = out_dir / f"trajectories{suffix}"
