@@ -637,8 +637,20 @@ def _result_line(result) -> str:
     return (
         f"neuvision: {result.outcome} after {result.steps} steps, "
         f"{t.get('wall_s', 0):.1f} s wall, {t.get('x_realtime', 0):.1f}x real time, "
-        f"{t.get('late_steps', 0)} late step(s); {where}"
+        f"{t.get('late_steps', 0)} late step(s){_lost_said(result.counts)}; {where}"
     )
+
+
+def _lost_said(counts: dict) -> str:
+    """ ", 799 coding messages dropped (limit), 3 culture replies missing" or "": what did not
+    happen as configured, said where the run's last line is read, not only in its summary."""
+    parts = []
+    for role, kinds in sorted((counts or {}).get("dropped", {}).items()):
+        for kind, n in sorted(kinds.items()):
+            parts.append(f"{n} {role} message(s) dropped ({kind})")
+    for role, n in sorted((counts or {}).get("missing", {}).items()):
+        parts.append(f"{n} {role} repl(ies) missing")
+    return "".join(f", {p}" for p in parts)
 
 
 class ProgressBar:

@@ -436,3 +436,15 @@ def test_a_participant_without_its_certificate_is_refused_before_it_builds(
     argv = [*command, str(CLOSED_LOOP), *[a for s in secured for a in ("--set", s)]]
     err = refused(capsys, argv)
     assert err.startswith(f"neuvision: config error: no ca file '{tmp_path}/ca.pem' for the ")
+
+
+def test_the_runs_last_line_says_what_was_dropped_or_missing():
+    """A run whose coder's pulses broke the culture's limits at every step but one in
+    five said only "completed ... 0 late step(s)": what was lost is said there too."""
+    from hub.cli import _lost_said
+
+    counts = {"dropped": {"coding": {"limit": 799}}, "missing": {"culture": 3}}
+    assert _lost_said(counts) == (
+        ", 799 coding message(s) dropped (limit), 3 culture repl(ies) missing"
+    )
+    assert _lost_said({"dropped": {}, "missing": {}}) == ""
