@@ -9,6 +9,8 @@ they merge like any table. A table naming another ``scheme`` and no ``params`` h
 scheme's params mean nothing to another scheme (``somatotopic``'s ``sites_per_sensor`` to
 ``no_stimulation``). Another ``kind`` without ``params`` keeps the base's: the kinds of one
 endpoint take the same ones (``culture.kind = "nest"`` reads ``sim_network``'s ``config``).
+Likewise a table that names another ``shape`` (a world's arena: a circle's ``radius_m``
+means nothing to a rectangle) is taken whole, not merged with the base's.
 
 Path-valued keys are named by the caller as dotted patterns (``fnmatch``:
 ``"*.params.world"``); each is resolved when its file is read, relative to that file's
@@ -33,6 +35,8 @@ MAX_FILE_BYTES = 4 * 1024 * 1024
 # Tables whose contents belong to the scheme or kind named beside them; a scheme's are not
 # inherited by another scheme even when the extending file gives none.
 OWNED_TABLE, OWNER_KEYS, SCHEME_KEY = "params", ("scheme", "kind"), "scheme"
+# A table naming another of these is another thing: taken whole.
+SHAPE_KEY = "shape"
 # The checkout the code runs from (an editable install): its configs/ are the shipped ones.
 PROJECT_ROOT = Path(__file__).resolve().parents[1]
 
@@ -130,6 +134,8 @@ def _load(path: Path, what: str, paths: tuple[str, ...], seen: tuple[Path, ...])
 
 def merge(base: dict, over: dict) -> dict:
     """``over`` laid over ``base`` by the one rule of this module (see its docstring)."""
+    if SHAPE_KEY in over and SHAPE_KEY in base and over[SHAPE_KEY] != base[SHAPE_KEY]:
+        return dict(over)
     out = dict(base)
     new_owner = any(k in over and over[k] != base.get(k) for k in OWNER_KEYS)
     if SCHEME_KEY in over and over[SCHEME_KEY] != base.get(SCHEME_KEY):

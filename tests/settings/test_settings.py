@@ -109,6 +109,16 @@ def test_another_scheme_without_params_has_none_another_kind_keeps_the_bases():
     assert same["coding"]["params"] == {"g": 1, "h": 2}
 
 
+def test_a_table_naming_another_shape_is_taken_whole():
+    # a circle's radius_m means nothing to a rectangle; the same shape merges as ever
+    base = {"arena": {"shape": "circle", "radius_m": 0.5}, "robot": {"preset": "paper7"}}
+    over = {"arena": {"shape": "rectangle", "width_m": 1.2, "height_m": 1.0}}
+    assert merge(base, over) == {"arena": over["arena"], "robot": {"preset": "paper7"}}
+    same = merge(base, {"arena": {"shape": "circle", "radius_m": 0.8}})
+    assert same["arena"] == {"shape": "circle", "radius_m": 0.8}
+    assert merge(base, {"arena": {"radius_m": 0.8}})["arena"]["shape"] == "circle"
+
+
 def test_paths_are_relative_to_the_file_and_overrides_to_the_current_folder(tmp_path):
     (tmp_path / "a").mkdir()
     (tmp_path / "a" / "base.toml").write_text('[s]\nparams = { config = "c.toml", n = 1 }\n')

@@ -250,3 +250,20 @@ def test_extends_is_relative_to_the_extending_file(tmp_path, worlds_dir, monkeyp
     world = load_world("mine/bigger.toml", ["arena.radius_m=1.1"])
     assert world.name == "bigger" and world.arena.radius_m == 1.1
     assert len(world.obstacles) == 3
+
+
+def test_a_world_extending_the_papers_may_make_its_arena_a_rectangle(tmp_path):
+    """`extends` merged the arena key by key: the paper's radius_m stayed, and a rectangle
+    was refused for a key the user never wrote."""
+    from pathlib import Path
+
+    from sim_robot.world import load_world
+
+    paper = Path("configs/worlds/paper.toml").resolve()
+    mine = tmp_path / "box.toml"
+    mine.write_text(
+        f'extends = "{paper}"\n[arena]\nshape = "rectangle"\nwidth_m = 1.2\nheight_m = 1.0\n'
+    )
+    world = load_world(mine)
+    assert world.arena.shape == "rectangle"
+    assert (world.arena.width_m, world.arena.height_m) == (1.2, 1.0)
