@@ -224,7 +224,12 @@ def check_hub_sections(cfg: ExperimentConfig) -> None:
             try:
                 kind(**given)
             except (TypeError, ValueError) as exc:
-                raise ConfigError(f"online.{name}: {exc}") from None
+                # the analysis names its own tables ("bursts.window_ms ..."): said as here
+                why = str(exc)
+                for own in ("bursts.", "network_bursts."):
+                    if why.startswith(own):
+                        raise ConfigError(f"online.{name}.{why.removeprefix(own)}") from None
+                raise ConfigError(f"online.{name}: {why}") from None
 
 
 @dataclass
