@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import errno
 import json
 import logging
 import math
@@ -249,9 +250,15 @@ def bind(host: str, port: int) -> socket.socket:
         sock.bind((host, port))
     except OSError as exc:
         sock.close()
+        hint = (
+            "another dashboard? choose another with --port or dashboard.port"
+            if exc.errno == errno.EADDRINUSE
+            else "an address of this machine's? choose one with --host or dashboard.host"
+            if exc.errno == errno.EADDRNOTAVAIL
+            else "see --host and --port"
+        )
         raise ServeError(
-            f"cannot serve the dashboard on {host}:{port}: {exc.strerror or exc} "
-            "(another dashboard? choose another with --port or dashboard.port)"
+            f"cannot serve the dashboard on {host}:{port}: {exc.strerror or exc} ({hint})"
         ) from None
     sock.listen(64)
     sock.set_inheritable(True)
