@@ -42,6 +42,19 @@ def test_a_hub_whose_address_is_taken_closes_its_run_folder_as_a_fault(tmp_path,
     assert m["steps"] == 0 and m["end_utc"]
 
 
+def _hub_fault_waiting(tmp_path, bus_overrides) -> str:
+    """`neuvision hub` for endpoints started elsewhere, given 8 s to see them: its fault's
+    line (it ends with status 2)."""
+    done = subprocess.run(
+        [sys.executable, "-m", "hub.cli", "hub", CONFIG, "--quiet", "--duration-s", "0.2",
+         "--runs-dir", str(tmp_path / "runs"),
+         *sets([*bus_overrides, *EXTERNAL, "loop.wait_timeout_s=8"])],
+        capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert done.returncode == 2, done.stderr[-2000:]
+    return done.stderr.strip().splitlines()[-1]
+
+
 def _serve(role: str, items: list[str], log) -> subprocess.Popen:
     return neuvision("endpoint", role, CONFIG, "--once", *sets(items), stderr=log)
 
@@ -189,14 +202,7 @@ def test_an_endpoint_on_another_session_is_named_by_the_hub_waiting_for_it(tmp_p
     )
     culture = _serve("culture", bus_overrides, subprocess.DEVNULL)
     try:
-        done = subprocess.run(
-            [sys.executable, "-m", "hub.cli", "hub", CONFIG, "--quiet", "--duration-s", "0.2",
-             "--runs-dir", str(tmp_path / "runs"),
-             *sets([*bus_overrides, *EXTERNAL, "loop.wait_timeout_s=8"])],
-            capture_output=True, text=True, timeout=120,
-        )  # fmt: skip
-        assert done.returncode == 2, done.stderr[-2000:]
-        last = done.stderr.strip().splitlines()[-1]
+        last = _hub_fault_waiting(tmp_path, bus_overrides)
         assert "body/0 did not appear on session" in last
         assert f"body/0 is on this hub's bus under session {other!r}" in last, last
         assert "culture/0" not in last.split("did not appear")[0]
@@ -513,14 +519,7 @@ def test_an_endpoint_under_another_id_is_named_by_the_hub_waiting_for_it(tmp_pat
                      stderr=log)  # fmt: skip
     culture = _serve("culture", bus_overrides, subprocess.DEVNULL)
     try:
-        done = subprocess.run(
-            [sys.executable, "-m", "hub.cli", "hub", CONFIG, "--quiet", "--duration-s", "0.2",
-             "--runs-dir", str(tmp_path / "runs"),
-             *sets([*bus_overrides, *EXTERNAL, "loop.wait_timeout_s=8"])],
-            capture_output=True, text=True, timeout=120,
-        )  # fmt: skip
-        assert done.returncode == 2, done.stderr[-2000:]
-        last = done.stderr.strip().splitlines()[-1]
+        last = _hub_fault_waiting(tmp_path, bus_overrides)
         assert "body/0 did not appear on session" in last
         assert "body/1 is, not body/0 (body.id in the hub's and the endpoint's" in last, last
     finally:
