@@ -314,7 +314,10 @@ def _rate_params(ctx: SchemeContext) -> dict:
     width_ms, max_ua = _pulse_params(ctx)
     amplitude_ua = min(ctx.param("amplitude_ua", FULL_SCALE_UA, gt=0.0), max_ua)
     min_hz = ctx.param("min_rate_hz", MIN_RATE_HZ, ge=0.0)
-    max_hz = ctx.param("max_rate_hz", MAX_RATE_HZ, ge=min_hz, le=1000.0 / width_ms)
+    max_hz = ctx.param(
+        "max_rate_hz", MAX_RATE_HZ, ge=min_hz, le=1000.0 / width_ms,
+        bounds=f"at least min_rate_hz, at most one pulse a width_ms of {width_ms:g} ms",
+    )  # fmt: skip
     site_params(ctx)
     return dict(width_ms=width_ms, amplitude_ua=amplitude_ua, min_hz=min_hz, max_hz=max_hz)
 

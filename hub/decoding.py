@@ -156,7 +156,7 @@ def _coa_params(ctx: SchemeContext) -> dict:
     return dict(
         window_ms=ctx.param("window_ms", WINDOW_MS, gt=0.0),
         min_speed=min_speed,
-        max_speed=ctx.param("max_speed_mps", None, ge=min_speed),
+        max_speed=ctx.param("max_speed_mps", None, ge=min_speed, bounds="min_speed_mps"),
         speed_gain=ctx.param("speed_gain_mps", None, ge=0.0),
         turn_gain=ctx.param("turn_gain_rad_s_per_rad", TURN_GAIN_RAD_S_PER_RAD),
         dead_zone=ctx.param("dead_zone_frac", DEAD_ZONE_FRAC, ge=0.0),

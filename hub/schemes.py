@@ -56,14 +56,20 @@ class SchemeContext:
     seed: int = 0
     section: str = "coding"  # for error messages: "<section>.params.<key>"
 
-    def param(self, name: str, default, *, kind=float, ge=None, gt=None, le=None):
+    def param(self, name: str, default, *, kind=float, ge=None, gt=None, le=None, bounds=""):
         """A validated parameter: ``params[name]`` or ``default`` (None when absent and
-        ``default`` is None: a default that needs a description)."""
+        ``default`` is None: a default that needs a description). ``bounds`` says where
+        bounds that follow other parameters come from, in the error."""
         if default is None and name not in self.params:
             return None
         value = self.params.get(name, default)
         dotted = f"{self.section}.params.{name}"
-        return check_value(dotted, kind, value, gt=gt, ge=ge, le=le)
+        try:
+            return check_value(dotted, kind, value, gt=gt, ge=ge, le=le)
+        except ConfigError as exc:
+            if not bounds:
+                raise
+            raise ConfigError(f"{exc} ({bounds})") from None
 
     def check_params(self, known: set[str]) -> None:
         """Reject parameters the scheme does not know, by dotted name."""

@@ -98,6 +98,8 @@ def test_a_shipped_config_named_from_another_folder_is_refused_with_where_it_is(
         ("online.burst={min_spikes=0}", "online.burst"),
         ("online.burst={bogus=1}", "online.burst.bogus is not a known key (known: min_spikes"),
         ("online.burst.window_ms=-1", "online.burst.window_ms must be > 0, got -1"),
+        # a bound that follows another parameter says which
+        ("decoding.params.max_speed_mps=0.01", "must be >= 0.05, got 0.01 (min_speed_mps)"),
         # an address Zenoh would refuse only once the run's folder and processes exist
         ('bus.listen=["tcp/127.0.0.1:99999"]', "bus.listen: 'tcp/127.0.0.1:99999' has no port"),
         ('bus.listen=["garbage"]', "bus.listen: 'garbage' is not an address"),
