@@ -240,12 +240,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--culture", help="intan: the culture file behind the MEA (default culture_1024.toml)"
     )
-    p.add_argument("--command-port", type=int, default=5000, help="intan: RHX command port")
-    p.add_argument("--spike-port", type=int, default=5002, help="intan: RHX spike port")
+    p.add_argument("--command-port", type=int, help="intan: RHX command port (default 5000)")
+    p.add_argument("--spike-port", type=int, help="intan: RHX spike port (default 5002)")
     p.add_argument(
         "--realtime-priority",
         type=int,
-        default=EMULATOR_PRIORITY,
         metavar="P",
         help="intan: SCHED_FIFO priority of the emulator's threads (0: ordinary scheduling; "
         f"default {EMULATOR_PRIORITY}, the endpoints' in a realtime run), so that a realtime "
@@ -259,7 +258,6 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--dialect",
         choices=("khepera2", "khepera3"),
-        default="khepera2",
         help="khepera: the robot's model (default khepera2)",
     )
     p.add_argument(
@@ -281,12 +279,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--garbage-every",
         type=int,
-        default=0,
         metavar="N",
-        help="fault: garbage before every N-th reply",
+        help="khepera fault: garbage before every N-th reply",
     )
     p.add_argument(
-        "--drop-every", type=int, default=0, metavar="N", help="fault: drop every N-th reply"
+        "--drop-every", type=int, metavar="N", help="khepera fault: drop every N-th reply"
     )
     p.add_argument(
         "--seed",
@@ -770,14 +767,32 @@ def cmd_export(args) -> int:
     return EXIT_OK
 
 
+# each emulator's own options (the other's refused, not ignored)
+_KHEPERA_ONLY = ("world", "dialect", "ir_table", "baud", "stop_bits", "link", "garbage_every",
+                 "drop_every")  # fmt: skip
+_INTAN_ONLY = ("culture", "command_port", "spike_port", "realtime_priority")
+
+
 def cmd_emulate(args) -> int:
     from adapters.khepera.calibration import IRCalibration
     from adapters.khepera.emulator import KheperaEmulator, run_until_signalled
     from adapters.khepera.link import BAUDS
     from devices.khepera import MODELS
 
+    others = _INTAN_ONLY if args.device == "khepera" else _KHEPERA_ONLY
+    given = [f"--{name.replace('_', '-')}" for name in others if getattr(args, name) is not None]
+    if given:
+        raise InputError(
+            f"{', '.join(given)}: not an option of the {args.device} emulator "
+            "(neuvision emulate --help)"
+        )
     if args.device == "intan":
         from adapters.mea.emulator import DEFAULT_CULTURE, IntanEmulator, run_until_signalled
+
+        args.command_port = 5000 if args.command_port is None else args.command_port
+        args.spike_port = 5002 if args.spike_port is None else args.spike_port
+        if args.realtime_priority is None:
+            args.realtime_priority = EMULATOR_PRIORITY
 
         for option, port in (
             ("--command-port", args.command_port),
@@ -805,6 +820,8 @@ def cmd_emulate(args) -> int:
             ) from None
         run_until_signalled(emulator)
         return EXIT_OK
+    args.dialect = args.dialect or "khepera2"
+    args.garbage_every, args.drop_every = args.garbage_every or 0, args.drop_every or 0
     if args.link:
         _check_link(Path(args.link))
     if args.baud is not None and args.baud not in BAUDS:

@@ -227,6 +227,12 @@ def test_an_output_folder_that_cannot_be_made_is_named_with_the_reason(
         (["intan", "--command-port", "70000"], "--command-port must be a TCP port, 1 to 65535"),
         (["intan", "--spike-port", "-1"], "--spike-port must be a TCP port, 1 to 65535"),
         (["intan", "--realtime-priority", "200"], "--realtime-priority must be 0 (ordinary"),
+        # another emulator's options: refused, not ignored
+        (
+            ["intan", "--link", "/tmp/x", "--baud", "9600"],
+            "--baud, --link: not an option of the intan",
+        ),
+        (["khepera", "--spike-port", "5002"], "--spike-port: not an option of the khepera"),
         (["intan", "--realtime-priority", "-1"], "--realtime-priority must be 0 (ordinary"),
         (["khepera", "--link", "/nonexistent/dir/x"], "--link: /nonexistent/dir is not a folder"),
         (["khepera", "--link", "{file}"], "--link: {file} is a file, not a link"),
