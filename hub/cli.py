@@ -914,13 +914,10 @@ def cmd_dashboard(args) -> int:
     for flag, key in (("port", "dashboard.port"), ("host", "dashboard.host")):
         if getattr(args, flag) is not None:
             args.set = [*(args.set or []), f"{key}={json.dumps(getattr(args, flag))}"]
-    not_found = ""
-    if replay:
-        cfg = load_config(args.config, _overrides(args))
-    else:
-        cfg, not_found = _hub_config(args)
+    given = load_config(args.config, _overrides(args))
     # no address given: follow the session's hub on this machine from run to run
-    follow = not replay and not load_config(args.config, _overrides(args)).bus.connect
+    follow = not replay and not given.bus.connect
+    cfg, not_found = (given, "") if replay else _hub_config(args)
     if not_found and follow:
         print(
             f"neuvision: no hub yet{not_found}: the dashboard waits, and follows the "
