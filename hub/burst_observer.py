@@ -47,15 +47,7 @@ from hub import stopping, wire
 from hub.analysis.bursts import BurstParams
 from hub.analysis.network_bursts import NetworkBurstParams
 from hub.analysis.online import OnlineBurstDetector
-from hub.bus import (
-    HUB_CHECK_S,
-    LOOP_PUBLISH,
-    UNSERVED,
-    hub_answers,
-    open_session,
-    payload_bytes,
-    reaches_anyone,
-)
+from hub.bus import LOOP_PUBLISH, UNSERVED, HubWatch, open_session, payload_bytes
 from hub.config import BusSection
 from hub.live import LiveBursts
 from hub.protocol import (
@@ -134,7 +126,7 @@ class BurstObserver:
         Returns False when, with ``once``, the hub it reached left before giving it a run
         (it ended, faulted waiting for its endpoints, or runs under another session): it
         will not get one, and waiting on would be for ever."""
-        hub_left = _HubWatch(self.session, self.keys) if once else None
+        hub_left = HubWatch(self.session, self.keys) if once else None
         while not stop.is_set() and not (once and self.runs_done):
             try:
                 item = self._events.get(timeout=min(WAKE_S, ASK_S))
@@ -399,33 +391,6 @@ class OnlineTally:
             "online_spike_batches_refused": self.dropped,
             "online_observer_cpu_s": self.cpu_s,
         }
-
-
-class _HubWatch:
-    """Called every loop, says (every ``HUB_CHECK_S``) whether the hub that was reached has
-    left: its token gone, or no one reached any more (a hub killed, or one under another
-    session ending, takes its router with it), two checks in a row."""
-
-    def __init__(self, session: zenoh.Session, keys: Keys):
-        self.session, self.keys = session, keys
-        self.reached = self.seen = False
-        self.unanswered = 0
-        self.next_check = 0.0
-
-    def __call__(self) -> bool:
-        now = time.monotonic()
-        if now < self.next_check:
-            return False
-        self.next_check = now + HUB_CHECK_S
-        connected = reaches_anyone(self.session)
-        self.reached = self.reached or connected
-        if hub_answers(self.session, self.keys):
-            self.seen, self.unanswered = True, 0
-        elif self.seen or (self.reached and not connected):
-            self.unanswered += 1
-        else:
-            self.unanswered = 0
-        return self.unanswered >= 2
 
 
 class _StoppedWaiting(Exception):

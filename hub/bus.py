@@ -12,6 +12,7 @@ import json
 import os
 import socket
 import time
+from collections.abc import Callable
 
 # Zenoh's threads are configured per process, from this variable, when the first session
 # opens. One network-receive thread, not two: with two, an arriving message wakes the
@@ -227,3 +228,43 @@ HUB_CHECK_S = 1.0
 #: the status of a participant serving one run (``--once``) whose hub left without
 #: starting it: ``neuvision endpoint --once`` and ``observe --once`` exit with it
 UNSERVED = 1
+
+
+class HubWatch:
+    """For a participant serving one run (``--once``), none taken yet: whether the hub it
+    reached has left, so that it will never get one. Called as often as liked; it looks
+    every ``HUB_CHECK_S``. Left: a hub seen before (``there()``, or ``seen`` set from its
+    token's news) is no longer there; or a hub never seen (one under another session)
+    took its router with it, so that the session reaches no one. Two looks in a row: one
+    may fall while a new router's token comes.
+
+    Parameters
+    ----------
+    session : zenoh.Session
+    keys : Keys
+    there : callable, optional
+        Whether the hub is there now (default: its token answers a liveliness query).
+    """
+
+    def __init__(self, session, keys, there: Callable[[], bool] | None = None):
+        self.session = session
+        self.there = there or (lambda: hub_answers(session, keys))
+        self.seen = False  # the hub seen once
+        self.reached = False  # someone (a router or a peer) reached once
+        self._unanswered = 0
+        self._next_look = 0.0
+
+    def __call__(self) -> bool:
+        now = time.monotonic()
+        if now < self._next_look:
+            return False
+        self._next_look = now + HUB_CHECK_S
+        connected = reaches_anyone(self.session)
+        self.reached = self.reached or connected
+        if self.there():
+            self.seen, self._unanswered = True, 0
+        elif self.seen or (self.reached and not connected):
+            self._unanswered += 1  # before it was seen, it may be starting
+        else:
+            self._unanswered = 0
+        return self._unanswered >= 2

@@ -41,6 +41,7 @@ from hub.bus import (
     LOOP_PUBLISH,
     TELEMETRY_PUBLISH,
     UNSERVED,
+    HubWatch,
     hub_answers,
     open_session,
     payload_bytes,
@@ -514,8 +515,6 @@ class Endpoint(abc.ABC):
         state = {
             "last_input": time.monotonic(),
             "serving": True,
-            "hub_seen": False,  # the hub's token seen once, by query or by its PUT
-            "reached": False,  # a router or peer reached once (a hub, maybe another session's)
             "hub_token": False,  # the last news of the hub's token was a PUT
         }
         status = 0
@@ -551,8 +550,8 @@ class Endpoint(abc.ABC):
             state["hub_token"] = sample.kind != zenoh.SampleKind.DELETE
             if sample.kind == zenoh.SampleKind.DELETE:
                 self.on_hub_gone()
-            else:
-                state["hub_seen"] = True
+            elif hub_left is not None:
+                hub_left.seen = True
 
         def hub_there() -> bool:
             """Whether the hub is on the bus: its token answers a liveliness query, or its
@@ -561,6 +560,10 @@ class Endpoint(abc.ABC):
             if hub_answers(session, keys):
                 return True
             return state["hub_token"] and reaches_anyone(session)
+
+        # serving one run: whether a hub that was there left (it refused this endpoint, or
+        # ended) or one under another session, never seen, ended: it will not start one
+        hub_left = HubWatch(session, keys, there=hub_there) if once else None
 
         try:
             # Zenoh undeclares what is garbage-collected: keep every declaration.
@@ -579,33 +582,18 @@ class Endpoint(abc.ABC):
             log.info("%s/%s (%s) ready on session %s", self.role, self.id, self.kind, bus.session)
             timed_out = False
             next_hub_check, unanswered = 0.0, 0
-            next_once_check, once_unanswered = 0.0, 0
             while not self._stop.wait(0.05):
-                if once and self.runs == 0 and time.monotonic() >= next_once_check:
-                    # Serving one run, none taken yet: a hub that was there and left (it
-                    # refused this endpoint, or ended) will not start it. Asked every second.
-                    # A hub under another session is never seen, but its going is: the
-                    # session then reaches no one.
-                    next_once_check = time.monotonic() + HUB_CHECK_S
-                    connected = reaches_anyone(session)
-                    state["reached"] = state["reached"] or connected
-                    if hub_there():
-                        state["hub_seen"], once_unanswered = True, 0
-                    elif state["hub_seen"] or (state["reached"] and not connected):
-                        once_unanswered += 1  # before it was seen, it may be starting
-                    else:
-                        once_unanswered = 0
-                    if once_unanswered >= 2:
-                        log.error(
-                            "%s/%s: the hub %s left without starting a run with it (did it "
-                            "refuse it, or run under another session than %r? its log says "
-                            "why): exiting (--once)",
-                            self.role, self.id,
-                            "it reached" if state["hub_seen"] else "or router it reached",
-                            bus.session,
-                        )  # fmt: skip
-                        status = UNSERVED
-                        break
+                if hub_left is not None and self.runs == 0 and hub_left():
+                    log.error(
+                        "%s/%s: the hub %s left without starting a run with it (did it "
+                        "refuse it, or run under another session than %r? its log says "
+                        "why): exiting (--once)",
+                        self.role, self.id,
+                        "it reached" if hub_left.seen else "or router it reached",
+                        bus.session,
+                    )  # fmt: skip
+                    status = UNSERVED
+                    break
                 with self._lock:
                     idle_s = time.monotonic() - state["last_input"]
                     if idle_s <= self.input_timeout_s:
