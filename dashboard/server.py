@@ -56,7 +56,15 @@ class Source(Protocol):
 
 
 class ServeError(RuntimeError):
-    """The page cannot be served (the port is taken); the message says where."""
+    """The page cannot be served (the port is taken); the message says where.
+
+    ``bad_address`` is true when the address itself is wrong (a host that is not this
+    machine's or has no address), not the machine's state (a port taken).
+    """
+
+    def __init__(self, message: str, *, bad_address: bool = False):
+        super().__init__(message)
+        self.bad_address = bad_address
 
 
 @dataclass(eq=False)
@@ -250,15 +258,17 @@ def bind(host: str, port: int) -> socket.socket:
         sock.bind((host, port))
     except OSError as exc:
         sock.close()
+        bad_address = isinstance(exc, socket.gaierror) or exc.errno == errno.EADDRNOTAVAIL
         hint = (
             "another dashboard? choose another with --port or dashboard.port"
             if exc.errno == errno.EADDRINUSE
             else "an address of this machine's? choose one with --host or dashboard.host"
-            if exc.errno == errno.EADDRNOTAVAIL
+            if bad_address
             else "see --host and --port"
         )
         raise ServeError(
-            f"cannot serve the dashboard on {host}:{port}: {exc.strerror or exc} ({hint})"
+            f"cannot serve the dashboard on {host}:{port}: {exc.strerror or exc} ({hint})",
+            bad_address=bad_address,
         ) from None
     sock.listen(64)
     sock.set_inheritable(True)

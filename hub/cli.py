@@ -935,6 +935,8 @@ def cmd_dashboard(args) -> int:
     except ReplayError as exc:
         raise InputError(str(exc)) from None
     except ServeError as exc:
+        if exc.bad_address:
+            raise InputError(_one_line(exc)) from None
         print(f"neuvision: {_one_line(exc)}", file=sys.stderr)
         return EXIT_FAULT
     return EXIT_OK

@@ -38,6 +38,15 @@ def test_a_port_taken_is_one_line_and_status_2(tmp_path, capsys):
     assert line.startswith(f"neuvision: cannot serve the dashboard on 127.0.0.1:{port}")
 
 
+def test_a_host_that_is_not_this_machines_is_bad_input_status_3(tmp_path, capsys):
+    write_run(tmp_path / "run")
+    # TEST-NET-1 (RFC 5737): never a local address; bind() refuses it at once, sends nothing
+    code = main(["dashboard", "--replay", str(tmp_path / "run"), "--host", "192.0.2.1"])
+    assert code == 3
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert "cannot serve the dashboard on 192.0.2.1" in line and "--host" in line
+
+
 def test_run_with_a_dashboard_on_a_port_taken_stops_before_anything_starts(tmp_path, capsys):
     sock = bind("127.0.0.1", 0)
     try:
