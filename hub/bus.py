@@ -226,7 +226,8 @@ def reaches_anyone(session) -> bool:
 #: inputs stopped; an endpoint or observer serving one run, none taken yet)
 HUB_CHECK_S = 1.0
 #: the status of a participant serving one run (``--once``) whose hub left without
-#: starting it: ``neuvision endpoint --once`` and ``observe --once`` exit with it
+#: starting it (``neuvision endpoint --once`` and ``observe --once`` exit with it), or,
+#: for an endpoint, went in the middle of it without ending it
 UNSERVED = 1
 
 

@@ -161,6 +161,7 @@ class Endpoint(abc.ABC):
         self._session = None
         self._telemetry: dict = {}
         self._once = False  # serve(once=True): stop when the first run ends
+        self._run_lost = False  # a run ended by its hub's going, not by the hub (RunEnd)
         self._run_taken_at = -math.inf  # when the current run was taken (monotonic)
         protocol.kernels()  # the checks of larger arrays compiled now, not in a run
 
@@ -329,6 +330,7 @@ class Endpoint(abc.ABC):
         """The hub's liveliness vanished: the run ends here and now, the device made safe."""
         with self._lock:
             if self.run is not None:
+                self._run_lost = True
                 self._end_run("the hub went away")
 
     # ------------------------------------------------------------ each step
@@ -466,9 +468,10 @@ class Endpoint(abc.ABC):
         """Serve on the bus until stopped; return the exit status (0 on a clean stop).
 
         An endpoint serves one run after another (each ``RunStart`` resets it); with
-        ``once`` it returns when its first run ends, or :data:`UNSERVED` when a hub that
-        answered leaves without starting one (it refused this endpoint: other settings, a
-        second endpoint of the same name). ``realtime_priority`` > 0 puts this
+        ``once`` it returns when its first run ends: 0 when the hub ended it, whatever the
+        run's outcome; :data:`UNSERVED` when the hub went in the middle of it without
+        ending it, or when a hub that answered leaves without starting one (it refused this
+        endpoint: other settings, a second endpoint of the same name). ``realtime_priority`` > 0 puts this
         process's threads under ``SCHED_FIFO`` at that priority once warmed up (see
         :mod:`hub.scheduling`; refused: ordinary scheduling). ``cpus`` keeps the process's
         threads on those CPUs (``<role>.cpus``; empty: the OS decides). ``keep_cpus_awake``
@@ -638,4 +641,11 @@ class Endpoint(abc.ABC):
             raise failures[0]
         if self.dropped:
             log.info("%s/%s dropped: %s", self.role, self.id, dict(self.dropped))
+        if once and self._run_lost:
+            log.error(
+                "%s/%s: the hub went in the middle of its run without ending it: exiting "
+                "(--once) with status %d",
+                self.role, self.id, UNSERVED,
+            )  # fmt: skip
+            status = UNSERVED
         return status

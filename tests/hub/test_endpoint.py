@@ -319,6 +319,19 @@ def test_serving_once_it_returns_when_its_run_ends(served):
     assert s.status == 0 and body.closed
 
 
+def test_serving_once_it_exits_1_when_its_hub_goes_in_the_middle_of_its_run(served):
+    # (the hub killed: its run did not end; a script waiting on the endpoint must know)
+    body = RecordingBody()
+    s = served(body, once=True)
+    s.start()
+    s.send(0)
+    s.reply()
+    s.hub_token.undeclare()
+    s.thread.join(10)
+    assert not s.thread.is_alive()
+    assert s.status == UNSERVED and body.closed and body.safe
+
+
 def test_serving_once_it_gives_up_when_its_hub_leaves_without_starting_a_run(served):
     # (a hub that refused it: other settings, a second endpoint of the same name)
     body = RecordingBody()
