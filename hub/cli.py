@@ -631,9 +631,11 @@ def _result_line(result) -> str:
         where = f"record in {result.run_dir}"
     else:
         where = f"nothing recorded (record.enabled = false): manifest and logs in {result.run_dir}"
+    paused_s = t.get("paused_s", 0.0)
+    paused = f" ({paused_s:.1f} s of it paused)" if paused_s >= 0.05 else ""
     return (
         f"neuvision: {result.outcome} after {result.steps} steps, "
-        f"{t.get('wall_s', 0):.1f} s wall, {t.get('x_realtime', 0):.1f}x real time, "
+        f"{t.get('wall_s', 0):.1f} s wall{paused}, {t.get('x_realtime', 0):.1f}x real time, "
         f"{t.get('late_steps', 0)} late step(s){_lost_said(result.counts)}; {where}"
     )
 

@@ -471,12 +471,12 @@ class Endpoint(abc.ABC):
         ``once`` it returns when its first run ends: 0 when the hub ended it, whatever the
         run's outcome; :data:`UNSERVED` when the hub went in the middle of it without
         ending it, or when a hub that answered leaves without starting one (it refused this
-        endpoint: other settings, a second endpoint of the same name). ``realtime_priority`` > 0 puts this
-        process's threads under ``SCHED_FIFO`` at that priority once warmed up (see
-        :mod:`hub.scheduling`; refused: ordinary scheduling). ``cpus`` keeps the process's
-        threads on those CPUs (``<role>.cpus``; empty: the OS decides). ``keep_cpus_awake``
-        asks the OS to keep idle CPUs awake while a run is served (``loop.keep_cpus_awake``;
-        :func:`hub.scheduling.hold_cpus_awake`).
+        endpoint: other settings, a second endpoint of the same name).
+        ``realtime_priority`` > 0 puts this process's threads under ``SCHED_FIFO`` at that
+        priority once warmed up (see :mod:`hub.scheduling`; refused: ordinary scheduling).
+        ``cpus`` keeps the process's threads on those CPUs (``<role>.cpus``; empty: the OS
+        decides). ``keep_cpus_awake`` asks the OS to keep idle CPUs awake while a run is
+        served (``loop.keep_cpus_awake``; :func:`hub.scheduling.hold_cpus_awake`).
         """
         self._once = once
         self._keep_cpus_awake = keep_cpus_awake

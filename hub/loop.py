@@ -193,7 +193,7 @@ class Hub:
         self.ended: tuple[str, str] | None = None  # (outcome, reason) once stopped
         self.alive: set[tuple[str, str]] = set()
         # What each role owes and what came (the verdicts and their counts).
-        self.ledger = Ledger(on_event=self._record_event)
+        self.ledger = Ledger(on_event=self.record_event)
         self.descriptions: dict[str, Description] = {}
         self.participants: dict[str, dict] = {}  # each endpoint's host, clock offset
         # policy.rejoin_s: role -> (when its liveliness vanished, the step then); and the
@@ -211,8 +211,6 @@ class Hub:
         self._put_at = {role: [math.nan] * self.n_steps for role in ROLES}
         self._last_round_trip_ms: dict[str, float] = {}  # the latest, for observers
         self.stop_reason: str | None = None  # why the run must end before its last step
-        self._pause_started: float | None = None
-        self.paused_s = 0.0
         self._next_status = 0.0
         # What live displays get on hub/view (hub/view.py), while anyone asks for them.
         self.view = ObserverView(self.run_id)
@@ -223,7 +221,7 @@ class Hub:
         # Live burst detection by the burst observer (hub/online.py; None with
         # online.enabled = false)
         self.online: OnlineAnalysis | None = (
-            OnlineAnalysis(cfg, self.run_id, self._record_event, lambda: self.k)
+            OnlineAnalysis(cfg, self.run_id, self.record_event, lambda: self.k)
             if cfg.online.enabled
             else None
         )
@@ -307,7 +305,7 @@ class Hub:
             if self.online is not None:  # subscribed before the culture may send a spike
                 self.online.announce(self.link, self.n_steps, self.descriptions["culture"].channel)
             self._announce_run()
-            self._record_event("start", mode=cfg.loop.mode, n_steps=cfg.n_steps)
+            self.record_event("start", mode=cfg.loop.mode, n_steps=cfg.n_steps)
             self._steps()
             if self.stop_reason:
                 outcome, reason = self._stopped_outcome(), self.stop_reason
@@ -317,7 +315,7 @@ class Hub:
         except (HubError, ConfigError, SchemeError) as exc:
             outcome, reason = "fault", str(exc)
             log.error("%s", exc)
-            self._record_event("fault", reason=reason)
+            self.record_event("fault", reason=reason)
         except RecordError as exc:  # a full disk, the run folder gone: a run not recorded stops
             outcome, reason = "fault", str(exc)
             log.error("%s", exc)
@@ -380,7 +378,7 @@ class Hub:
         failed = []
         if self.recorder:
             try:
-                self._record_event("end", outcome=outcome, reason=reason)
+                self.record_event("end", outcome=outcome, reason=reason)
                 self.recorder.close()
             except RecordError as exc:
                 failed.append(str(exc))
@@ -426,7 +424,7 @@ class Hub:
                     log.warning(
                         "realtime steps under the ordinary scheduler: %s", self.scheduling.reason
                     )
-                self._record_event("scheduling", **self.scheduling.to_dict())
+                self.record_event("scheduling", **self.scheduling.to_dict())
                 try:
                     self.scheduler.run()
                 finally:
@@ -610,7 +608,7 @@ class Hub:
         (self.alive.add if present else self.alive.discard)(parsed)
         if was == present:
             return
-        self._record_event("alive" if present else "dead", role=parsed[0], id=parsed[1])
+        self.record_event("alive" if present else "dead", role=parsed[0], id=parsed[1])
         if parsed == OBSERVER and self.online is not None:
             if self.state in ("running", "paused"):
                 entry = self.online.came_or_went(present)
@@ -657,7 +655,7 @@ class Hub:
         entry = {"role": role, "id": i, "gone_at_step": gone_at, "at_step": self.k}
         entry["gap_s"] = round(gap_s, 3)
         self.rejoins.append(entry)
-        self._record_event("rejoined", **entry)
+        self.record_event("rejoined", **entry)
         log.warning("%s/%s rejoined at step %d after %.2f s", role, i, self.k, gap_s)
         self.scheduler.rejoined(role)
 
@@ -666,8 +664,8 @@ class Hub:
         flight), to an endpoint that rejoined."""
         for step in sorted(self.unanswered[role]):
             if step >= self.ledger.expect[role]:
-                self.link.send(role, self.unanswered[role][step])
                 self._put_at[role][step] = time.monotonic()
+                self.link.send(role, self.unanswered[role][step])
 
     def _check_rejoin_deadlines(self) -> None:
         """An endpoint gone longer than ``policy.rejoin_s`` is dead."""
@@ -675,7 +673,7 @@ class Hub:
         for role, (since, _) in list(self.gone.items()):
             if now - since > self.cfg.policy.rejoin_s:
                 del self.gone[role]
-                self._record_event("rejoin_expired", role=role, id=self.ids[role])
+                self.record_event("rejoin_expired", role=role, id=self.ids[role])
                 self._endpoint_dead(role, self.ids[role])
 
     def _on_control(self, query) -> None:
@@ -684,18 +682,19 @@ class Hub:
         except ProtocolError as exc:
             self.ledger.drop("control", exc.kind, str(exc))
             return self._reply(query, ControlReply(ok=False, state=self.state, reason=str(exc)))
-        self._record_event("control", cmd=request.cmd)
+        self.record_event("control", cmd=request.cmd)
         ok, reason, data = True, "", None
         if request.cmd == "pause":
             ok = self.state == "running"
             if ok:
-                self.state, self._pause_started = "paused", time.monotonic()
+                self.state = "paused"
+                self.times.pause()
                 self._hold(True)
         elif request.cmd == "resume":
             ok = self.state == "paused"
             if ok:
                 self._hold(False)
-                self.paused_s += time.monotonic() - self._pause_started
+                self.times.resume()
                 self.state = "running"
         elif request.cmd == "stop":
             self.stop_reason = self.stop_reason or STOPPED_BY_CONTROL
@@ -713,7 +712,7 @@ class Hub:
         """Tell each endpoint the run is paused (it makes itself safe at once: the wheels
         stop, nothing is delivered) or resumed; record who acknowledged."""
         taken = self.roster.hold(list(self.ids.items()), self.run_id, hold)
-        self._record_event("hold" if hold else "unhold", **taken)
+        self.record_event("hold" if hold else "unhold", **taken)
         if not all(taken.values()):
             log.warning("not every endpoint acknowledged the %s: %s",
                         "pause" if hold else "resume", taken)  # fmt: skip
@@ -800,10 +799,10 @@ class Hub:
                     "the dashboard did not watch within %g s: the run starts without it",
                     self.wait_for_view_s,
                 )
-                self._record_event("view_wait", watched=False, waited_s=self.wait_for_view_s)
+                self.record_event("view_wait", watched=False, waited_s=self.wait_for_view_s)
                 return
             self.next_event(min(deadline, time.monotonic() + 0.05))
-        self._record_event("view_wait", watched=True, waited_s=time.monotonic() - start)
+        self.record_event("view_wait", watched=True, waited_s=time.monotonic() - start)
         self.view.watch(True)  # gather from the first step
 
     def _stop_while_waiting(self, what: str) -> None:
@@ -825,7 +824,7 @@ class Hub:
         desc, where = self.roster.describe(role, i)
         self.participants[role] = where
         self._take_description(desc)
-        self._record_event("described", role=role, id=i, kind=desc.kind)
+        self.record_event("described", role=role, id=i, kind=desc.kind)
 
     def _announce_run(self) -> None:
         """Give each endpoint the run: its id, timing and that endpoint's key (contract v2)."""
@@ -848,7 +847,7 @@ class Hub:
             seed=cfg.experiment.seed,
         )
         self.roster.announce(role, i, start)
-        self._record_event("run_taken", role=role, id=i, run=self.run_id)
+        self.record_event("run_taken", role=role, id=i, run=self.run_id)
 
     def _take_reports(self) -> None:
         """After the steps: handle the burst observer's reports waiting; nothing else
@@ -878,7 +877,7 @@ class Hub:
         warning = check_fits_loop(desc, self.cfg.loop)
         if warning:
             log.warning("%s", warning)
-            self._record_event("warning", role=desc.role, id=desc.id, reason=warning)
+            self.record_event("warning", role=desc.role, id=desc.id, reason=warning)
         self.descriptions[desc.role] = desc
         self.checker.take_description(desc)
 
@@ -920,10 +919,13 @@ class Hub:
 
     def send(self, role: str, message: Message, raw: bytes | None = None) -> None:
         raw = raw or message.encode()
+        # Stamped before the put: a reply can come (and be stamped) before the put returns.
+        t_wall_ns = time.time_ns() if self.recorder else None
+        put_at = time.monotonic()
         self.link.send(role, raw)
         self.ledger.sent(role, message.step)
         if 0 <= message.step < self.n_steps:
-            self._put_at[role][message.step] = time.monotonic()
+            self._put_at[role][message.step] = put_at
         if self._keep_unanswered:
             unanswered = self.unanswered[role]
             for step in [k for k in unanswered if k < self.ledger.expect[role]]:
@@ -932,7 +934,7 @@ class Hub:
         if self.view.observed:
             self.view.sent(message)
         if self.recorder:
-            self.recorder.message("tx", self.input_key[role], raw)
+            self.recorder.message("tx", self.input_key[role], raw, t_wall_ns)
 
     def _safe_stop_body(self) -> None:
         """Whatever ended the run, leave the robot stopped, and wait a little for the
@@ -953,7 +955,7 @@ class Hub:
         except HubError:  # the body died meanwhile: it stops itself (input timeout, lease)
             pass
         seen = step in self.ledger.pending["body"]
-        self._record_event(
+        self.record_event(
             "final_stop", step=step, acknowledged=seen, wait_s=round(time.monotonic() - t0, 4)
         )
         if not seen:
@@ -966,12 +968,13 @@ class Hub:
     def _window(self, k: int) -> StepWindow:
         return StepWindow.of(self.run_id, k, self.period_s)
 
-    def _record_event(self, name: str, **details) -> None:
+    def record_event(self, name: str, **details) -> None:
+        """Record something the hub noticed or did (an ``ev`` frame; none without a record)."""
         if self.recorder:
             self.recorder.event(name, **details)
 
     def status(self) -> HubStatus:
-        wall = self.times.wall_s()
+        wall, running = self.times.wall_s(), self.times.running_s()
         done = self.k_done
         tally = self.online.tally if self.online else None
         return HubStatus(
@@ -984,7 +987,7 @@ class Hub:
             dropped={r: sum(c.values()) for r, c in self.ledger.dropped.items()},
             alive=sorted(f"{r}/{i}" for r, i in self.alive),
             wall_s=wall,
-            steps_per_s=done / wall if wall > 0 else 0.0,
+            steps_per_s=done / running if running > 0 else 0.0,
             extra={
                 "late_steps": self.times.late_steps,
                 "single_channel_bursts": tally.bursts if tally else 0,

@@ -54,7 +54,7 @@ class Realtime:
 
     def start_of(self, k: int) -> float:
         """When step ``k`` is due to start (monotonic), given the time paused so far."""
-        return self.hub.times.t_start + self.hub.paused_s + k * self.period_s
+        return self.hub.times.t_start + self.hub.times.paused_s + k * self.period_s
 
     def _steps_on_schedule(self) -> None:
         hub, ledger = self.hub, self.hub.ledger
@@ -85,9 +85,10 @@ class Realtime:
                     hub.inputs.motor_for(k + 1, prev["culture"]),
                     hub.inputs.stim_for(k + 1, prev["body"]),
                 )
-            hub.times.late_steps += bool(
-                late or hub.times.lateness_s[k] > LATE_START_SHARE * self.period_s
-            )
+            late_start = hub.times.lateness_s[k] > LATE_START_SHARE * self.period_s
+            if late_start:  # in the record, as a reply past its deadline is (``late``)
+                hub.record_event("late_start", step=k, by_ms=hub.times.lateness_s[k] * 1e3)
+            hub.times.late_steps += bool(late or late_start)
             self.k_done = k + 1
             hub.tick()
         if lag:  # the last step's culture reply: in the record, and not missing

@@ -38,6 +38,9 @@ class LoopTimes:
         The same when the steps ended (``t_stop`` 0: not yet): the run's figures cover its
         steps, not what the hub does after them (the body's final stop, the endpoints'
         counters, the observer's last report, a live display's last view).
+    paused_s : float
+        Time paused by control, over the pauses that ended (:meth:`pause`, :meth:`resume`):
+        the realtime schedule is shifted by it, and the run's pace is taken without it.
     """
 
     mode: str
@@ -51,6 +54,8 @@ class LoopTimes:
     cpu_start_s: float = field(default=0.0)
     t_stop: float = 0.0
     cpu_stop_s: float = 0.0
+    paused_s: float = 0.0
+    _pause_started: float = field(default=0.0, repr=False)  # 0: not paused
     # role -> per step: from the input's put to its reply's arrival (NaN: none came)
     round_trip_s: dict[str, np.ndarray] = field(default_factory=dict)
     _lateness_seen: int = field(default=0, repr=False)  # steps scanned by lateness_now
@@ -84,16 +89,39 @@ class LoopTimes:
 
     def stop(self, not_before: float = 0.0) -> None:
         """The steps ended now, or at ``not_before`` if later (realtime: the end of the last
-        step's period)."""
+        step's period); a pause under way ends with them."""
         if self.t_start and not self.t_stop:
             self.t_stop = max(time.monotonic(), not_before)
             self.cpu_stop_s = time.process_time()
+            self.resume(at=self.t_stop)
+
+    def pause(self) -> None:
+        """The steps are held from now (``ctl pause``)."""
+        if not self._pause_started:
+            self._pause_started = time.monotonic()
+
+    def resume(self, at: float | None = None) -> None:
+        """The steps go on from now (or ``at``): the pause is added to :attr:`paused_s`."""
+        if self._pause_started:
+            end = time.monotonic() if at is None else at
+            self.paused_s += max(end - self._pause_started, 0.0)
+            self._pause_started = 0.0
 
     def wall_s(self) -> float:
-        """Wall time of the steps: since they began, until they ended (0 before)."""
+        """Wall time of the steps, pauses included: since they began, until they ended (0
+        before)."""
         if not self.t_start:
             return 0.0
         return (self.t_stop or time.monotonic()) - self.t_start
+
+    def paused_total_s(self) -> float:
+        """Time paused so far, a pause under way included."""
+        ongoing = time.monotonic() - self._pause_started if self._pause_started else 0.0
+        return self.paused_s + ongoing
+
+    def running_s(self) -> float:
+        """Wall time of the steps less the time paused: what the run's pace is taken over."""
+        return max(self.wall_s() - self.paused_total_s(), 0.0)
 
     def cpu_s(self) -> float:
         """The hub's process CPU time over the steps (0 before)."""
@@ -124,14 +152,15 @@ class LoopTimes:
         self, steps: int, scheduling: Scheduling | None, cpus_awake: CpusAwake | None = None
     ) -> dict:
         """Loop timing figures of the first ``steps`` steps (wall time, lateness, late steps)."""
-        n, wall = steps, self.wall_s()
+        n, wall, running = steps, self.wall_s(), self.running_s()
         out = {
             "mode": self.mode,
             "period_ms": self.period_ms,
             "steps": n,
             "wall_s": wall,
-            "steps_per_s": n / wall if wall > 0 else 0.0,
-            "x_realtime": n * self.period_ms / 1e3 / wall if wall > 0 else 0.0,
+            "paused_s": self.paused_total_s(),
+            "steps_per_s": n / running if running > 0 else 0.0,
+            "x_realtime": n * self.period_ms / 1e3 / running if running > 0 else 0.0,
             # the loop's thread's time not waiting, and in lockstep the replies' threads'
             "hub_busy_s": max(wall - self.waiting_s, 0.0) + self.direct_busy_s,
             "hub_cpu_s": self.cpu_s(),

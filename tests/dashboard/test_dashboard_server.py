@@ -85,7 +85,9 @@ def test_a_page_gets_the_scene_then_frames_and_its_controls_are_answered(replay)
 def test_a_port_taken_is_one_clear_error():
     sock = bind("127.0.0.1", 0)
     try:
-        with pytest.raises(ServeError, match=r"cannot serve the dashboard on 127.0.0.1.*another") as e:
+        with pytest.raises(
+            ServeError, match=r"cannot serve the dashboard on 127.0.0.1.*another"
+        ) as e:
             bind("127.0.0.1", sock.getsockname()[1])
         assert not e.value.bad_address  # the machine's state, not the address given
     finally:
@@ -94,6 +96,8 @@ def test_a_port_taken_is_one_clear_error():
 
 def test_a_host_that_is_not_this_machines_is_said_so():
     # TEST-NET-1 (RFC 5737): never a local address; bind() refuses it at once, sends nothing
-    with pytest.raises(ServeError, match=r"an address of this machine's\? choose one with --host") as e:
+    with pytest.raises(
+        ServeError, match=r"an address of this machine's\? choose one with --host"
+    ) as e:
         bind("192.0.2.1", 0)
     assert e.value.bad_address

@@ -546,6 +546,10 @@ def test_pause_resume_stop_and_config_over_the_control_key(tmp_path, bus_overrid
     assert out["stop"].data["extra"]["stop_reason"] == "stopped by control"  # and why
     assert out["resume"].data["extra"]["stop_reason"] == ""
     assert result.outcome == "stopped" and 30 < result.steps < 10_000
+    # the time paused is wall time, not the run's pace: the realtime steps kept time
+    timing = h.record.manifest["timing"]
+    assert 0.25 <= timing["paused_s"] < timing["wall_s"]
+    assert timing["x_realtime"] == pytest.approx(1.0, abs=0.1)
     assert any(s.alive == ["body/0", "culture/0", "hub/0"] for s in statuses)
     assert [e.payload["cmd"] for e in h.record.events if e.key == "control"] == [
         "pause",
@@ -615,3 +619,56 @@ def test_a_large_cultures_description_and_bursts_pass_the_loop(tmp_path, bus_ove
     spikes = h.received(SpikeBatch)
     assert sorted(spikes) == list(range(10))
     assert all(b.channel.size == 300_000 for b in spikes.values())
+
+
+def _stamps(record, kind, direction) -> dict[int, int]:
+    """Each step's message of ``kind`` in ``direction``: the hub's wall clock stamp (ns)."""
+    suffix = {MotorCommand: "/motor", SensorReading: "/sensors", Stimulation: "/stim",
+              SpikeBatch: "/spikes"}[kind]  # fmt: skip
+    return {
+        kind.decode(f.payload).step: f.t_wall_ns
+        for f in record.frames
+        if f.direction == direction and f.key.endswith(suffix) and isinstance(f.payload, bytes)
+    }
+
+
+def test_an_input_is_stamped_before_its_put_so_never_after_its_reply(
+    tmp_path, bus_overrides, monkeypatch
+):
+    # A put that returns late (the hub's thread preempted on a loaded machine): the echo
+    # endpoints' replies are in before it returns.
+    from hub.link import HubLink
+
+    put = HubLink.send
+
+    def put_returning_late(self, role, raw):
+        put(self, role, raw)
+        time.sleep(0.003)
+
+    monkeypatch.setattr(HubLink, "send", put_returning_late)
+    with harness(tmp_path, bus_overrides, "experiment.duration_s=0.3") as h:
+        assert h.run().outcome == "completed"
+    for sent, answered in ((MotorCommand, SensorReading), (Stimulation, SpikeBatch)):
+        tx, rx = _stamps(h.record, sent, "tx"), _stamps(h.record, answered, "rx")
+        assert len(rx) == 30
+        assert all(tx[k] <= rx[k] for k in rx), sent.__name__
+
+
+def test_a_realtime_step_that_starts_late_is_recorded_as_such(tmp_path, bus_overrides, monkeypatch):
+    # Step 5's put holds the hub's thread past step 6's start (a 10 ms period).
+    from hub.link import HubLink
+
+    put = HubLink.send
+
+    def put_held_at_step_5(self, role, raw):
+        put(self, role, raw)
+        if role == "culture" and Stimulation.decode(raw).step == 5:
+            time.sleep(0.016)
+
+    monkeypatch.setattr(HubLink, "send", put_held_at_step_5)
+    with harness(tmp_path, bus_overrides, "loop.mode=realtime", "experiment.duration_s=0.2") as h:
+        assert h.run().outcome == "completed"
+    late_starts = [e.payload for e in h.record.events if e.key == "late_start"]
+    assert [e["step"] for e in late_starts][:1] == [6]
+    assert late_starts[0]["by_ms"] > 2.5  # more than a quarter period
+    assert h.record.manifest["timing"]["late_steps"] >= len(late_starts)

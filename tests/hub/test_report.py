@@ -50,6 +50,26 @@ def test_realtime_steps_end_with_the_last_steps_period():
     assert out["wall_s"] == pytest.approx(0.04) and out["x_realtime"] == pytest.approx(1.0)
 
 
+def test_time_paused_is_wall_time_but_not_the_runs_pace(monkeypatch):
+    clock = [100.0]
+    monkeypatch.setattr(time, "monotonic", lambda: clock[0])
+    times = LoopTimes.for_run("realtime", 10.0, n_steps=400)
+    times.lateness_s[:200] = 0.0
+    times.start()
+    clock[0] += 1.0  # 100 steps on time
+    times.pause()
+    clock[0] += 3.0  # paused (ctl, the dashboard)
+    times.resume()
+    clock[0] += 1.0  # 100 steps more
+    times.pause()
+    clock[0] += 2.0  # paused again, and stopped so
+    times.stop()
+    out = times.report(steps=200, scheduling=None)
+    assert out["wall_s"] == pytest.approx(7.0) and out["paused_s"] == pytest.approx(5.0)
+    assert out["x_realtime"] == pytest.approx(1.0) and out["steps_per_s"] == pytest.approx(100)
+    assert times.paused_s == pytest.approx(5.0)  # the pause under way ended with the steps
+
+
 def test_a_run_that_never_stepped_reports_zeros():
     out = LoopTimes.for_run("lockstep", 10.0, 10).report(steps=0, scheduling=None)
     assert out["steps"] == out["steps_per_s"] == out["hub_cpu_s"] == 0
