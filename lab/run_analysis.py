@@ -194,7 +194,9 @@ def analyze_run(run_dir, out_dir=None, params: AnalysisParams | None = None) -> 
     index, keep, n_channels, cell_type, x_um, y_um = _culture_arrays(culture, channel)
     index, t_ms = index[keep], t_ms[keep]
 
-    stimulations = rec.decoded(Stimulation, "tx")
+    # the stimulations of the steps analysed: not one sent (pipelined) for a step the
+    # run ended before (an interrupt, a stop), whose spikes never came
+    stimulations = [s for s in rec.decoded(Stimulation, "tx") if s.t0_s * 1e3 < t_stop_ms]
     stim_ms, stim_ids = None, None
     if stimulations:
         stim_ms, stim_ids = stimulus_onsets_ms(stimulations)

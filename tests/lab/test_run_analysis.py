@@ -21,8 +21,12 @@ STIM_EVERY_STEPS = 100  # one pulse a second
 EVOKED_LATENCIES_MS = np.array([55.0, 60.0, 61.0, 62.0, 63.0, 64.0, 70.0, 80.0])
 
 
-def _write_run(run_dir, n_steps=600, world="configs/worlds/paper.toml", config=None):
-    """A hand-made 6 s run: culture description, stimulations, spikes, body poses."""
+def _write_run(
+    run_dir, n_steps=600, world="configs/worlds/paper.toml", config=None, stim_unanswered=False
+):
+    """A hand-made 6 s run: culture description, stimulations, spikes, body poses; with
+    ``stim_unanswered``, a stimulation for the step after the last (sent pipelined, the
+    run interrupted before the culture answered it)."""
     config = config or {"loop": {"period_ms": PERIOD_MS, "mode": "lockstep"}}
     if world is not None:
         config["body"] = {"kind": "sim_robot", "params": {"world": world}}
@@ -92,8 +96,26 @@ def _write_run(run_dir, n_steps=600, world="configs/worlds/paper.toml", config=N
             contact=False,
         )
         rec.message("rx", "nv/s/body/0/sensors", reading.encode())
+    if stim_unanswered:
+        stim = Stimulation(
+            **W(n_steps).stamp,
+            channel=ids[[0]],
+            amplitude_ua=np.full(1, 100.0, np.float32),
+            width_ms=np.full(1, 10.0, np.float32),
+            onset_ms=np.full(1, 2.0, np.float32),
+        )
+        rec.message("tx", "nv/s/culture/0/stim", stim.encode())
     rec.close()
     return stim_steps
+
+
+def test_a_stimulation_of_a_step_the_run_never_finished_is_not_counted(tmp_path):
+    run_dir = tmp_path / "run"
+    run_dir.mkdir()
+    stim_steps = _write_run(run_dir, n_steps=250, world=None, stim_unanswered=True)
+    metrics = analyze_run(run_dir)["metrics"]
+    assert metrics["duration_s"] == pytest.approx(2.5)
+    assert metrics["n_stimuli"] == stim_steps.size  # not the last one, sent for step 250
 
 
 @pytest.mark.slow
