@@ -641,7 +641,8 @@ def _result_line(result) -> str:
 
 
 def _lost_said(counts: dict) -> str:
-    """ ", 799 coding messages dropped (limit), 3 culture replies missing" or "": what did not
+    """ ", 799 coding messages dropped (limit), 3 culture replies missing, 12 culture replies
+    late (the policy stood in)" or "": what did not
     happen as configured, said where the run's last line is read, not only in its summary."""
     parts = []
     for role, kinds in sorted((counts or {}).get("dropped", {}).items()):
@@ -649,6 +650,9 @@ def _lost_said(counts: dict) -> str:
             parts.append(f"{n} {role} message(s) dropped ({kind})")
     for role, n in sorted((counts or {}).get("missing", {}).items()):
         parts.append(f"{n} {role} repl(ies) missing")
+    for role, n in sorted((counts or {}).get("late", {}).items()):
+        if n:
+            parts.append(f"{n} {role} repl(ies) late (the policy stood in)")
     return "".join(f", {p}" for p in parts)
 
 

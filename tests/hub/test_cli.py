@@ -457,3 +457,7 @@ def test_the_runs_last_line_says_what_was_dropped_or_missing():
         ", 799 coding message(s) dropped (limit), 3 culture repl(ies) missing"
     )
     assert _lost_said({"dropped": {}, "missing": {}}) == ""
+    # a reply past its deadline is counted late, not missing; the loop did not use it either
+    assert _lost_said({"late": {"culture": 500, "body": 0}}) == (
+        ", 500 culture repl(ies) late (the policy stood in)"
+    )
