@@ -409,7 +409,6 @@ class Hub:
         # collector, whose full passes would otherwise stall realtime steps.
         gc.collect()
         gc.freeze()
-        self.times.start()
         switch_s = sys.getswitchinterval()
         sys.setswitchinterval(GIL_SWITCH_S)
         self.cpus_awake = hold_cpus_awake(self.cfg.loop.keep_cpus_awake)
@@ -417,6 +416,7 @@ class Hub:
             log.info("idle CPUs may sleep during the steps: %s", self.cpus_awake.reason)
         try:
             if self.cfg.loop.mode == "lockstep":
+                self.times.start()
                 self.scheduler.run()
             else:
                 self.scheduling = raise_threads(self.cfg.loop.realtime_priority)
@@ -425,6 +425,8 @@ class Hub:
                         "realtime steps under the ordinary scheduler: %s", self.scheduling.reason
                     )
                 self.record_event("scheduling", **self.scheduling.to_dict())
+                # The schedule starts now: the set-up above is not step 0's lateness.
+                self.times.start()
                 try:
                     self.scheduler.run()
                 finally:
