@@ -416,10 +416,11 @@ def main(argv: list[str] | None = None) -> int:
         # Its runner stops it with SIGTERM, maybe while it starts up (its imports, compiled
         # kernels, its model): as Ctrl-C then (below), not a death by signal.
         signal.signal(signal.SIGTERM, stopping.interrupt_while_starting)
-    # Schemes and endpoint kinds named module:attr may live in the user's own
-    # folder, as with `python -m`.
+    # Schemes and endpoint kinds named module:attr may live in the user's own folder: it
+    # is searched last, so that a folder holding another copy of NeuVision (a clone of
+    # another version) cannot mix its modules with the installed ones.
     if "" not in sys.path and os.getcwd() not in sys.path:
-        sys.path.insert(0, os.getcwd())
+        sys.path.append(os.getcwd())
     logging.basicConfig(
         level=logging.DEBUG if args.verbose else logging.INFO,
         format="%(asctime)s %(name)s %(levelname)s: %(message)s",

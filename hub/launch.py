@@ -46,6 +46,12 @@ ENDPOINT_KINDS = {
     "mea": "adapters.mea.endpoint:MeaEndpoint",
 }
 
+#: ``neuvision`` as a child process of this Python. ``-P``: the folder it is started in is
+#: not put first on its import path (as ``-m`` alone would), so a folder holding another
+#: copy of NeuVision cannot mix its modules with the installed ones; the command adds that
+#: folder last itself, for a user's own schemes and endpoint kinds (hub/cli.py).
+NEUVISION = (sys.executable, "-P", "-m", "hub.cli")
+
 
 def endpoint_class(role: str, kind: str) -> type[Endpoint]:
     """The endpoint class for ``<role>.kind`` (a short name or ``module:Class``)."""
@@ -202,7 +208,7 @@ def _start_local(
         if cpus:
             os.sched_setaffinity(0, cpus)
 
-    cmd = [sys.executable, "-m", "hub.cli", *command]
+    cmd = [*NEUVISION, *command]
     if config_path:
         cmd.append(str(config_path))
     for item in overrides:

@@ -28,6 +28,7 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from hub.config import load_config
+from hub.launch import NEUVISION
 from hub.record import make_output_folder, new_run_dir, read_run
 from lab.behaviour import world_of
 from lab.experiment import check_hub_sections
@@ -156,7 +157,7 @@ def _run_all(queue: list[Job], jobs: int, overrides: list[str]) -> None:
             while pending and len(running) < jobs:
                 job = pending.pop(0)
                 job.runs_dir.mkdir(parents=True, exist_ok=True)
-                cmd = [sys.executable, "-m", "hub.cli", "run", job.config, "--quiet"]
+                cmd = [*NEUVISION, "run", job.config, "--quiet"]
                 cmd += ["--seed", str(job.seed), "--runs-dir", str(job.runs_dir)]
                 for item in overrides:
                     cmd += ["--set", item]

@@ -5,8 +5,10 @@ cannot be reached. Real processes, real Zenoh on loopback."""
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -105,3 +107,23 @@ def test_a_hub_that_cannot_be_reached_is_one_line(bus_overrides):
     last = done.stderr.strip().splitlines()[-1]
     assert last.startswith("neuvision: cannot reach the hub at tcp/127.0.0.1:")
     assert "within 1 s (bus.connect_timeout_s)" in last
+
+
+@pytest.mark.slow  # a whole run
+def test_a_folder_holding_another_copy_of_a_package_does_not_shadow_the_installed_one(
+    tmp_path, bus_overrides
+):
+    # run from a clone of another version: its modules must not mix with the installed
+    # ones, in the command's process or in the endpoints it starts
+    shadow = tmp_path / "sim_robot"
+    shadow.mkdir()
+    (shadow / "__init__.py").write_text('raise ImportError("the folder\'s copy was imported")\n')
+    config = str((Path(__file__).parents[2] / CONFIG).resolve())
+    done = subprocess.run(
+        [sys.executable, "-m", "hub.cli", "run", config, "--quiet", "--duration-s", "0.2",
+         "--runs-dir", str(tmp_path / "runs"), *sets(bus_overrides)],
+        capture_output=True, text=True, timeout=120, cwd=tmp_path,
+        env={**os.environ, "PYTHONSAFEPATH": "1"},  # as the installed `neuvision` script
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert "the folder's copy" not in done.stderr
