@@ -294,9 +294,11 @@ def _table(r: dict) -> str:
     peak = r["psth_peak_ms"]
     lo, hi = PSTH_PEAK_RANGE_MS
     ok = peak is not None and lo <= peak <= hi
+    err = relative_error(peak, PAPER_PSTH_PEAK_MS) if peak is not None else math.nan
+    off = "—" if math.isnan(err) else f"{100 * err:+.0f} %"
     lines.append(
         f"| PSTH peak after 1 excitatory neuron (ms) | ~{PAPER_PSTH_PEAK_MS:.0f} | {_fmt(peak, 1)}"
-        f" | — | {_verdict(ok)} |"
+        f" | {off} | {_verdict(ok)} (band {lo:.0f}–{hi:.0f}) |"
     )
     for p in PROTOCOLS:
         if p.name == HEADLINE:
@@ -310,6 +312,19 @@ def _table(r: dict) -> str:
         "| CAT spread, evoked (1 exc.) vs spontaneous (µm, lower = more regular) | "
         f"evoked repeatable, spontaneous unstructured | {_fmt(ev, 0)} vs {_fmt(sp, 0)} | — | "
         f"{_verdict(r['cats_more_regular'])} |"
+    )
+    # Qualitative in the paper: shown, not judged (docs/validation.md says how they compare).
+    m = r.get("spontaneous_metrics", {})
+    ibi_s, ibi_cv = _num(m.get("ibi_mean_ms")), _num(m.get("ibi_cv"))
+    lines.append(
+        "| IBI: intervals between network bursts (mean s, CV) | spread over time, no dominant "
+        f"peak | {_fmt(ibi_s / 1e3 if ibi_s else None, 1)} s, CV {_fmt(ibi_cv, 2)} | — | "
+        "(informative) |"
+    )
+    lines.append(
+        "| share of excitatory spikes in network bursts (80 % of cells are) | dominated by "
+        f"excitatory spikes | {_fmt(_num(m.get('nb_exc_spike_fraction')), 2)} | — | "
+        "(informative) |"
     )
     lines += [
         "",

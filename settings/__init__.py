@@ -11,15 +11,25 @@ simulators and the hub both import it.
 from settings.errors import ConfigError, under
 from settings.files import apply_overrides, load, merge, read_toml, resolve_paths
 from settings.overrides import get_dotted, parse_override, parse_value, set_dotted
-from settings.schema import bounds, build, coerce, to_plain, with_overrides
+from settings.schema import (
+    bounds,
+    build,
+    check_known,
+    coerce,
+    known_keys,
+    to_plain,
+    with_overrides,
+)
 
 __all__ = [
     "ConfigError",
     "apply_overrides",
     "bounds",
     "build",
+    "check_known",
     "coerce",
     "get_dotted",
+    "known_keys",
     "load",
     "merge",
     "parse_override",

@@ -46,6 +46,21 @@ def bounds(
     }
 
 
+def known_keys(cls) -> list[str]:
+    """The keys a table built as dataclass ``cls`` (:func:`build`) may have."""
+    return [f.name for f in dataclasses.fields(cls) if not f.metadata.get("internal")]
+
+
+def check_known(data: dict, known: list[str], prefix: str = "") -> None:
+    """Raise :class:`ConfigError` naming the first key of ``data`` not in ``known``, with a
+    close match if there is one, and the known keys."""
+    for key in data:
+        if key not in known:
+            hint = difflib.get_close_matches(str(key), known, n=1)
+            extra = f" (did you mean {hint[0]}?)" if hint else ""
+            raise ConfigError(f"{prefix}{key} is not a known key{extra}; known: {', '.join(known)}")
+
+
 def build(cls: type, data: Any, prefix: str = "") -> Any:
     """Validate a nested table against dataclass ``cls`` and build it.
 
@@ -66,13 +81,7 @@ def build(cls: type, data: Any, prefix: str = "") -> Any:
     if not isinstance(data, dict):
         raise ConfigError(f"{prefix.rstrip('.')} must be a table, got {data!r}")
     fields = {f.name: f for f in dataclasses.fields(cls) if not f.metadata.get("internal")}
-    for key in data:
-        if key not in fields:
-            hint = difflib.get_close_matches(str(key), fields, n=1)
-            extra = f" (did you mean {hint[0]}?)" if hint else ""
-            raise ConfigError(
-                f"{prefix}{key} is not a known key{extra}; known: {', '.join(fields)}"
-            )
+    check_known(data, list(fields), prefix)
     hints = typing.get_type_hints(cls)
     values = {}
     for name, f in fields.items():

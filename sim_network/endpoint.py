@@ -22,7 +22,12 @@ from hub.config import ConfigError, EndpointSection, ExperimentConfig, check_val
 from hub.endpoint import Endpoint, RunRefused
 from hub.protocol import Description, Potentials, RunStart, SpikeBatch, StepWindow, Stimulation
 from sim_network import Network, PulseError, Pulses, nest_backend, nest_module
-from sim_network.config import config_from_dict, config_to_dict, read_config_data
+from sim_network.config import (
+    NetworkConfig,
+    config_from_dict,
+    config_to_dict,
+    read_config_data,
+)
 
 # What the simulated culture takes (contract v2 limits; a real rig's are far lower): the
 # paper's pulses are 10 ms of up to 150 uA, at most one per channel per 10 ms step.
@@ -45,6 +50,9 @@ class NetworkEndpoint(Endpoint):
     """
 
     role, kind = "culture", "sim_network"
+    #: ``culture.params`` keys of the endpoint itself, beside the culture's own
+    #: (:class:`~sim_network.config.NetworkConfig`'s: ``noise``, ``layout``...)
+    PARAMS = ("config", "seed", "potentials_hz")
 
     def __init__(self, network: Network, id: str = "0", potentials_hz: float = 0.0):
         super().__init__(id)
@@ -74,6 +82,9 @@ class NetworkEndpoint(Endpoint):
             Naming ``culture.params.<key>`` (``culture.params.noise.sd must be >= 0``).
         """
         params = dict(section.params)
+        settings.check_known(
+            params, [*cls.PARAMS, *settings.known_keys(NetworkConfig)], "culture.params."
+        )
         culture = params.pop("config", {})
         seed = check_value(
             "culture.params.seed", int, params.pop("seed", cfg.experiment.seed), ge=0
@@ -176,6 +187,7 @@ class NestEndpoint(NetworkEndpoint):
     """
 
     kind = "nest"
+    PARAMS = (*NetworkEndpoint.PARAMS, "threads", "noise_source")
 
     @classmethod
     def check_config(cls, section: EndpointSection, cfg: ExperimentConfig) -> dict:

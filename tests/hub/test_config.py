@@ -210,6 +210,9 @@ def test_the_culture_and_the_world_are_set_from_the_experiment_and_recorded_whol
             "culture.params.nois.sd=1",
             "culture.params.nois is not a known key (did you mean noise?)",
         ),
+        # the endpoint's own keys are known beside the culture's, and a near miss is named
+        ("culture.params.sede=3", "culture.params.sede is not a known key (did you mean seed?)"),
+        ("culture.params.potential_hz=3", "(did you mean potentials_hz?); known: config, seed"),
         ("culture.params.seed=-3", "culture.params.seed must be >= 0"),
         ("culture.params.potentials_hz=1e3", "culture.params.potentials_hz must be <= 100"),
         ('culture.params.config="nope.toml"', "culture.params.config: culture file"),

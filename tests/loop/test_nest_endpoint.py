@@ -38,6 +38,9 @@ def test_a_culture_nest_cannot_express_is_refused_by_name_before_anything_starts
     cfg = load_config("configs/closed_loop.toml", [*NEST, 'culture.params.noise_source="gauss"'])
     with pytest.raises(ConfigError, match="culture.params.noise_source must be one of"):
         cfg.resolved()
+    cfg = load_config("configs/closed_loop.toml", [*NEST, "culture.params.thread=2"])
+    with pytest.raises(ConfigError, match=r"thread is not a known key \(did you mean threads\?\)"):
+        cfg.resolved()
 
 
 @needs_nest
