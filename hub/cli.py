@@ -199,7 +199,15 @@ def build_parser() -> argparse.ArgumentParser:
         "the manifest's outcome (JSON on stdout).",
     )
     p.add_argument("run_dir", help="a run folder")
-    p = sub.add_parser("compare", help="run conditions over several seeds and compare them")
+    p = sub.add_parser(
+        "compare",
+        help="run conditions over several seeds and compare them",
+        description="Run each experiment file (a condition: e.g. closed_loop.toml against "
+        "its blind control) on seeds 1..N, every run recorded; then table each condition's "
+        "metrics (mean ± s.d. over seeds; a permutation test of each between the first "
+        "condition and each other) in compare.md and compare.json, and draw every path in "
+        "trajectories.png. A failed run is listed with its reason, and the command exits 2.",
+    )
     p.add_argument("configs", nargs="+", help="experiment files, one per condition")
     p.add_argument("--seeds", type=int, default=8, help="seeds 1..N per condition (default 8)")
     p.add_argument("--jobs", type=_positive(int), help="runs at a time (default: the cores)")
@@ -228,7 +236,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--nwb", type=Path, required=True, metavar="FILE", help="the NWB file to write")
     p = sub.add_parser(
         "emulate",
-        help="emulate a device on this machine (a Khepera on a pseudo-terminal)",
+        help="emulate a device on this machine (a Khepera on a pseudo-terminal, an Intan "
+        "RHX on loopback TCP)",
         description="Emulate a device. khepera: a pseudo-terminal that speaks a Khepera II's "
         "(with --dialect khepera3, a Khepera III's) serial protocol, answered by a simulated "
         "robot in a world, in real time; prints the device path (give it as "
@@ -321,10 +330,20 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="also a fresh password per role, for bus.security = 'password'",
     )
-    p = sub.add_parser("reproduce", help="run the paper's validation of the simulated culture")
+    p = sub.add_parser(
+        "reproduce",
+        help="run the paper's validation of the simulated culture",
+        description="The paper's validation of the simulated culture (docs/validation.md): "
+        "15 min of spontaneous activity, then 10 ms, 100 µA pulses at 0.2 Hz into one or four "
+        "neurons, excitatory or inhibitory. Writes reproduction.md (each figure against the "
+        "paper's, judged within ±30 % for one seed; with --seeds, within ±20 % on every "
+        "seed), reproduction.json, figures and report.html.",
+    )
     p.add_argument("--out", type=Path, help="output folder (default: a new run folder)")
     p.add_argument("--quick", action="store_true", help="a shortened version (for tests)")
-    p.add_argument("--seed", type=_positive(int, zero=True), default=1)
+    p.add_argument(
+        "--seed", type=_positive(int, zero=True), default=1, help="the culture's seed (default 1)"
+    )
     p.add_argument(
         "--seeds", help="several seeds, e.g. 1-6 or 1,3,5: a table per seed and mean ± s.d."
     )
