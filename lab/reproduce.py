@@ -97,6 +97,8 @@ PROTOCOLS = (
     Protocol("inh_4", 1, 4),
 )
 HEADLINE = "exc_1"
+#: Four targets stimulate the site of the one target: within this many grid cells of it.
+SITE_CELLS = 3
 
 
 def stimulation_targets(
@@ -104,9 +106,11 @@ def stimulation_targets(
 ) -> tuple[int, ...]:
     """Neurons of ``cell_type`` near the culture centre to stimulate together.
 
-    One target: the neuron of that type nearest the centre. Four: the 2 x 2 block of grid cells
-    nearest the centre whose four neurons are all of that type; when no such block exists (likely
-    for the 20 % inhibitory cells), the four neurons of that type nearest the central one.
+    One target: the neuron of that type nearest the centre. Four, at the same site: the 2 x 2
+    block of grid cells nearest the centre whose four neurons are all of that type, if one lies
+    within ``SITE_CELLS`` grid cells of the one target; else (likely for the 20 % inhibitory
+    cells, whose nearest such block lay ~600 µm off on seed 1) the four neurons of that type
+    nearest the one target.
     Neurons flagged in ``excluded`` (bool[n]) count as of no type: the protocols pass the
     culture's chattering-like cells (`Network.chattering_like`), as the paper stimulates
     regular-spiking excitatory cells.
@@ -129,12 +133,16 @@ def stimulation_targets(
     grid = np.full((layout.rows, layout.cols), -1, dtype=np.int64)
     grid[layout.row, layout.col] = np.arange(x.size)
     best, best_d = None, np.inf
+    site_um = SITE_CELLS * layout.spacing_um
     for r in range(layout.rows - 1):
         for c in range(layout.cols - 1):
             block = grid[r : r + 2, c : c + 2].ravel()
             if (block < 0).any() or (ct[block] != cell_type).any():
                 continue
-            dist = math.hypot(x[block].mean() - cx, y[block].mean() - cy)
+            bx, by = x[block].mean(), y[block].mean()
+            if math.hypot(bx - x[centre], by - y[centre]) > site_um:
+                continue  # another site than the one target's
+            dist = math.hypot(bx - cx, by - cy)
             if dist < best_d:
                 best, best_d = block, dist
     if best is None:

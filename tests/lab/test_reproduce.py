@@ -8,7 +8,6 @@ import pytest
 from hub.analysis.paper import PAPER_TARGETS
 from lab.reproduce import PROTOCOLS, QUICK_CAVEAT, reproduce, stimulation_targets
 from sim_network import Network, load_config
-from sim_network.layout import build_layout
 
 KEYS = (
     "mfr_hz",
@@ -55,13 +54,10 @@ def test_quick_reproduction_end_to_end(tmp_path):
     assert lines[-1].startswith("reproduce: done")
 
 
-def _layout():
-    return build_layout(load_config("configs/culture_1024.toml").layout, np.random.default_rng(3))
-
-
 @pytest.mark.parametrize("cell_type", [0, 1])
-def test_stimulation_targets_are_adjacent_neurons_of_one_type_near_the_centre(cell_type):
-    layout = _layout()
+@pytest.mark.parametrize("seed", [1, 3])  # seed 1: the nearest inhibitory 2 x 2 lay far off
+def test_stimulation_targets_are_adjacent_neurons_of_one_type_near_the_centre(cell_type, seed):
+    layout = Network(load_config("configs/culture_1024.toml"), seed=seed).layout
     (one,) = stimulation_targets(layout, cell_type, 1)
     four = stimulation_targets(layout, cell_type, 4)
     assert layout.cell_type[one] == cell_type
@@ -73,6 +69,8 @@ def test_stimulation_targets_are_adjacent_neurons_of_one_type_near_the_centre(ce
     # "adjacent": the four lie within a few grid cells of each other
     spread = np.linalg.norm(xy[list(four)] - xy[list(four)].mean(axis=0), axis=1).max()
     assert spread <= 3 * layout.spacing_um
+    # at the site of the one target: one neuron and four compare the same place
+    assert np.linalg.norm(xy[list(four)].mean(axis=0) - xy[one]) <= 3 * layout.spacing_um
     if cell_type == 0:  # excitatory cells are common enough for a 2 x 2 block
         rows, cols = layout.row[list(four)], layout.col[list(four)]
         assert np.ptp(rows) == 1 and np.ptp(cols) == 1
