@@ -19,6 +19,11 @@ hung — the guard writes the stop, says so, and tells the adapter through a sec
 rather than believe them applied). It then waits for beats again: a stall is survived,
 an end is not.
 
+A guard that ends while its adapter lives (killed by hand or by the OOM killer) would leave
+the device unguarded; each beat looks, and a lost guard is replaced by a new one at once,
+said in the log (:attr:`StopGuard.replaced`); one that cannot be replaced is a device fault
+(:class:`GuardLost`), and the adapter makes the device safe and ends.
+
 It cannot help when the host stops, nor when the guard itself is frozen with the adapter
 (a ``SIGSTOP`` to both: it runs in a session of its own, so a signal to the adapter's
 process group does not reach it).
@@ -30,6 +35,8 @@ import logging
 import os
 import subprocess
 import sys
+
+from hub.endpoint import DeviceFault
 
 log = logging.getLogger(__name__)
 
@@ -93,6 +100,11 @@ while True:
 """
 
 
+class GuardLost(DeviceFault):
+    """The stop guard ended while its adapter lives, and no new one could be started: the
+    device would not be stopped if the adapter died now."""
+
+
 class StopGuard:
     """Writes ``stop`` on the open file ``fd`` if this process dies without :meth:`release`.
 
@@ -117,6 +129,14 @@ class StopGuard:
         if freeze_s < 0:
             raise ValueError("freeze_s must be >= 0")
         self.freeze_s = freeze_s
+        self._args = (fd, stop, what, words)
+        self.replaced = 0  # guards lost while the adapter lived, and replaced
+        self._spawn()
+
+    def _spawn(self) -> None:
+        """Start the guard's process, with its pipes."""
+        fd, stop, what, words = self._args
+        freeze_s = self.freeze_s
         read_end, self._pipe = os.pipe()
         notice_read, notice_write = os.pipe() if freeze_s > 0 else (-1, -1)
         passed = (fd, read_end) if notice_write < 0 else (fd, read_end, notice_write)
@@ -128,6 +148,7 @@ class StopGuard:
             )  # fmt: skip
         except BaseException:
             os.close(self._pipe)
+            self._pipe = -1
             if notice_read >= 0:
                 os.close(notice_read)
             raise
@@ -143,14 +164,43 @@ class StopGuard:
     def beat(self) -> bool:
         """The adapter lives (call it once per device cycle, from the thread that talks to
         the device). True when the guard stopped the device since the last beat: the
-        adapter was frozen, and what it last sent no longer holds."""
-        if self._pipe < 0 or self.freeze_s <= 0:
+        adapter was frozen, and what it last sent no longer holds.
+
+        Raises
+        ------
+        GuardLost
+            The guard had ended, and no new one could be started.
+        """
+        if self._pipe < 0:
+            return False
+        if self.process.poll() is not None:
+            self._replace()
+        if self.freeze_s <= 0:
             return False
         try:
             os.write(self._pipe, b"h")
-        except OSError:  # full (the guard frozen too) or gone: nothing to tell it
+        except OSError:  # full (the guard frozen too) or gone (seen at the next beat)
             pass
         return self.stopped()
+
+    def _replace(self) -> None:
+        """The guard ended while the adapter lives: start another on the same connection."""
+        lost, status = self.process.pid, self.process.returncode
+        what = self._args[2]
+        self._close_pipes()
+        try:
+            self._spawn()
+        except OSError as exc:
+            raise GuardLost(
+                f"the stop guard of {what} (pid {lost}) ended (status {status}) and no new "
+                f"one could be started ({exc}): the device would not be stopped if this "
+                "process died"
+            ) from None
+        self.replaced += 1
+        log.warning(
+            "the stop guard of %s (pid %d) ended (status %s) while this process lives: a new "
+            "one stands (pid %d)", what, lost, status, self.process.pid,
+        )  # fmt: skip
 
     def rest(self) -> None:
         """The beats stop on purpose (the device's thread ends: its link failed, or the

@@ -27,6 +27,7 @@ import numpy as np
 from adapters.khepera.calibration import IRCalibration, Odometry
 from adapters.khepera.link import LinkFault, SerialLink
 from adapters.khepera.protocol import COUNTER_COMMANDS, N_PROXIMITY, ReplyError
+from hub.endpoint import DeviceFault
 
 log = logging.getLogger(__name__)
 
@@ -209,7 +210,7 @@ class KheperaDriver:
                 self._cycle()
             except ReplyError:
                 self.counts["failed_cycles"] += 1  # the link counted and logged the line
-            except LinkFault as exc:
+            except DeviceFault as exc:  # the link failed, or the stop guard was lost
                 self._fail(exc)
                 return
 
@@ -241,7 +242,7 @@ class KheperaDriver:
             self._latest = Reading(t_read, values, self.calibration.range_m(values), pose)
             self.cycles_s.append(time.monotonic() - t0)
 
-    def _fail(self, exc: LinkFault) -> None:
+    def _fail(self, exc: DeviceFault) -> None:
         self.link.rest()  # this thread ends: its beats stop, and not for a freeze
         self.fault = exc
         log.error("%s", exc)
@@ -257,6 +258,8 @@ class KheperaDriver:
         with self._lock:
             cycles, ages = np.array(self.cycles_s), np.array(self.ages_s)
             out = {"cycle_ms_measured": self.cycle_ms, **self.counts, **self.link.counts}
+            if self.link.guard is not None:
+                out["guards_replaced"] = self.link.guard.replaced
         for name, data in (("cycle_ms", cycles), ("reading_age_ms", ages)):
             if data.size:
                 out[f"{name}_p50"] = float(np.percentile(data, 50) * 1e3)

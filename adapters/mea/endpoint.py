@@ -436,8 +436,12 @@ class MeaEndpoint(Endpoint):
         while True:
             with self._timing:
                 while not self._closing:
-                    if beats and self.driver.beat():
-                        kind = "frozen"  # the guard made the instrument safe meanwhile
+                    try:
+                        if beats and self.driver.beat():
+                            kind = "frozen"  # the guard made the instrument safe meanwhile
+                            break
+                    except DeviceFault as exc:  # its stop guard lost, and not replaced
+                        kind, payload = "lost", exc
                         break
                     now, due = time.monotonic(), self._due[lane]
                     if due and due[0][0] <= now:
@@ -449,6 +453,9 @@ class MeaEndpoint(Endpoint):
                     return
             if kind == "frozen":
                 self._failed(DeviceFault(FROZEN))
+                return
+            if kind == "lost":
+                self._failed(payload)
                 return
             if kind == "fire":
                 self._fire(*payload)

@@ -117,6 +117,31 @@ def test_the_adapter_killed_outright_leaves_the_robot_stopped(emulator, bus_over
         end(hub, body)
 
 
+def test_a_stop_guard_killed_is_replaced_so_the_adapters_death_still_stops_the_robot(
+    emulator, bus_overrides, tmp_path
+):
+    """The guard killed on its own (by hand, the OOM killer) left the device unguarded
+    and nobody knew: the adapter's death then left the robot driving on. The adapter sees
+    it at its next beat and starts another."""
+    body, hub = started(emulator, bus_overrides, tmp_path, body_stderr=subprocess.PIPE)
+    try:
+        wait_for(lambda: moving(emulator), 60.0)
+        (first,) = children(body.pid)
+        os.kill(first, signal.SIGKILL)
+        wait_for(lambda: [g for g in children(body.pid) if not gone(g)] not in ([], [first]), 5.0)
+        (second,) = [g for g in children(body.pid) if not gone(g)]
+        wait_for(lambda: moving(emulator), 5.0)  # the run goes on
+        body.kill()
+        wait_for(lambda: not moving(emulator), 5.0)
+        assert motor_commands(emulator)[-1][1] == b"D,0,0"
+        wait_for(lambda: gone(second), 5.0)
+        err = body.stderr.read()
+        assert f"stop guard of the khepera on {emulator.path} (pid {first}) ended" in err
+        assert "a new one stands" in err
+    finally:
+        end(hub, body)
+
+
 def test_the_adapter_frozen_mid_run_leaves_the_robot_stopped(emulator, bus_overrides, tmp_path):
     """SIGSTOP to the adapter (a debugger, a swap storm, a hung thread): none of its own
     code runs, and it does not end either, so nothing stopped the robot — it drove on at
