@@ -162,6 +162,7 @@ class Endpoint(abc.ABC):
         self._telemetry: dict = {}
         self._once = False  # serve(once=True): stop when the first run ends
         self._run_lost = False  # a run ended by its hub's going, not by the hub (RunEnd)
+        self._ended_run = ""  # the id of the run that ended last
         self._run_taken_at = -math.inf  # when the current run was taken (monotonic)
         protocol.kernels()  # the checks of larger arrays compiled now, not in a run
 
@@ -318,6 +319,7 @@ class Endpoint(abc.ABC):
         """Back to idle; the device made safe (under the lock). With ``once``: stop (unless
         ``stop`` is False: the caller stops once it has answered the hub)."""
         log.info("%s/%s: run %s ended: %s", self.role, self.id, self.run.run, why)
+        self._ended_run = self.run.run
         self.run = None
         self._owed.clear()
         self._inbox.key = None
@@ -424,12 +426,20 @@ class Endpoint(abc.ABC):
         a step's spikes (``SpikeBatch(partial=True)``, contract v4) leaves the step owed:
         its batch must follow.
 
+        An output of the run that just ended (its device answered as the run ended: a
+        stop, an interrupt) is let go: nobody takes it any more.
+
         Raises
         ------
         TypeError
-            ``output`` is not the output of a step owed in the current run.
+            ``output`` is not the output of a step owed in the current run (a bug).
         """
         with self._lock:
+            ended = self.run is None or output.run != self.run.run
+            if ended and getattr(output, "run", None) == self._ended_run:
+                log.debug("%s/%s: step %s answered after its run ended: let go",
+                          self.role, self.id, output.step)  # fmt: skip
+                return
             self._check_output(output)
             if not getattr(output, "partial", None):
                 self._owed.discard(output.step)

@@ -4,6 +4,7 @@ sent later, a failing step ends serve with its error, the device made safe, clos
 
 from __future__ import annotations
 
+import dataclasses
 import queue
 import secrets
 import threading
@@ -270,6 +271,29 @@ def test_a_device_may_reply_after_its_step_returned(served):
     for k in range(3):
         s.send(k)
         assert s.reply().step == k
+
+
+def test_a_reply_that_comes_as_its_run_ends_is_let_go_but_a_wrong_one_is_a_bug(served):
+    class Holding(RecordingBody):
+        """A device that answers each step later, when the test says."""
+
+        def __init__(self):
+            super().__init__()
+            self.held = []
+
+        def step(self, m, window):
+            self.held.append(EchoBody.step(self, m, window))
+
+    body = Holding()
+    s = served(body)
+    s.start()
+    s.send(0)
+    wait_for(lambda: body.held)
+    with pytest.raises(TypeError, match="expected a SensorReading of run"):
+        body.reply(dataclasses.replace(body.held[0], step=7))  # a step never asked for
+    assert s.announce(RunEnd(run=s.run.run, outcome="stopped")).ok
+    body.reply(body.held[0])  # answered as the run ended: let go, not a crash
+    assert s.thread.is_alive()
 
 
 def test_silence_calls_the_input_timeout_once_until_inputs_come_again(served):
