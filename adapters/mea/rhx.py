@@ -144,6 +144,9 @@ class RhxDriver:
         self._by_record_name: dict[bytes, int] = {}  # as the records spell it
         self._cmd: socket.socket | None = None
         self._spk: socket.socket | None = None
+        # why the command port may not be used again (a command with no answer: a reply
+        # that comes later would be taken for the next command's), or None
+        self._cmd_failed: str | None = None
         self._reply = b""
         self._lock = threading.Lock()
         self._spikes: list[tuple[np.ndarray, np.ndarray, float]] = []  # per read: channel,
@@ -153,6 +156,7 @@ class RhxDriver:
         self._held: dict[str, str] = {}  # parameter → the value the instrument confirmed
         self._enabled: set[int] = set()  # channels confirmed stimenabled true
         self._stop = threading.Event()
+        self._closed = False
         self._reader: threading.Thread | None = None
         self.guard: StopGuard | None = None
 
@@ -166,14 +170,19 @@ class RhxDriver:
         sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         return sock
 
+    def _failed(self, why: str) -> RhxError:
+        """The command port failed: it is not used again (the stop is the guard's)."""
+        self._cmd_failed = self._cmd_failed or why
+        return RhxError(f"RHX command port: {why}")
+
     def _line(self) -> str:
         while b"\n" not in self._reply:
             try:
                 chunk = self._cmd.recv(4096)
             except OSError as exc:
-                raise RhxError(f"RHX command port: {exc}") from None
+                raise self._failed(str(exc)) from None
             if not chunk:
-                raise RhxError("RHX closed the command port")
+                raise self._failed("closed by the RHX software")
             if _QUICKACK is not None:  # see _QUICKACK
                 self._cmd.setsockopt(socket.IPPROTO_TCP, _QUICKACK, 1)
             self._reply += chunk
@@ -181,10 +190,12 @@ class RhxDriver:
         return line.decode("ascii", "replace").strip()
 
     def _send(self, text: str) -> None:
+        if self._cmd_failed is not None:
+            raise RhxError(f"RHX command port failed earlier ({self._cmd_failed}): not used again")
         try:
             self._cmd.sendall(text.encode("ascii") + b"\n")
         except OSError as exc:
-            raise RhxError(f"RHX command port: {exc}") from None
+            raise self._failed(str(exc)) from None
 
     def get(self, name: str) -> str:
         """``get name`` → its value (the ``Return:`` line's last field)."""
@@ -330,7 +341,9 @@ class RhxDriver:
         """Nothing more delivered: every electrode disabled and uploaded (as far as the
         instrument answers). Run mode stays on, so the recording goes on: turning it off here
         stopped the spikes and the clock for the rest of a run after a pause or an input
-        timeout."""
+        timeout. After :meth:`close`, nothing: the instrument was made safe then."""
+        if self._closed:
+            return
         self._configure({f"{self.layout.names[c]}.stimenabled": "false" for c in self.enabled})
 
     @property
@@ -339,19 +352,32 @@ class RhxDriver:
         return frozenset(self._enabled)
 
     def finish(self) -> None:
-        """The run is over: every electrode disabled, then run mode off."""
+        """The run is over: every electrode disabled, then run mode off (after
+        :meth:`close`, nothing)."""
+        if self._closed:
+            return
         self.stop()
         self.set("runmode", "stop")
 
     def close(self) -> None:
-        self._stop.set()
-        try:
-            if self._cmd is not None:
+        if self._closed:
+            return
+        if self._cmd is not None and self._cmd_failed is None:
+            try:
                 self.finish()
-        except DeviceFault as exc:
-            log.warning("RHX at close: %s", exc)
+            except DeviceFault as exc:
+                log.warning("RHX at close: %s", exc)
+        self._closed = True
+        self._stop.set()
         if self.guard is not None:
-            self.guard.release()
+            if self._cmd_failed is None:
+                self.guard.release()
+            else:  # its stop, written on the connection, is read when the RHX answers again
+                log.warning(
+                    "RHX at close: the command port failed (%s): the stop guard writes the "
+                    "stop on it", self._cmd_failed,
+                )  # fmt: skip
+                self.guard.abandon()
         for sock in (self._cmd, self._spk):
             if sock is not None:
                 sock.close()

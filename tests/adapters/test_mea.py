@@ -584,6 +584,34 @@ def test_the_stop_guard_disables_every_electrode_when_the_adapter_is_gone(emulat
     assert "stop guard" not in capfd.readouterr().err  # it wrote nothing
 
 
+def test_a_command_the_rhx_does_not_answer_ends_the_port_and_the_guard_writes_the_stop(
+    emulator, caplog
+):
+    """The instrument froze: a command timed out, and the driver went on using the port
+    for a second per command while closing (the run ended ~5 s after the freeze), then took
+    the instrument's late answers for its next commands' ("the instrument holds
+    '71.8748'"). A port that failed is not used again; at close its stop guard writes the
+    stop on it, read when the instrument answers again."""
+    driver = driver_for(emulator)
+    driver.open()
+    driver.start()
+    driver.deliver([BiphasicPulse(3, 20.0, 100.0, True)])
+    name = emulator.layout.names[3]
+    wait_for(lambda: len(emulator.triggers) == 1, 5.0)
+    emulator.faults.stall_until = time.monotonic() + 2.0
+    with pytest.raises(RhxError, match="RHX command port: timed out"):
+        driver.stop()
+    t0 = time.monotonic()
+    with pytest.raises(RhxError, match=r"failed earlier \(timed out\): not used again"):
+        driver.stop()
+    driver.close()
+    assert time.monotonic() - t0 < 0.5  # no more seconds spent on a dead port
+    assert "the stop guard writes the stop on it" in caplog.text
+    wait_for(lambda: emulator.values["runmode"] == "stop", 5.0)  # once it answers again
+    assert emulator.values[f"{name}.stimenabled"] == "false"
+    assert emulator.uploaded[name]["stimenabled"] == "false"
+
+
 def test_an_open_that_fails_past_the_handshake_leaves_the_rhx_safe_and_says_why(emulator, capfd):
     """The spike port wrong (a lab's typo): the failure raised is the port's, the
     instrument is left with every electrode disabled and run mode stopped, and the stop
