@@ -431,10 +431,13 @@ def main(argv: list[str] | None = None) -> int:
     if extra:  # said by the command's own parser, which names its own --help
         commands = parser._subparsers._group_actions[0].choices
         commands[args.command].error(f"unrecognized arguments: {' '.join(extra)}")
-    if in_main_thread and args.command in ("endpoint", "observe"):
+    if in_main_thread and args.command in ("endpoint", "observe", "run", "hub"):
         # Its runner stops it with SIGTERM, maybe while it starts up (its imports, compiled
-        # kernels, its model): as Ctrl-C then (below), not a death by signal.
+        # kernels, its model): as Ctrl-C then (below), not a death by signal. A run's
+        # terminal closed (SIGHUP: a window shut, ssh dropped) ends it the same way.
         signal.signal(signal.SIGTERM, stopping.interrupt_while_starting)
+        if args.command in ("run", "hub"):
+            signal.signal(signal.SIGHUP, stopping.interrupt_while_starting)
     # Schemes and endpoint kinds named module:attr may live in the user's own folder: it
     # is searched last, so that a folder holding another copy of NeuVision (a clone of
     # another version) cannot mix its modules with the installed ones.
@@ -691,17 +694,23 @@ class ProgressBar:
             f"[{'#' * filled}{'-' * (30 - filled)}] {100 * share:5.1f}%  "
             f"t={p.t_s:8.2f} s  {p.steps_per_s:7.0f} steps/s  late {p.late_steps}  {p.state}"
         )
-        if self.tty:
-            self.stream.write("\r" + text)
-            self.stream.flush()
-        elif time.monotonic() - self._last_line >= 5.0:
-            self._last_line = time.monotonic()
-            print(text, file=self.stream, flush=True)
+        try:
+            if self.tty:
+                self.stream.write("\r" + text)
+                self.stream.flush()
+            elif time.monotonic() - self._last_line >= 5.0:
+                self._last_line = time.monotonic()
+                print(text, file=self.stream, flush=True)
+        except OSError:  # the terminal is gone (closed, ssh dropped): the run goes on
+            self.tty, self._last_line = False, math.inf
 
     def close(self) -> None:
         if self.tty:
-            self.stream.write("\n")
-            self.stream.flush()
+            try:
+                self.stream.write("\n")
+                self.stream.flush()
+            except OSError:
+                pass
 
 
 def cmd_compare(args) -> int:

@@ -205,6 +205,9 @@ def _start_local(
 
     def child() -> None:
         die_with_parent()
+        # The runner's terminal closing (SIGHUP to its job) ends the run through the
+        # runner, which stops its children in order; not each child on its own.
+        signal.signal(signal.SIGHUP, signal.SIG_IGN)
         if cpus:
             os.sched_setaffinity(0, cpus)
 

@@ -76,3 +76,16 @@ def forget_start_signal() -> None:
     than once in one process)."""
     global _signalled_while_starting
     _signalled_while_starting = False
+
+
+def quiet_terminal() -> None:
+    """After SIGHUP (the terminal closed): what would go to it goes nowhere, so that a
+    progress line or the run's last line cannot fail on a terminal that is gone (the run's
+    record and logs say it all)."""
+    null = os.open(os.devnull, os.O_WRONLY)
+    try:
+        for fd in (1, 2):
+            if os.isatty(fd):
+                os.dup2(null, fd)
+    finally:
+        os.close(null)

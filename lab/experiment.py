@@ -142,10 +142,16 @@ def run_experiment(
     hub = Hub(cfg, run_dir=run_dir, progress=progress, wait_for_view_s=wait_s)
     signals = install_signals and threading.current_thread() is threading.main_thread()
     if signals:
+
+        def hung_up(*_) -> None:  # the terminal closed: say nothing more on it
+            stopping.quiet_terminal()
+            hub.request_stop("interrupted")
+
         previous = {
             sig: signal.signal(sig, lambda *_: hub.request_stop("interrupted"))
             for sig in (signal.SIGINT, signal.SIGTERM)
         }
+        previous[signal.SIGHUP] = signal.signal(signal.SIGHUP, hung_up)
         if stopping.signalled_while_starting():  # and its KeyboardInterrupt was lost
             hub.request_stop("interrupted")
     watching = watch_local_endpoints(procs, hub.request_stop)

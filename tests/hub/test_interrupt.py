@@ -5,6 +5,7 @@ ends the run as an interruption, as during the steps: exit status 130, outcome
 from __future__ import annotations
 
 import json
+import os
 import signal
 import subprocess
 import sys
@@ -14,6 +15,7 @@ import pytest
 
 from hub.cli import EXIT_INTERRUPTED
 from tests.conftest import TEST_ENDPOINTS
+from tests.harness import wait_for
 
 
 def _processes_naming(text: str) -> list[str]:
@@ -34,6 +36,8 @@ def _processes_naming(text: str) -> list[str]:
     [
         pytest.param(signal.SIGINT, id="SIGINT"),
         pytest.param(signal.SIGTERM, id="SIGTERM", marks=pytest.mark.slow),  # SIGINT's path
+        # the terminal closed (a window shut, ssh dropped): it left an unfinished run
+        pytest.param(signal.SIGHUP, id="SIGHUP"),
     ],
 )
 def test_a_signal_while_waiting_for_the_endpoints_interrupts_the_run(tmp_path, bus_overrides, sig):
@@ -99,3 +103,50 @@ def test_an_endpoint_stopped_while_it_starts_exits_cleanly_without_connecting(
     assert seen in proc.stderr
     assert proc.returncode == 0, proc.stderr
     assert "connecting to the hub" not in proc.stderr, proc.stderr
+
+
+def test_sigterm_while_a_run_starts_up_is_an_interrupt_not_a_death_by_signal():
+    # before the run's own handler is in (its imports, its checks): it died by the
+    # signal (status 143, nothing said) where Ctrl-C gave "interrupted", 130
+    program = (
+        "import os, signal, sys, time\n"
+        "import hub.cli\n"
+        "def starting(args):\n"
+        "    os.kill(os.getpid(), signal.SIGTERM)\n"
+        "    time.sleep(10)\n"
+        "hub.cli.COMMANDS['run'] = starting\n"
+        "sys.exit(hub.cli.main(['run']))\n"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", program], capture_output=True, text=True, timeout=60
+    )
+    assert done.returncode == EXIT_INTERRUPTED, done.stderr
+    assert done.stderr.strip().endswith("neuvision: interrupted")
+
+
+def test_the_terminal_closing_mid_run_interrupts_it_cleanly(tmp_path, bus_overrides):
+    # a closed terminal sends SIGHUP to the whole job: the run and the endpoints it started
+    sets = [*TEST_ENDPOINTS, *bus_overrides]
+    argv = [sys.executable, "-m", "hub.cli", "run", "--quiet", "--runs-dir", str(tmp_path)]
+    proc = subprocess.Popen(
+        [*argv, *(a for s in sets for a in ("--set", s)), "--duration-s", "600"],
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,  # a job of its own, as a shell makes it
+    )
+    try:
+        wait_for(
+            lambda: any(p.stat().st_size > 20_000 for p in tmp_path.glob("*/record.nvrec")), 60
+        )
+        os.killpg(proc.pid, signal.SIGHUP)
+        stderr = proc.stderr.read()
+        proc.wait(timeout=60)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode == EXIT_INTERRUPTED, stderr
+    assert "endpoint exited with status" not in stderr, stderr
+    (run_dir,) = [p for p in tmp_path.iterdir() if p.is_dir()]
+    manifest = json.loads((run_dir / "manifest.json").read_text())
+    assert (manifest["outcome"], manifest["reason"]) == ("interrupted", "interrupted")
+    assert manifest["steps"] > 0
