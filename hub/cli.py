@@ -632,6 +632,11 @@ def record_summary(rec) -> dict:
         "name": m.get("name"),
         "outcome": m.get("outcome", "unknown (no manifest)"),
         "reason": m.get("reason", ""),
+        **(
+            {"local_endpoint_exits": m["local_endpoint_exits"]}
+            if "local_endpoint_exits" in m
+            else {}
+        ),
         "start_utc": m.get("start_utc"),
         "end_utc": m.get("end_utc"),
         "steps": m.get("steps"),

@@ -34,7 +34,7 @@ import numpy as np
 from hub import stopping
 from hub.config import ConfigError, ExperimentConfig, load_config
 from hub.protocol import MotorCommand, SensorReading, Stimulation
-from hub.record import MANIFEST_FILE, RunRecord, read_run
+from hub.record import MANIFEST_FILE, RunRecord, read_run, write_manifest
 from settings.overrides import format_value
 
 log = logging.getLogger(__name__)
@@ -174,11 +174,16 @@ def run_experiment(
                         f"the dashboard ended early (status {ended_early}); see {dash.log_path}"
                     )
     logs = {p.role: p.log_path for p in procs}
+    exits = {}
     for role, code in codes.items():
         if code == -signal.SIGTERM:  # stopped above while still starting, before its handler
             log.debug("%s endpoint stopped while it was starting up", role)
         elif code != 0:  # its own last word: the cause the hub saw only as its vanishing
-            announce(f"{role} endpoint exited with status {code}{last_line(logs[role])}")
+            said = last_line(logs[role])
+            announce(f"{role} endpoint exited with status {code}{said}")
+            exits[role] = {"status": code, "last_line": said.removeprefix(": ")}
+    if exits:  # in the run's record too, beside the hub's reason ("body/0 died at step 61")
+        _note_in_manifest(result.run_dir, "local_endpoint_exits", exits)
     if result.outcome != "fault":
         try:
             summary = after_run(result, cfg)
@@ -189,6 +194,16 @@ def run_experiment(
             for failure in summary.get("failures", []):
                 announce(f"summary: {failure['part']} failed: {failure['error']}")
     return result
+
+
+def _note_in_manifest(run_dir: Path, key: str, value) -> None:
+    """Add ``key`` to a finished run's manifest (what its runner learnt after the hub)."""
+    try:
+        manifest = json.loads((run_dir / MANIFEST_FILE).read_text())
+        manifest[key] = value
+        write_manifest(run_dir, manifest)
+    except (OSError, ValueError) as exc:
+        log.warning("could not add %s to %s's manifest: %s", key, run_dir, exc)
 
 
 def _said_where(cfg: ExperimentConfig, port: int | None, run_dir: Path, announce):

@@ -159,6 +159,12 @@ def test_an_endpoint_that_fails_mid_run_is_named_with_its_own_last_word(tmp_path
     assert "body/0 died at step 20" in proc.stderr
     assert "body endpoint exited with status 2: " in proc.stderr
     assert "the test device's line failed at step 20" in proc.stderr
+    # and the run's record says it beside the hub's reason
+    (run_dir,) = [p for p in tmp_path.iterdir() if p.is_dir()]
+    manifest = json.loads((run_dir / "manifest.json").read_text())
+    assert "body/0 died at step 20" in manifest["reason"]
+    (exit_,) = manifest["local_endpoint_exits"].values()
+    assert exit_["status"] == 2 and "the test device's line failed at step 20" in exit_["last_line"]
 
 
 @pytest.mark.slow  # a run, then its analysis and figures
