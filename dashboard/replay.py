@@ -24,7 +24,6 @@ from hub.record import DATA_DIRECTIONS, read_run
 from .scene import build_scene, world_for
 from .state import BURSTS_KEPT_S, RASTER_S, RATE_HISTORY_S, FrameState
 
-# A network burst's core, noted since 2026-11-26; an older record's extent stands for it.
 SPEEDS = (0.1, 0.25, 0.5, 1.0, 2.0, 5.0, 10.0, 20.0, 50.0)
 MIN_SPEED, MAX_SPEED = 0.01, 1000.0  # x real time; the page offers SPEEDS and the one given
 

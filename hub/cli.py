@@ -29,6 +29,7 @@ from hub import stopping
 from hub.bus import BusError
 from hub.config import ConfigError, LoopSection, load_config
 from hub.logs import install_log_cap
+from hub.protocol import MODES
 from hub.record import OutputError, make_output_folder
 from hub.scheduling import endpoint_priority
 from hub.security import PARTICIPANTS
@@ -118,7 +119,7 @@ def _add_config_args(p: argparse.ArgumentParser, *, shortcuts: bool = True) -> N
     if shortcuts:
         p.add_argument("--duration-s", type=float, help="experiment.duration_s")
         p.add_argument("--seed", type=int, help="experiment.seed")
-        p.add_argument("--mode", choices=("lockstep", "realtime"), help="loop.mode")
+        p.add_argument("--mode", choices=MODES, help="loop.mode")
         p.add_argument("--runs-dir", help="experiment.runs_dir")
         p.add_argument("--session", help="bus.session")
 

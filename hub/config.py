@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import Any
 
 import settings
-from hub.protocol import Keys
+from hub.protocol import MODES, Keys
 from hub.security import SECURITY_MODES
 from settings import ConfigError, bounds
 
@@ -119,7 +119,7 @@ class LoopSection:
     # 0.1 ms (10 kHz) is faster than any loop can step; with duration_s it sets the steps
     # (at most MAX_STEPS).
     period_ms: float = field(default=10.0, metadata=bounds(ge=0.1, le=10_000))
-    mode: str = field(default="lockstep", metadata=bounds(choices=("lockstep", "realtime")))
+    mode: str = field(default="lockstep", metadata=bounds(choices=MODES))
     # How long to wait for the required endpoints to appear before giving up (the hub says
     # every 5 s what it waits for). A first run in a fresh checkout compiles the simulators'
     # kernels, the culture's, the arena's and the observer's at once: over 30 s on a busy

@@ -205,9 +205,6 @@ def _start_local(
 
     def child() -> None:
         die_with_parent()
-        # The runner's terminal closing (SIGHUP to its job) ends the run through the
-        # runner, which stops its children in order; not each child on its own.
-        signal.signal(signal.SIGHUP, signal.SIG_IGN)
         if cpus:
             os.sched_setaffinity(0, cpus)
 
@@ -218,18 +215,21 @@ def _start_local(
         cmd += ["--set", item]
     log_path = log_dir / f"{role}.log" if log_dir else None
     out = open(log_path, "wb") if log_path else subprocess.DEVNULL
-    popen = subprocess.Popen(
-        cmd,
-        stdin=subprocess.DEVNULL,
-        stdout=out,
-        stderr=subprocess.STDOUT,
-        start_new_session=True,  # Ctrl-C goes to the runner, which stops us in order
-        # A runner killed outright: its endpoints end too (a body stops its motors).
-        preexec_fn=child,
-        env={**os.environ, "PYTHONUNBUFFERED": "1"},
-    )
-    if log_path:
-        out.close()
+    try:
+        popen = subprocess.Popen(
+            cmd,
+            stdin=subprocess.DEVNULL,
+            stdout=out,
+            stderr=subprocess.STDOUT,
+            # Ctrl-C, or the terminal closing, goes to the runner, which stops us in order
+            start_new_session=True,
+            # A runner killed outright: its endpoints end too (a body stops its motors).
+            preexec_fn=child,
+            env={**os.environ, "PYTHONUNBUFFERED": "1"},
+        )
+    finally:
+        if log_path:
+            out.close()
     return LocalProcess(role, popen, log_path)
 
 

@@ -24,12 +24,13 @@ import msgpack
 import msgspec
 import numpy as np
 
+from hub.wire import MAX_MESSAGE_BYTES  # what the wire reassembles, decoded whole
+
 SCHEMA_VERSION = 4
 # Versions read as this one: a version-3 message is a version-4 message (v4 only added the
 # optional ``SpikeBatch.partial``), so runs recorded under v3 stay readable.
 READ_VERSIONS = (3, 4)
 ROLES = ("body", "culture")
-MAX_MESSAGE_BYTES = 64 * 1024 * 1024
 SMALL_ARRAY = 64
 _FMAX = sys.float_info.max  # a finite bound: ``-_FMAX <= x <= _FMAX`` is False for NaN and inf
 

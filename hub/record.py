@@ -323,15 +323,17 @@ class Recorder:
             pass  # it cannot write what its buffer holds: the error said so already
 
     def close(self) -> None:
+        """Write what is held, flush and sync, and close (closed even when that fails:
+        :class:`RecordError` then names the file)."""
         if not self._file.closed:
-            if self.drops_not_stored:
-                self.event(
-                    "drops_not_stored",
-                    n=self.drops_not_stored,
-                    n_bytes=self.drop_bytes_not_stored,
-                    budget_bytes=self.drop_budget_bytes,
-                )
             try:
+                if self.drops_not_stored:
+                    self.event(
+                        "drops_not_stored",
+                        n=self.drops_not_stored,
+                        n_bytes=self.drop_bytes_not_stored,
+                        budget_bytes=self.drop_budget_bytes,
+                    )
                 self._write_held()
                 self._file.flush()
                 os.fsync(self._file.fileno())

@@ -23,7 +23,11 @@ import numpy as np
 from hub.analysis.metrics import AnalysisParams
 from hub.analysis.paper import (
     CHECKED_KEYS,
+    FIRST_PULSE_AFTER_MS,
     PAPER_TARGETS,
+    PULSE_AMPLITUDE_UA,
+    PULSE_PERIOD_MS,
+    PULSE_WIDTH_MS,
     SEED_TOLERANCE,
     relative_error,
     within,
@@ -225,8 +229,11 @@ def main(argv: list[str] | None = None) -> dict:
     stim = None
     if args.evoked:
         target = central_excitatory_neuron(net)
-        count = int(args.seconds // 5.0)
-        stim = PeriodicStimulus((target,), 100.0, 10.0, 5000.0, t0 + 1000.0, count)
+        count = int(args.seconds // (PULSE_PERIOD_MS / 1e3))
+        stim = PeriodicStimulus(
+            (target,), PULSE_AMPLITUDE_UA, PULSE_WIDTH_MS, PULSE_PERIOD_MS,
+            t0 + FIRST_PULSE_AFTER_MS, count,
+        )  # fmt: skip
     sp = record(net, args.seconds, stim=stim)
     wall = time.perf_counter() - wall
     stim_ms = stim.onsets_ms() if stim is not None else None

@@ -18,6 +18,7 @@ from __future__ import annotations
 import datetime
 import json
 import os
+import signal
 import subprocess
 import sys
 import time
@@ -161,11 +162,10 @@ def _run_all(queue: list[Job], jobs: int, overrides: list[str]) -> None:
                 cmd += ["--seed", str(job.seed), "--runs-dir", str(job.runs_dir)]
                 for item in overrides:
                     cmd += ["--set", item]
-                log = open(job.runs_dir / "run.log", "wb")
-                job.popen = subprocess.Popen(
-                    cmd, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL
-                )
-                log.close()
+                with open(job.runs_dir / "run.log", "wb") as log:
+                    job.popen = subprocess.Popen(
+                        cmd, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL
+                    )
                 running.append(job)
             time.sleep(0.2)
             for job in [j for j in running if j.popen.poll() is not None]:
@@ -186,7 +186,7 @@ def _run_all(queue: list[Job], jobs: int, overrides: list[str]) -> None:
                 )
     except KeyboardInterrupt:
         for job in running:
-            job.popen.send_signal(2)
+            job.popen.send_signal(signal.SIGINT)
         for job in running:
             job.popen.wait()
         raise

@@ -40,9 +40,13 @@ from hub.analysis.figures import plot_all, plot_cats, plot_psth, plot_raster
 from hub.analysis.metrics import AnalysisParams
 from hub.analysis.paper import (
     CHECKED_KEYS,
+    FIRST_PULSE_AFTER_MS,
     PAPER_PSTH_PEAK_MS,
     PAPER_TARGETS,
     PSTH_PEAK_RANGE_MS,
+    PULSE_AMPLITUDE_UA,
+    PULSE_PERIOD_MS,
+    PULSE_WIDTH_MS,
     SEED_TOLERANCE,
     TOLERANCE,
     relative_error,
@@ -54,17 +58,12 @@ from lab.activity import analyze_culture
 from lab.calibrate import record
 from lab.seeds import mean_sd
 from sim_network import Network, PeriodicStimulus, config_to_dict, load_config
+from sim_network.config import DEFAULT_CULTURE_FILE
 
-DEFAULT_CULTURE = Path(__file__).resolve().parents[1] / "configs" / "culture_1024.toml"
+DEFAULT_CULTURE = DEFAULT_CULTURE_FILE
 RESULT_JSON = "reproduction.json"
 RESULT_TABLE = "reproduction.md"
 REPORT_FILE = "report.html"
-
-# The paper's stimulation: monophasic, 10 ms, 100 µA, 0.2 Hz.
-PULSE_WIDTH_MS = 10.0
-PULSE_AMPLITUDE_UA = 100.0
-PULSE_PERIOD_MS = 5000.0
-FIRST_PULSE_AFTER_MS = 1000.0
 
 WARMUP_S = 5.0
 SPONTANEOUS_S = 900.0

@@ -22,6 +22,10 @@ from sim_network.neurons import IZHIKEVICH_TYPES
 NEURON_MODELS = ("izhikevich", "lif", "hh")
 CHANNEL_KINDS = ("neurons", "mea")
 
+#: The default culture (the paper's, as calibrated): what a run, the reproduction and the
+#: MEA emulator take when given none.
+DEFAULT_CULTURE_FILE = Path(__file__).resolve().parents[1] / "configs" / "culture_1024.toml"
+
 
 @dataclass(frozen=True)
 class LayoutConfig:
@@ -112,7 +116,7 @@ class AdaptationConfig:
     of the noise and stimulation currents) that is subtracted from its input, decays with
     `tau_ms` and grows by its population's increment at each of its spikes. Excitatory cells
     whose reset c is at least `exempt_from_reset_mv` (chattering-like) do not adapt.
-    Increments of 0 turn it off. Not in the paper; calibrated on (issue 21): regular-spiking
+    Increments of 0 turn it off. Not in the paper; in the calibrated culture, regular-spiking
     cells fire once or twice per network burst instead of bursting, so that a network burst's
     bursting neurons are the inhibitory and the chattering-like cells, about 45 % of the
     culture, as the paper's MBR / MNBR implies (docs/sim_network.md).

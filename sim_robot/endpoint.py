@@ -37,7 +37,6 @@ class ArenaEndpoint(Endpoint):
     def __init__(self, arena: Arena, id: str = "0"):
         super().__init__(id)
         self.arena = arena
-        self.period_s = 0.0  # the run's, from its RunStart
         self.last_wheels_mps = (0.0, 0.0)
 
     @classmethod
@@ -102,7 +101,6 @@ class ArenaEndpoint(Endpoint):
     def start_run(self, run: RunStart) -> None:
         """The robot back at the world's start pose, stopped, at time 0."""
         self.arena.reset()
-        self.period_s = run.period_s
         self.last_wheels_mps = (0.0, 0.0)
 
     def make_safe(self) -> None:

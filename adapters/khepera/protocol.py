@@ -32,11 +32,6 @@ REPLY_FIELDS = {
 N_PROXIMITY = {"khepera2": 8, "khepera3": 9}
 #: the commands that set and read the wheels' position counters
 COUNTER_COMMANDS = {"khepera2": ("G", "H"), "khepera3": ("I", "R")}
-#: the longest reply line of each command (bytes, with ``\r\n``): for byte-time budgets
-LONGEST_REPLY_BYTES = {
-    "khepera2": {"D": 3, "N": 2 + 8 * 5 + 1, "H": 2 + 2 * 12 + 1, "E": 2 + 2 * 5 + 1},
-    "khepera3": {"D": 3, "N": 2 + 12 * 11 + 1, "R": 2 + 2 * 12 + 1, "E": 2 + 2 * 12 + 1},
-}
 
 
 class ReplyError(Exception):

@@ -31,12 +31,12 @@ from adapters.mea.rhx import spike_record_bytes
 from hub.scheduling import raise_threads
 from hub.stopping import StopFlag
 from sim_network import Network
-from sim_network.config import load_config
+from sim_network.config import DEFAULT_CULTURE_FILE, load_config
 from sim_network.records import Pulses
 
 log = logging.getLogger(__name__)
 
-DEFAULT_CULTURE = Path(__file__).resolve().parents[2] / "configs" / "culture_1024.toml"
+DEFAULT_CULTURE = DEFAULT_CULTURE_FILE
 SAMPLE_RATE_HZ = 30_000
 CHUNK_MS = 0.5  # the culture advances in steps of this much run time
 

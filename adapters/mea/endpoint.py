@@ -482,12 +482,12 @@ class MeaEndpoint(Endpoint):
                 return
 
     def _taken(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The spikes not yet sent, those just read included: channel, run time (s),
-        arrival (local). Called holding ``_spikes``."""
+        """The spikes not yet sent, those just read included: channel, time on
+        ``time.monotonic()``'s clock (s; less :attr:`run_origin_s`, as it stands when they
+        are binned, their run time), arrival (local). Called holding ``_spikes``."""
         channel, inst_s, arrived = self.driver.take_spikes()
         if channel.size:
-            run_s = self.driver.clock.to_local(inst_s) - self._origin
-            self._carry.append((channel, run_s, arrived))
+            self._carry.append((channel, self.driver.clock.to_local(inst_s), arrived))
         if not self._carry:
             return np.zeros(0, np.uint32), np.zeros(0), np.zeros(0)
         if len(self._carry) > 1:
@@ -527,7 +527,8 @@ class MeaEndpoint(Endpoint):
             run = self.run
             if run is None or not windows:  # before a step, run time is not yet known
                 return
-            channel, run_s, arrived = self._taken()
+            channel, local_s, arrived = self._taken()
+            run_s = local_s - self._origin
             sent = np.zeros(channel.size, bool)
             for window in windows:
                 mine = (run_s >= window.t0_s) & (run_s < window.t1_s)
@@ -543,7 +544,7 @@ class MeaEndpoint(Endpoint):
                 sent |= mine
             if sent.any():
                 keep = ~sent
-                self._carry = [(channel[keep], run_s[keep], arrived[keep])]
+                self._carry = [(channel[keep], local_s[keep], arrived[keep])]
 
     def _answer(self, window: StepWindow) -> None:
         """The window's spikes (instrument time → run time) not sent in parts, and late
@@ -554,11 +555,12 @@ class MeaEndpoint(Endpoint):
             run = self.run
             if run is None or run.run != window.run:  # the run ended meanwhile: nothing owed
                 return
-            channel, run_s, arrived = self._taken()
+            channel, local_s, arrived = self._taken()
+            run_s = local_s - self._origin
             mine = (run_s >= window.t0_s) & (run_s < window.t1_s)
             early = run_s < window.t0_s  # a window already answered: late data
             later = ~mine & ~early
-            self._carry = [(channel[later], run_s[later], arrived[later])] if later.any() else []
+            self._carry = [(channel[later], local_s[later], arrived[later])] if later.any() else []
             if mine.any():
                 self._waited(arrived[mine])
             late_c, late_t = channel[early], run_s[early]

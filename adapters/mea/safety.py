@@ -28,7 +28,7 @@ from collections import Counter, deque
 from dataclasses import dataclass
 
 from hub.config import ConfigError, check_value
-from hub.limits import over, under
+from hub.limits import RATE_WINDOW_S, over, under
 
 log = logging.getLogger(__name__)
 
@@ -137,7 +137,7 @@ class SafetyGate:
         else:
             recent = self._per_channel.setdefault(channel, deque())
             for q in (recent, self._all):
-                while q and q[0] <= t_s - 1.0:
+                while q and q[0] <= t_s - RATE_WINDOW_S:
                     q.popleft()
             if len(recent) + 1 > lim.max_pulse_hz:
                 reason = ("rate", f"channel {channel}: over max_pulse_hz {lim.max_pulse_hz:g}")
