@@ -107,6 +107,8 @@ CPUS = bounds(parse=_cpus)
 
 @dataclass(frozen=True)
 class ExperimentSection:
+    """``[experiment]``: what the run is called, its seed and length, where runs go."""
+
     name: str = field(default="experiment", metadata=bounds(check=_name))
     seed: int = field(default=0, metadata=bounds(ge=0))
     duration_s: float = field(default=10.0, metadata=bounds(gt=0))
@@ -116,6 +118,9 @@ class ExperimentSection:
 
 @dataclass(frozen=True)
 class LoopSection:
+    """``[loop]``: the hub's clock: the period, lockstep or realtime, the waits and
+    deadlines, the CPUs and scheduling of the hub's threads (docs/architecture.md)."""
+
     # 0.1 ms (10 kHz) is faster than any loop can step; with duration_s it sets the steps
     # (at most MAX_STEPS).
     period_ms: float = field(default=10.0, metadata=bounds(ge=0.1, le=10_000))
@@ -170,6 +175,8 @@ class LoopSection:
 
 @dataclass(frozen=True)
 class PolicySection:
+    """``[policy]``: what the hub does when an endpoint is late, silent or gone."""
+
     # What the hub codes when a body's sensor reading is late or missing.
     missing_sensors: str = field(
         default="zero_stim", metadata=bounds(choices=("zero_stim", "hold"))
@@ -208,6 +215,9 @@ def _locator_problem(locator: str) -> str:
 
 @dataclass(frozen=True)
 class BusSection:
+    """``[bus]``: the Zenoh session: its name, where the hub listens and participants
+    connect, its security (docs/remote.md)."""
+
     session: str = field(default="default", metadata=bounds(check=_session))
     # The hub is a Zenoh router; endpoints and observers are its clients, so
     # all traffic goes through the hub's router and every client sees every key
@@ -268,12 +278,18 @@ class BusSection:
 
 @dataclass(frozen=True)
 class SchemeSection:
+    """``[coding]`` or ``[decoding]``: a scheme named ``module:function`` and its parameters
+    (docs/schemes.md)."""
+
     scheme: str = field(default="", metadata=bounds(check=_callable))
     params: dict = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
 class EndpointSection:
+    """``[body]`` or ``[culture]``: which endpoint kind serves the role, where it is started,
+    and its own parameters (checked by its kind's ``check_config``)."""
+
     id: str = "0"
     kind: str = ""
     # local: `neuvision run` starts it; external: started elsewhere, the hub waits for it.
@@ -285,6 +301,8 @@ class EndpointSection:
 
 @dataclass(frozen=True)
 class RecordSection:
+    """``[record]``: whether the run is recorded, and how often the record is flushed."""
+
     enabled: bool = True
     flush_s: float = field(default=0.5, metadata=bounds(gt=0, le=1.0))
 

@@ -136,6 +136,10 @@ class Progress:
 
 @dataclass
 class RunResult:
+    """How a run ended (what ``Hub.run`` returns; its manifest says the same): the outcome
+    and why, the steps done, the loop's timing and the counts, the run folder and the
+    endpoints' descriptions."""
+
     outcome: str  # completed | stopped | interrupted | fault
     reason: str
     steps: int

@@ -64,7 +64,7 @@ from sim_network.config import NetworkConfig
 from sim_network.connectivity import delay_steps
 from sim_network.kernels import IZH_V_PEAK_MV, STATE_DTYPE, V_FLOOR_MV, fill_noise
 from sim_network.layout import EXCITATORY, Layout
-from sim_network.network import Network
+from sim_network.network import Network, on_electrodes, steps_of
 from sim_network.neurons import initial_state
 from sim_network.records import Channels, PulseError, Pulses, Spikes
 
@@ -721,22 +721,11 @@ class NestNetwork:
             Channel spikes with absolute times, sorted by time (then channel). Neuron-level
             spikes are in `neuron_spikes`.
         """
-        n_steps = self._steps_of(duration_ms)
+        n_steps = steps_of(duration_ms, self._dt)
         if pulses is not None and not isinstance(pulses, Pulses):
             raise TypeError(f"pulses must be a Pulses record, got {type(pulses).__name__}")
         added = self._neuron_pulses(pulses) if pulses is not None and len(pulses) else None
         return self._call("_run", n_steps, added)
-
-    def _steps_of(self, duration_ms: float) -> int:
-        duration_ms = float(duration_ms)
-        if not math.isfinite(duration_ms) or duration_ms < 0:
-            raise ValueError(f"duration_ms must be finite and >= 0, got {duration_ms}")
-        n = round(duration_ms / self._dt)
-        if abs(n * self._dt - duration_ms) > 1e-6 * max(1.0, duration_ms):
-            raise ValueError(
-                f"duration_ms must be a multiple of dt_ms={self._dt}, got {duration_ms}"
-            )
-        return n
 
     def _neuron_pulses(self, pulses: Pulses) -> _Pending:
         """The pulses in neuron space, on steps relative to the call (checked first)."""
@@ -802,7 +791,7 @@ class NestNetwork:
         self._neuron_spikes = Spikes(neuron.astype(np.uint32), t_ms)
         if self.mea is None:
             return self._neuron_spikes
-        return self._to_electrodes(neuron, t_ms)
+        return on_electrodes(self.mea, neuron, t_ms)
 
     def _set_currents(self, k: int) -> None:
         """Set I_e of every neuron whose current from step k on differs from what it has:
@@ -827,15 +816,6 @@ class NestNetwork:
             set_each(self._nodes[idx], [{"I_e": float(v)} for v in values])
             self._i_e[idx] = values
             self._i_e_on = np.flatnonzero(self._i_e)
-
-    def _to_electrodes(self, neuron: np.ndarray, t_ms: np.ndarray) -> Spikes:
-        mea = self.mea
-        counts = np.diff(mea.rec_indptr)[neuron]
-        if counts.sum() == 0:
-            return Spikes(np.zeros(0, np.uint32), np.zeros(0, np.float64))
-        starts = np.repeat(mea.rec_indptr[neuron] - np.cumsum(counts) + counts, counts)
-        idx = starts + np.arange(counts.sum())
-        return Spikes(mea.rec_electrode[idx], np.repeat(t_ms, counts))
 
     def _local(self, nodes):
         """The nodes of this rank."""

@@ -29,6 +29,28 @@ _STATE_VERSION = 2
 _NEVER = -(2**40)  # "last spike" of a neuron that has not fired yet (depression fully recovered)
 
 
+def steps_of(duration_ms: float, dt_ms: float) -> int:
+    """The steps of ``dt_ms`` in ``duration_ms`` (ValueError: not a whole number of them, or
+    not a finite duration >= 0)."""
+    duration_ms = float(duration_ms)
+    if not math.isfinite(duration_ms) or duration_ms < 0:
+        raise ValueError(f"duration_ms must be finite and >= 0, got {duration_ms}")
+    n = round(duration_ms / dt_ms)
+    if abs(n * dt_ms - duration_ms) > 1e-6 * max(1.0, duration_ms):
+        raise ValueError(f"duration_ms must be a multiple of dt_ms={dt_ms}, got {duration_ms}")
+    return n
+
+
+def on_electrodes(mea: Mea, neuron: np.ndarray, t_ms: np.ndarray) -> Spikes:
+    """Neurons' spikes as the electrodes that record them see them (one per electrode)."""
+    counts = np.diff(mea.rec_indptr)[neuron]
+    if counts.sum() == 0:
+        return Spikes(np.zeros(0, np.uint32), np.zeros(0, np.float64))
+    starts = np.repeat(mea.rec_indptr[neuron] - np.cumsum(counts) + counts, counts)
+    idx = starts + np.arange(counts.sum())
+    return Spikes(mea.rec_electrode[idx], np.repeat(t_ms, counts))
+
+
 class Network:
     """A simulated culture; `run()` advances it and returns the spikes in channel space.
 
@@ -233,7 +255,7 @@ class Network:
             Channel spikes with absolute times, sorted by time. Neuron-level spikes of the
             same call are in `neuron_spikes`.
         """
-        n_steps = self._steps_of(duration_ms)
+        n_steps = steps_of(duration_ms, self._dt)
         if pulses is not None and not isinstance(pulses, Pulses):
             raise TypeError(f"pulses must be a Pulses record, got {type(pulses).__name__}")
         if pulses is not None and len(pulses):
@@ -288,18 +310,7 @@ class Network:
         self._neuron_spikes = Spikes(neuron.astype(np.uint32), t_ms)
         if self.mea is None:
             return self._neuron_spikes
-        return self._to_electrodes(neuron, t_ms)
-
-    def _steps_of(self, duration_ms: float) -> int:
-        duration_ms = float(duration_ms)
-        if not math.isfinite(duration_ms) or duration_ms < 0:
-            raise ValueError(f"duration_ms must be finite and >= 0, got {duration_ms}")
-        n = round(duration_ms / self._dt)
-        if abs(n * self._dt - duration_ms) > 1e-6 * max(1.0, duration_ms):
-            raise ValueError(
-                f"duration_ms must be a multiple of dt_ms={self._dt}, got {duration_ms}"
-            )
-        return n
+        return on_electrodes(self.mea, neuron, t_ms)
 
     def _add_pulses(self, pulses: Pulses) -> None:
         mea = self.mea
@@ -316,15 +327,6 @@ class Network:
         if top >= 0:
             raise PulseError(f"pulses.channel {top} out of range (network has {n_channels})")
         self._pending = _PendingPulses.of(arrays)
-
-    def _to_electrodes(self, neuron: np.ndarray, t_ms: np.ndarray) -> Spikes:
-        mea = self.mea
-        counts = np.diff(mea.rec_indptr)[neuron]
-        if counts.sum() == 0:
-            return Spikes(np.zeros(0, np.uint32), np.zeros(0, np.float64))
-        starts = np.repeat(mea.rec_indptr[neuron] - np.cumsum(counts) + counts, counts)
-        idx = starts + np.arange(counts.sum())
-        return Spikes(mea.rec_electrode[idx], np.repeat(t_ms, counts))
 
     # ------------------------------------------------------------------ state
     def get_state(self) -> dict[str, np.ndarray]:
