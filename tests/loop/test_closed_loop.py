@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
 
@@ -156,13 +157,15 @@ def test_an_endpoint_that_fails_mid_run_is_named_with_its_own_last_word(tmp_path
         "--duration-s", "2", "--runs-dir", str(tmp_path), "--quiet",
     )  # fmt: skip
     assert proc.returncode == 2, proc.stderr[-2000:]
-    assert "body/0 died at step 20" in proc.stderr
+    # the step under way when the hub saw it vanish: the body runs up to a step ahead of
+    # the culture in lockstep's pipeline, so step 19 or 20
+    assert re.search(r"body/0 died at step (19|20) ", proc.stderr), proc.stderr
     assert "body endpoint exited with status 2: " in proc.stderr
     assert "the test device's line failed at step 20" in proc.stderr
     # and the run's record says it beside the hub's reason
     (run_dir,) = [p for p in tmp_path.iterdir() if p.is_dir()]
     manifest = json.loads((run_dir / "manifest.json").read_text())
-    assert "body/0 died at step 20" in manifest["reason"]
+    assert re.search(r"body/0 died at step (19|20) ", manifest["reason"])
     (exit_,) = manifest["local_endpoint_exits"].values()
     assert exit_["status"] == 2 and "the test device's line failed at step 20" in exit_["last_line"]
 
