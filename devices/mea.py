@@ -44,6 +44,21 @@ def grid(rows: int, cols: int, drop_corners: bool) -> tuple[np.ndarray, np.ndarr
     return r, c
 
 
+def positions(
+    rows: int, cols: int, pitch_um: float, drop_corners: bool, centre_um=(0.0, 0.0)
+) -> tuple[np.ndarray, np.ndarray]:
+    """Electrode positions of a grid, row-major (as :func:`grid`), centred on ``centre_um``.
+
+    Returns
+    -------
+    x_um, y_um : float32[n]
+    """
+    r, c = grid(rows, cols, drop_corners)
+    x = centre_um[0] + (c - (cols - 1) / 2.0) * pitch_um
+    y = centre_um[1] + (r - (rows - 1) / 2.0) * pitch_um
+    return x.astype(np.float32), y.astype(np.float32)
+
+
 def name(row: np.ndarray, col: np.ndarray) -> np.ndarray:
     """MCS electrode names (column digit, row digit) of zero-based grid indices.
 

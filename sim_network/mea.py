@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from devices.mea import grid
+from devices.mea import positions
 from sim_network.config import MeaConfig
 from sim_network.layout import Layout
 
@@ -60,10 +60,9 @@ def electrode_positions(cfg: MeaConfig, centre_x_um: float, centre_y_um: float):
         Electrode positions, row-major (``devices.mea.grid``): with the default config, the
         electrodes in the order of ``devices.mea.MCS60_NAMES``.
     """
-    r, c = grid(cfg.rows, cfg.cols, cfg.drop_corners)
-    x = centre_x_um + (c - (cfg.cols - 1) / 2.0) * cfg.pitch_um
-    y = centre_y_um + (r - (cfg.rows - 1) / 2.0) * cfg.pitch_um
-    return x.astype(np.float32), y.astype(np.float32)
+    return positions(
+        cfg.rows, cfg.cols, cfg.pitch_um, cfg.drop_corners, (centre_x_um, centre_y_um)
+    )
 
 
 def _csr(owner: np.ndarray, member: np.ndarray, n_owner: int):

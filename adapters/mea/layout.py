@@ -46,11 +46,9 @@ class ElectrodeLayout:
     @classmethod
     def mcs60(cls, pitch_um: float = mea.MCS60_PITCH_UM) -> ElectrodeLayout:
         """The MCS 60-electrode layout on Intan ports A and B, centred at (0, 0)."""
-        row, col = mea.grid(mea.MCS60_ROWS, mea.MCS60_COLS, drop_corners=True)
-        x = (col - (mea.MCS60_COLS - 1) / 2) * pitch_um
-        y = (row - (mea.MCS60_ROWS - 1) / 2) * pitch_um
-        names = tuple(f"a-{i:03d}" if i < 32 else f"b-{i - 32:03d}" for i in range(row.size))
-        return cls(names, x.astype(np.float32), y.astype(np.float32))
+        x, y = mea.positions(mea.MCS60_ROWS, mea.MCS60_COLS, pitch_um, drop_corners=True)
+        names = tuple(f"a-{i:03d}" if i < 32 else f"b-{i - 32:03d}" for i in range(x.size))
+        return cls(names, x, y)
 
     @classmethod
     def from_file(cls, path: str | Path, key: str = "culture.params.layout_file"):
