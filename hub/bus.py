@@ -207,7 +207,7 @@ def payload_bytes(sample) -> bytes:
 def hub_answers(session, keys, timeout_s: float = 0.5) -> bool:
     """Whether the hub's liveliness token is on the bus (asked, not waited for)."""
     try:
-        replies = session.liveliness().get(keys.alive("hub", "0"), timeout=timeout_s)
+        replies = session.liveliness().get(keys.hub_alive, timeout=timeout_s)
         return any(reply.ok is not None for reply in replies)
     except zenoh.ZError:
         return False

@@ -109,7 +109,7 @@ class FakeHub:
         endpoint.input_timeout_s = input_timeout_s
         self.hooks = Instrumented(endpoint)
         self.session = open_session(self.bus, listener=True)
-        self.hub_token = self.session.liveliness().declare_token(self.keys.alive("hub", "0"))
+        self.hub_token = self.session.liveliness().declare_token(self.keys.hub_alive)
         self.outputs: queue.SimpleQueue = queue.SimpleQueue()
         self.alive = threading.Event()
         self._declared = [

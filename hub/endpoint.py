@@ -584,9 +584,7 @@ class Endpoint(abc.ABC):
                 session.declare_subscriber(keys.input(self.role, self.id), on_input),
                 session.declare_queryable(keys.describe(self.role, self.id), on_describe),
                 session.declare_queryable(keys.run(self.role, self.id), on_run),
-                session.liveliness().declare_subscriber(
-                    keys.alive("hub", "0"), on_hub_alive, history=True
-                ),
+                session.liveliness().declare_subscriber(keys.hub_alive, on_hub_alive, history=True),
             ]
             # Declared last: when the hub sees us alive, we already listen.
             token = session.liveliness().declare_token(keys.alive(self.role, self.id))  # noqa: F841

@@ -109,7 +109,7 @@ class HubLink:
             # the status on request, for observers that may not send control commands
             session.declare_queryable(keys.hub_status, lambda q: deliver(("status", q))),
             self.views.declare(session, keys.hub_view),
-            session.liveliness().declare_token(keys.alive("hub", "0")),
+            session.liveliness().declare_token(keys.hub_alive),
         ]
 
     def watch_observer(self, name: str, key: bytes, keep: int) -> None:

@@ -132,6 +132,11 @@ class Keys:
         return f"{self.root}/alive/{role}/{id}"
 
     @property
+    def hub_alive(self) -> str:
+        """The hub's liveliness token (one hub a session: id ``0``)."""
+        return self.alive("hub", "0")
+
+    @property
     def alive_all(self) -> str:
         return f"{self.root}/alive/**"
 

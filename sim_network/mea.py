@@ -60,9 +60,7 @@ def electrode_positions(cfg: MeaConfig, centre_x_um: float, centre_y_um: float):
         Electrode positions, row-major (``devices.mea.grid``): with the default config, the
         electrodes in the order of ``devices.mea.MCS60_NAMES``.
     """
-    return positions(
-        cfg.rows, cfg.cols, cfg.pitch_um, cfg.drop_corners, (centre_x_um, centre_y_um)
-    )
+    return positions(cfg.rows, cfg.cols, cfg.pitch_um, cfg.drop_corners, (centre_x_um, centre_y_um))
 
 
 def _csr(owner: np.ndarray, member: np.ndarray, n_owner: int):

@@ -328,7 +328,7 @@ def test_a_link_to_a_live_hub_that_goes_silent_is_joined_again(bus_overrides, ca
     cfg = load_config(None, bus_overrides)
     keys = cfg.bus.keys
     hub = open_session(cfg.bus, listener=True)  # a stand-in hub: its token and its status
-    token = hub.liveliness().declare_token(keys.alive("hub", "0"))  # noqa: F841
+    token = hub.liveliness().declare_token(keys.hub_alive)  # noqa: F841
     publisher = hub.declare_publisher(keys.hub_status)
     state = FrameState()
     observer = BusObserver(cfg.bus, state, config={"loop": {"status_hz": 20.0}})

@@ -107,7 +107,7 @@ class Served:
                 self.keys.alive("body", "0"), lambda s: self.alive.set(), history=True
             ),
         ]
-        self.hub_token = self.session.liveliness().declare_token(self.keys.alive("hub", "0"))
+        self.hub_token = self.session.liveliness().declare_token(self.keys.hub_alive)
         self.motor = wire.Outbox(self.session.declare_publisher(self.keys.motor("0")))
         self.run: RunStart | None = None
         self.error: BaseException | None = None
