@@ -11,6 +11,9 @@
   ``CompassDirection`` (``heading``, radians, counter-clockwise from +x),
   ``sensor_ranges`` (metres, one column per range finder) and ``motor_commands``
   (left and right wheel speeds, m/s, each step's start);
+- times: every time is run time, seconds from ``timestamps_reference_time``, which is the
+  hub's wall clock (UTC) as step 0's first input left, run time 0 (the run's folder is made
+  earlier, ``session_start_time``: the wait for the endpoints lies between them);
 - metadata: the run id as ``identifier``, its start as ``session_start_time``, the
   experiment file's text as ``protocol`` (the resolved config as JSON when the file is
   gone), the manifest as JSON in ``notes``, and the culture as the ``subject`` (sex
@@ -88,6 +91,7 @@ def export_nwb(run_dir: str | Path | Run, path: str | Path) -> Path:
         f"{m.get('outcome')} after {m.get('steps')} steps",
         identifier=m.get("run_id") or Path(run_dir).name,
         session_start_time=start or dt.datetime.now(dt.UTC),
+        timestamps_reference_time=_run_time_zero(run) or start or dt.datetime.now(dt.UTC),
         experiment_description=_experiment_description(m),
         protocol=_protocol(m),
         notes=json.dumps(m, default=str),
@@ -168,6 +172,14 @@ def _simulated(m: dict) -> bool:
     return m.get("config", {}).get("culture", {}).get("kind") == "sim_network"
 
 
+def _run_time_zero(run: Run) -> dt.datetime | None:
+    """The hub's wall clock as the run's first input left (step 0 starts: run time 0)."""
+    first = next((f for f in run.record.frames if f.direction == "tx"), None)
+    if first is None:
+        return None
+    return dt.datetime.fromtimestamp(first.t_wall_ns / 1e9, dt.UTC)
+
+
 def _culture_id(m: dict) -> str:
     kind = m.get("config", {}).get("culture", {}).get("kind", "culture")
     return f"{kind} seed {m.get('seed')}"
@@ -178,7 +190,8 @@ def _culture_description(m: dict) -> str:
     if _simulated(m):
         layout = _culture_config(m).get("layout", {})
         n = (layout.get("rows") or 0) * (layout.get("cols") or 0)
-        return f"a simulated culture of {n or 'some'} Izhikevich neurons (NeuVision sim_network)"
+        model = _culture_config(m).get("neurons", {}).get("model", "izhikevich")
+        return f"a simulated culture of {n or 'some'} {model} neurons (NeuVision sim_network)"
     return f"a culture served by a '{kind}' endpoint"
 
 
@@ -205,7 +218,7 @@ def _culture(nwb, run: Run) -> None:
     device = nwb.create_device(name=f"culture {culture.kind}", description=culture.kind)
     group = nwb.create_electrode_group(
         name="culture",
-        description="the culture's channels",
+        description="the culture's channels; their positions rel_x, rel_y in µm",
         location=CULTURE_LOCATION,
         device=device,
     )

@@ -318,8 +318,8 @@ def plot_rates(series: dict, out, formats=FORMATS) -> list[Path]:
         for label, (t, r) in series.items():
             ax.plot(np.asarray(t) / 1000.0, r, lw=0.8, label=label, color=colors.get(label))
         ax.set_xlabel("time (s)")
-        ax.set_ylabel("rate (spikes/s)")
-        ax.set_title("Instantaneous spiking rate")
+        ax.set_ylabel("rate (spikes/s, channels summed)")
+        ax.set_title("Instantaneous spiking rate of the population")
         if series:
             ax.legend(loc="upper right")
 

@@ -41,7 +41,10 @@ METRICS: dict[str, tuple[str, str]] = {
     ),
     "isi_median_ms": ("median ISI (ms)", "median interval between a channel's spikes"),
     "ibi_mean_ms": ("mean IBI (ms)", "mean interval between network-burst starts (their cores')"),
-    "ibi_cv": ("IBI CV", "coefficient of variation of those intervals (0: periodic)"),
+    "ibi_cv": (
+        "IBI CV",
+        "coefficient of variation of those intervals (0: periodic; none from fewer than two)",
+    ),
     "psth_peak_ms": ("PSTH peak (ms)", "latency of the peak response after the stimuli"),
     "psth_not_computed": ("PSTH", "why no peri-stimulus histogram was computed"),
     "nb_extents_stretched": (
@@ -132,8 +135,9 @@ FIGURES: dict[str, str] = {
     "inhibitory where the channels are a simulated culture's neurons; an MEA's electrodes "
     "are black); network bursts shaded (their cores darker) and marked ▼ above.",
     "raster_nb": "One second around the first network burst (shaded).",
-    "rate": "Instantaneous firing rate of the population (all, excitatory, inhibitory), "
-    "spikes per second per channel in 10 ms bins.",
+    "rate": "Instantaneous firing rate of the population: the spikes per second of all "
+    "channels together (and of the excitatory and the inhibitory ones together), in 10 ms "
+    "bins; not per channel (the mean rates per channel are mfr_exc_hz and mfr_inh_hz).",
     "isi": "Inter-spike intervals within channels (ms).",
     "ibi": "Intervals between network-burst starts (their cores'; ms).",
     "psth": "Peri-stimulus time histogram: the population's response after each stimulus.",

@@ -270,7 +270,8 @@ def analyze(
         "nb_participation": float(nbs.n_channels.mean() / n_channels) if len(nbs) else math.nan,
         "isi_median_ms": float(np.median(isis)) if isis.size else math.nan,
         "ibi_mean_ms": ibi_mean,
-        "ibi_cv": ibi_sd / ibi_mean if ibi.size and ibi_mean > 0 else math.nan,
+        # one interval has no spread to speak of: "CV 0, periodic" from two network bursts
+        "ibi_cv": ibi_sd / ibi_mean if ibi.size >= 2 and ibi_mean > 0 else math.nan,
     }
     if cell_type is not None:
         ct = np.asarray(cell_type)

@@ -51,6 +51,14 @@ def test_planted_record_gives_known_rates_and_burst_statistics():
     json.dumps(m, allow_nan=False)  # JSON-ready
 
 
+def test_two_network_bursts_give_an_interval_but_no_cv():
+    # one interval says nothing of periodicity; the report said "CV 0 (0: periodic)"
+    ch, t = merge(*[network_burst(range(5), s, 70.0) for s in NB_STARTS_MS[:2]])
+    m = compute_metrics(ch, t, N, 0.0, T_STOP_MS)
+    assert m["n_network_bursts"] == 2 and m["ibi_mean_ms"] == pytest.approx(10_000.0)
+    assert m["ibi_cv"] is None
+
+
 def test_stimuli_give_psth_peak_evoked_split_and_cat_spreads():
     ch, t = _record()
     stim = np.array(NB_STARTS_MS[:3]) - 60.0  # the first three network bursts are "evoked"

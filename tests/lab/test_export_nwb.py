@@ -56,6 +56,14 @@ def test_spikes_pulses_poses_and_commands_round_trip(exported):
         assert f.identifier == run.manifest["run_id"]
         assert "[experiment]" in f.protocol  # the experiment file itself
         assert '"sites_per_sensor": 4' in f.protocol  # ... and the config resolved
+        # run time 0 on the file's clock is step 0's first input leaving the hub, not the
+        # run folder's making (the wait for the endpoints lay between them)
+        first_tx = next(fr for fr in run.record.frames if fr.direction == "tx")
+        zero_s = f.timestamps_reference_time.timestamp()
+        assert zero_s == pytest.approx(first_tx.t_wall_ns / 1e9, abs=1e-3)
+        assert zero_s > f.session_start_time.timestamp()
+        assert "izhikevich neurons" in f.subject.description
+        assert "µm" in f.electrode_groups["culture"].description
 
 
 @pytest.mark.slow  # a run and its export
