@@ -17,6 +17,7 @@ current folder, like any output path on a command line.
 from __future__ import annotations
 
 import dataclasses
+import json
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -412,7 +413,8 @@ def load_config(path: str | Path | None = None, overrides: list[str] = ()) -> Ex
     ----------
     path : path or None
         TOML file; None gives the defaults. It may start with ``extends = "base.toml"``
-        (see :mod:`settings.files` for the merge rule).
+        (see :mod:`settings.files` for the merge rule). A recorded run's folder (or its
+        ``manifest.json``) gives the config that run ran with, resolved: to run it again.
     overrides : list of str
         ``dotted.key=value`` items applied after the file; values are parsed as
         TOML values (``loop.period_ms=5``, ``experiment.name="x"``), falling back
@@ -425,10 +427,36 @@ def load_config(path: str | Path | None = None, overrides: list[str] = ()) -> Ex
     """
     data: dict[str, Any] = {}
     if path is not None:
-        data = settings.load(path, "config file", PATH_KEYS)
+        recorded = recorded_config(path)
+        if recorded is not None:
+            data, path = recorded
+        else:
+            data = settings.load(path, "config file", PATH_KEYS)
     settings.apply_overrides(data, overrides, PATH_KEYS)
     cfg = from_dict(data)
     return dataclasses.replace(cfg, source=str(path) if path else "")
+
+
+def recorded_config(path: str | Path) -> tuple[dict[str, Any], Path] | None:
+    """The config a recorded run ran with (its manifest's, resolved: the culture's and the
+    world's contents in place) and the run's folder, when ``path`` is that folder or its
+    ``manifest.json``; None for anything else."""
+    from hub.record import MANIFEST_FILE  # hub.record imports hub.protocol, as this does
+
+    path = Path(path)
+    if path.is_dir() and (path / MANIFEST_FILE).is_file():
+        manifest, folder = path / MANIFEST_FILE, path
+    elif path.name == MANIFEST_FILE and path.is_file():
+        manifest, folder = path, path.parent
+    else:
+        return None
+    try:
+        config = json.loads(manifest.read_text()).get("config")
+    except (OSError, ValueError, AttributeError) as exc:
+        raise ConfigError(f"run folder {folder}: its manifest cannot be read ({exc})") from None
+    if not isinstance(config, dict) or not config:
+        raise ConfigError(f"run folder {folder}: its manifest holds no config to run again")
+    return config, folder
 
 
 def from_dict(data: dict[str, Any]) -> ExperimentConfig:

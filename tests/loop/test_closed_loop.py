@@ -211,3 +211,19 @@ def test_pipelined_lockstep_gives_what_a_strict_step_by_step_loop_gives(tmp_path
     assert not missed, f"a realtime reply was late twice where the host stalled: {missed}"
     for kind in (SpikeBatch, SensorReading):
         assert _contents(ra.decoded(kind, "rx")) == _contents(rb.decoded(kind, "rx"))
+
+
+@pytest.mark.slow  # two runs
+def test_a_recorded_run_runs_again_from_its_folder_with_the_same_spikes(tmp_path, bus_overrides):
+    """The manifest holds the resolved config (the culture's and the world's contents):
+    the run folder alone is enough to run it again, even with its files gone."""
+    first, _ = _run(tmp_path / "a", "configs/closed_loop.toml", bus_overrides)
+    sets = [a for s in bus_overrides for a in ("--set", s)]
+    again = neuvision("run", str(first), *sets, "--runs-dir", str(tmp_path / "b"), "--quiet")
+    assert again.returncode == 0, again.stderr[-2000:]
+    (second,) = (tmp_path / "b").iterdir()
+    a, b = read_run(first), read_run(second)
+    for x, y in zip(a.spikes(), b.spikes(), strict=True):
+        np.testing.assert_array_equal(x, y)
+    np.testing.assert_array_equal(a.trajectory()[1], b.trajectory()[1])
+    assert b.manifest["config_source"] == str(first)
