@@ -134,13 +134,20 @@ def compare(
     ]
     _run_all(queue, jobs or os.cpu_count() or 1, list(overrides))
     result = _tabulate(queue, names)
+    # what each condition ran: its file, and what every run was given on top
+    result["condition_files"] = {n: str(c) for n, c in zip(names, configs, strict=True)}
+    result["overrides"] = list(overrides)
     (out_dir / "compare.json").write_text(json.dumps(result, indent=2))
     table = format_table(result, names)
     durations = sorted({f"{c.experiment.duration_s:g} s" for c in cfgs})
+    given = "".join(f"- **{n}**: `{c}`\n" for n, c in result["condition_files"].items())
+    also = ", ".join(f"`--set {o}`" for o in overrides) or "nothing"
     heading = (
         f"# {' vs '.join(names)}: {'seed 1' if seeds == 1 else f'seeds 1-{seeds}'}, runs of "
         f"{' / '.join(durations)} "
         f"(compared {datetime.date.today().isoformat()})\n\n"
+        f"Conditions (each run's manifest holds its whole config):\n\n{given}\n"
+        f"Given to every run: {also}.\n\n"
     )
     (out_dir / "compare.md").write_text(heading + table + "\n")
     print(table)
@@ -298,13 +305,15 @@ def format_table(result: dict, names: list[str]) -> str:
         cells = [fmt.format(b[key]) if key in b else "—" for key, _, fmt in METRICS]
         lines.append(f"| {r['condition']} | {r['seed']} | " + " | ".join(cells) + " |")
     if result.get("tests"):
-        lines += ["", "Two-sided permutation test of the difference of means "
-                  f"({result['tests'][0]['method']}):", ""]  # fmt: skip
-        lines += ["| metric | conditions | n | p |", "|---|---|---|---|"]
+        lines += ["", "Two-sided permutation test of the difference of means, each row on "
+                  "its own (no correction for testing several metrics; with few runs the "
+                  "smallest p a test can give is large: 3 vs 3 runs, 0.1):", ""]  # fmt: skip
+        lines += ["| metric | conditions | n | p | method |", "|---|---|---|---|---|"]
         labels = {key: label for key, label, _ in METRICS}
         for t in result["tests"]:
             lines.append(f"| {labels[t['metric']]} | {t['a']} vs {t['b']} | "
-                         f"{t['n_a']} vs {t['n_b']} | {t['p_value']:.4f} |")  # fmt: skip
+                         f"{t['n_a']} vs {t['n_b']} | {t['p_value']:.4f} | "
+                         f"{t['method']} |")  # fmt: skip
     return "\n".join(lines)
 
 

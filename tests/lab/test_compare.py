@@ -46,7 +46,7 @@ def test_a_failed_run_is_listed_with_its_reason_and_the_conditions_are_tested(tm
     (test,) = result["tests"]
     assert (test["metric"], test["n_a"], test["n_b"]) == ("distance_m", 3, 2)
     assert test["p_value"] == pytest.approx(0.1)  # only the observed one of C(5, 3) = 10 splits
-    assert "| distance (m) | a vs b | 3 vs 2 | 0.1000 |" in table
+    assert "| distance (m) | a vs b | 3 vs 2 | 0.1000 | exact (10 relabellings) |" in table
 
 
 @pytest.mark.parametrize(

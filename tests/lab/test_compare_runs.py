@@ -39,5 +39,9 @@ def test_parallel_runs_of_eight_seeds_lose_nothing_and_name_an_injected_failure(
     table = (out / "compare.md").read_text()
     assert table.startswith("# closed_loop vs closed_loop_blind vs broken: seeds 1-8, runs of")
     assert "**Failed runs: 8**" in table and "| broken | 8 | exit status 2" in table
+    # which settings each condition had: its file, and what every run was given
+    assert f"- **broken**: `{broken}`" in table and "- **closed_loop**: `configs/" in table
+    assert "Given to every run: `--set experiment.duration_s=1.0`." in table
+    assert result["condition_files"]["broken"] == str(broken)
     assert any(t["b"] == "closed_loop_blind" and t["n_a"] == t["n_b"] == 8
                for t in result["tests"])  # fmt: skip
