@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import numbers
 import tomllib
 from pathlib import PurePath
 from typing import Any
@@ -25,7 +26,10 @@ def format_value(value: Any) -> str:
     inverse): numbers, booleans, strings, paths, lists and tables of them."""
     if isinstance(value, bool):
         return "true" if value else "false"
-    if isinstance(value, int | float):
+    if isinstance(value, numbers.Integral):  # numpy's integers too
+        return repr(int(value))
+    if isinstance(value, numbers.Real):  # numpy's floats too (repr: "np.float64(2.0)")
+        value = float(value)
         if math.isnan(value):
             return "nan"
         return repr(value) if math.isfinite(value) else ("inf" if value > 0 else "-inf")
