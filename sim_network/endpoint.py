@@ -27,6 +27,7 @@ from sim_network.config import (
     config_from_dict,
     config_to_dict,
     read_config_data,
+    whole_multiple,
 )
 
 # What the simulated culture takes (contract v2 limits; a real rig's are far lower): the
@@ -102,8 +103,7 @@ class NetworkEndpoint(Endpoint):
                 f"culture.params.config must be a culture file or table, got {culture!r}"
             )
         network = config_from_dict(settings.merge(culture, params), prefix="culture.params.")
-        ratio = cfg.loop.period_ms / network.dt_ms
-        if abs(ratio - round(ratio)) > 1e-6 * ratio:
+        if not whole_multiple(cfg.loop.period_ms, network.dt_ms):
             raise ConfigError(
                 f"loop.period_ms ({cfg.loop.period_ms}) must be a whole multiple of "
                 f"culture.params.dt_ms ({network.dt_ms})"
@@ -138,8 +138,7 @@ class NetworkEndpoint(Endpoint):
     def start_run(self, run: RunStart) -> None:
         """Back to the culture as built, stepped by the run's period."""
         dt_ms = self.net.cfg.dt_ms
-        ratio = run.period_ms / dt_ms
-        if abs(ratio - round(ratio)) > 1e-6 * ratio:
+        if not whole_multiple(run.period_ms, dt_ms):
             raise RunRefused(
                 f"period_ms {run.period_ms} is not a whole multiple of the culture's dt_ms {dt_ms}"
             )
@@ -150,8 +149,10 @@ class NetworkEndpoint(Endpoint):
 
     def step(self, s: Stimulation, window: StepWindow) -> SpikeBatch:
         t0_ms = window.t0_s * 1e3
-        if self.net.t_ms < t0_ms:  # steps the hub skipped: the culture lived on, unstimulated
-            self.net.run(t0_ms - self.net.t_ms)
+        dt_ms = self.net.cfg.dt_ms
+        skipped = round((t0_ms - self.net.t_ms) / dt_ms)  # whole time steps (not float noise)
+        if skipped > 0:  # steps the hub skipped: the culture lived on, unstimulated
+            self.net.run(skipped * dt_ms)
         pulses = Pulses(s.channel, s.amplitude_ua, s.width_ms, s.onset_ms) if s.n_pulses else None
         try:
             spikes = self.net.run(self.period_ms, pulses)

@@ -220,6 +220,10 @@ def test_the_culture_and_the_world_are_set_from_the_experiment_and_recorded_whol
             "loop.period_ms=10.05",
             "loop.period_ms (10.05) must be a whole multiple of culture.params.dt_ms",
         ),
+        (  # within 1e-6 of a multiple it passed, and the culture died at step 2
+            "loop.period_ms=10.000001",
+            "loop.period_ms (10.000001) must be a whole multiple of culture.params.dt_ms",
+        ),
         ("body.params.arena.radius_m=0", "body.params.arena.radius_m must be a finite number > 0"),
         ('body.params.obstacles=[{shape="blob"}]', r"body.params.obstacles[0].shape must be one"),
         ("body.params.wheels=2", "body.params.wheels is not a known key"),

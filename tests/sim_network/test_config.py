@@ -48,11 +48,25 @@ def test_culture_file_loads():
         ({"adaptation": {"tau_ms": 0.0}}, "adaptation.tau_ms"),
         ({"slow_current": {"share": -0.5}}, "slow_current.share"),
         ({"slow_current": {"tau_ms": 0.0}}, "slow_current.tau_ms"),
+        # 10^8 neurons passed every check and never came up (the hub waited out its 120 s)
+        ({"layout": {"rows": 10_000, "cols": 10_000}}, "layout must hold at most 1,000,000"),
+        # a noise interval off a time step's multiple by 1e-8 of it drifts
+        ({"noise": {"interval_ms": 1.000000001}}, "noise.interval_ms"),
     ],
 )
 def test_bad_values_are_rejected_naming_the_key(data, key):
     with pytest.raises(ConfigError, match=key.replace(".", r"\.").replace("[", r"\[")):
         config_from_dict(data)
+
+
+@pytest.mark.parametrize("model", ["lif", "hh"])
+def test_adaptation_and_the_slow_current_are_not_silently_off_for_other_models(model):
+    # they act on Izhikevich neurons only; with the default culture's on, a LIF run went
+    # ahead without them while its manifest listed them
+    with pytest.raises(ConfigError, match="adaptation.increment_exc_mv_per_ms acts on Izh"):
+        config_from_dict({"neurons": {"model": model}})
+    off = {"adaptation": {"increment_exc_mv_per_ms": 0.0}, "slow_current": {"share": 0.0}}
+    assert config_from_dict({"neurons": {"model": model}, **off}).neurons.model == model
 
 
 def test_config_is_frozen():

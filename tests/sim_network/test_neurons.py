@@ -12,6 +12,7 @@ from sim_network import (
     NeuronConfig,
     NoiseConfig,
     Pulses,
+    SlowCurrentConfig,
     StimulationConfig,
 )
 
@@ -28,6 +29,7 @@ def lone_neuron(model="izhikevich", exc_type="RS", dt_ms=0.1, inhibitory=False):
         noise=NoiseConfig(sd=0.0, inhibitory_mean=None),
         stimulation=StimulationConfig(model_current_per_ua=1.0),  # pulse amplitude = current
         adaptation=AdaptationConfig(increment_exc_mv_per_ms=0.0),  # the published model
+        slow_current=SlowCurrentConfig(share=0.0),
     )
     return Network(cfg, seed=0)
 
