@@ -24,7 +24,7 @@ from pathlib import Path
 from typing import Any
 
 import settings
-from hub.protocol import MODES, Keys
+from hub.protocol import MODES, Keys, key_chunk_problem
 from hub.security import SECURITY_MODES
 from settings import ConfigError, bounds
 
@@ -72,6 +72,13 @@ def _session(dotted: str, value: str) -> str:
     return value
 
 
+def _key_chunk(dotted: str, value: str) -> str:
+    problem = key_chunk_problem(value, "endpoint id")
+    if problem:
+        raise ConfigError(f"{dotted}: {problem}")
+    return value
+
+
 def _callable(dotted: str, value: str) -> str:
     if value.count(":") != 1:
         raise ConfigError(f"{dotted} must name a callable as module:function, got {value!r}")
@@ -111,7 +118,8 @@ class ExperimentSection:
     """``[experiment]``: what the run is called, its seed and length, where runs go."""
 
     name: str = field(default="experiment", metadata=bounds(check=_name))
-    seed: int = field(default=0, metadata=bounds(ge=0))
+    # sent to the endpoints with the run (an unsigned 64-bit integer on the wire)
+    seed: int = field(default=0, metadata=bounds(ge=0, le=2**64 - 1))
     duration_s: float = field(default=10.0, metadata=bounds(gt=0))
     runs_dir: str = "runs"
     notes: str = ""  # free text, kept in the manifest with the config
@@ -291,7 +299,7 @@ class EndpointSection:
     """``[body]`` or ``[culture]``: which endpoint kind serves the role, where it is started,
     and its own parameters (checked by its kind's ``check_config``)."""
 
-    id: str = "0"
+    id: str = field(default="0", metadata=bounds(check=_key_chunk))  # on the bus's keys
     kind: str = ""
     # local: `neuvision run` starts it; external: started elsewhere, the hub waits for it.
     launch: str = field(default="local", metadata=bounds(choices=("local", "external")))

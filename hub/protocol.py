@@ -70,6 +70,20 @@ class ProtocolError(ValueError):
 # --------------------------------------------------------------------------- keys
 
 
+def key_chunk_problem(text: str, what: str) -> str:
+    """Why ``text`` cannot be one chunk of a key expression (a session name, an endpoint's
+    id), or "" when it can."""
+    if not text:
+        return f"{what} is needed (it may not be empty)"
+    bad = set("/*$?#") & set(text)
+    if bad:
+        return (
+            f"{what} {text!r} may not hold {' '.join(sorted(bad))} (they are Zenoh's key "
+            "separators and wildcards)"
+        )
+    return ""
+
+
 @dataclass(frozen=True)
 class Keys:
     """Key expressions of one NeuVision session (``nv/<session>/...``)."""
@@ -77,14 +91,9 @@ class Keys:
     session: str = "default"
 
     def __post_init__(self):
-        bad = set("/*$?#") & set(self.session)
-        if not self.session:
-            raise ValueError("a session name is needed (it may not be empty)")
-        if bad:
-            raise ValueError(
-                f"session name {self.session!r} may not hold {' '.join(sorted(bad))} (they "
-                "are Zenoh's key separators and wildcards)"
-            )
+        problem = key_chunk_problem(self.session, "session name")
+        if problem:
+            raise ValueError(problem)
 
     @property
     def root(self) -> str:

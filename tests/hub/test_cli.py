@@ -104,7 +104,16 @@ def test_a_shipped_config_named_from_another_folder_is_refused_with_where_it_is(
         ('bus.listen=["tcp/127.0.0.1:99999"]', "bus.listen: 'tcp/127.0.0.1:99999' has no port"),
         ('bus.listen=["garbage"]', "bus.listen: 'garbage' is not an address"),
         ("bus.listen=[]", "bus.listen: at least one address"),
-        ('bus.session=""', "bus.session: a session name is needed"),
+        ('bus.session=""', "bus.session: session name is needed"),
+        # an endpoint's id is a chunk of its keys too: "" crashed the hub, "a/b" hung it
+        ('body.id=""', "body.id: endpoint id is needed"),
+        # a deadline of 16 min held each step past the next ones' starts
+        (
+            'loop={mode="realtime", deadline_ms=1000000}',
+            "loop.deadline_ms (1e+06) must be at most two periods",
+        ),
+        ("experiment.seed=18446744073709551616", "experiment.seed must be <= 18446744073709551615"),
+        ('culture.id="a/b"', "culture.id: endpoint id 'a/b' may not hold /"),
         ('bus.session="lab/3"', "bus.session: session name 'lab/3' may not hold /"),
         ('bus.connect=["tcp/hub.lab"]', "bus.connect: 'tcp/hub.lab' has no host and port"),
     ],
