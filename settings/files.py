@@ -167,7 +167,9 @@ def resolve_paths(data: dict, patterns: Iterable[str], base_dir: Path, prefix: s
 
 
 def _absolute(name: str, base_dir: Path) -> str:
-    return os.path.normpath(os.path.join(base_dir, os.path.expanduser(name)))
+    # absolute even when the file was named relative to the current folder: a run's
+    # manifest must name the same place when read from anywhere
+    return os.path.abspath(os.path.join(base_dir, os.path.expanduser(name)))
 
 
 def apply_overrides(

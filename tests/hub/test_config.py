@@ -107,6 +107,15 @@ def test_an_extends_cycle_is_an_error(tmp_path):
         load_config(tmp_path / "a.toml")
 
 
+def test_a_path_in_a_file_named_from_the_current_folder_is_recorded_absolute(tmp_path, monkeypatch):
+    # the manifest recorded bus.certs_dir as "lab/certs": from any other folder, no CA
+    (tmp_path / "lab").mkdir()
+    (tmp_path / "lab" / "exp.toml").write_text('[bus]\ncerts_dir = "certs"\n')
+    monkeypatch.chdir(tmp_path)
+    cfg = load_config("lab/exp.toml")
+    assert cfg.bus.certs_dir == str(tmp_path / "lab" / "certs")
+
+
 @pytest.mark.parametrize(
     "content, message",
     [
