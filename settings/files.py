@@ -129,6 +129,8 @@ def _load(path: Path, what: str, paths: tuple[str, ...], seen: tuple[Path, ...])
     here = path.resolve()
     if base_path.resolve() in seen + (here,):
         raise ConfigError(f"{path}: extends {base_name} makes a cycle")
+    if not base_path.exists():  # named with the file that names it: in a chain, which one
+        raise ConfigError(f"{path}: extends {base_name}: {what} {base_path} not found")
     return merge(_load(base_path, what, paths, seen + (here,)), data)
 
 

@@ -136,6 +136,10 @@ def test_an_extends_cycle_and_a_bad_extends_are_refused(tmp_path):
     (tmp_path / "b.toml").write_text("extends = 3\n")
     with pytest.raises(ConfigError, match="extends must be a file name"):
         load(tmp_path / "b.toml")
+    # a base that is not there is named with the file that names it
+    (tmp_path / "c.toml").write_text('extends = "nowhere/base.toml"\n')
+    with pytest.raises(ConfigError, match=r"c\.toml: extends nowhere/base\.toml: .* not found"):
+        load(tmp_path / "c.toml")
 
 
 @pytest.mark.parametrize(
