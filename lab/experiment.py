@@ -22,9 +22,10 @@ from __future__ import annotations
 import dataclasses
 import json
 import logging
+import os
 import signal
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -286,6 +287,12 @@ class Experiment:
     overrides: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self):
+        if self.config is not None and not isinstance(self.config, str | os.PathLike):
+            raise ConfigError(
+                f"config must be an experiment file's path (or None), got {self.config!r}"
+            )
+        if not isinstance(self.overrides, Mapping):
+            raise ConfigError(f"overrides must be a dict of dotted keys, got {self.overrides!r}")
         self.overrides = dict(self.overrides)
         self._check()  # now, not at run time
 

@@ -45,6 +45,8 @@ def test_a_bad_file_or_key_fails_when_the_experiment_is_made(tmp_path):
         Experiment(tmp_path / "nowhere.toml")
     with pytest.raises(ConfigError, match="loop.mode"):
         Experiment(CONFIG, {"loop.mode": "sometimes"})
+    with pytest.raises(ConfigError, match="config must be an experiment file's path"):
+        Experiment(123)  # was a TypeError from deep in pathlib
 
 
 def test_a_folder_that_is_not_a_run_is_named(tmp_path):
