@@ -331,29 +331,28 @@ def test_a_stop_request_ends_serve_cleanly_and_closes_the_device(served):
     assert s.status == 0 and body.closed
 
 
-def test_serving_once_it_returns_when_its_run_ends(served):
+@pytest.mark.parametrize(
+    "ended_by, status",
+    [
+        ("the hub", 0),  # whatever the run's outcome: the hub's manifest has it
+        # the hub killed mid-run: its run did not end; a script waiting on the endpoint
+        # must know (it exited 0)
+        ("the hub's going", UNSERVED),
+    ],
+)
+def test_serving_once_it_returns_when_its_run_ends_saying_how(served, ended_by, status):
     body = RecordingBody()
     s = served(body, once=True)
     s.start()
     s.send(0)
     s.reply()
-    assert s.announce(RunEnd(run=s.run.run, outcome="completed")).ok
+    if ended_by == "the hub":
+        assert s.announce(RunEnd(run=s.run.run, outcome="completed")).ok
+    else:
+        s.hub_token.undeclare()
     s.thread.join(10)
     assert not s.thread.is_alive()
-    assert s.status == 0 and body.closed
-
-
-def test_serving_once_it_exits_1_when_its_hub_goes_in_the_middle_of_its_run(served):
-    # (the hub killed: its run did not end; a script waiting on the endpoint must know)
-    body = RecordingBody()
-    s = served(body, once=True)
-    s.start()
-    s.send(0)
-    s.reply()
-    s.hub_token.undeclare()
-    s.thread.join(10)
-    assert not s.thread.is_alive()
-    assert s.status == UNSERVED and body.closed and body.safe
+    assert s.status == status and body.closed and body.safe
 
 
 def test_serving_once_it_gives_up_when_its_hub_leaves_without_starting_a_run(served):
