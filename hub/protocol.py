@@ -1072,7 +1072,7 @@ class Description(Message):
     """Reply of an endpoint's ``describe`` queryable: what it is and its geometry.
 
     A culture lists its channels (``channel``, ``x_um``, ``y_um``, and for
-    simulated neurons ``cell_type``: 0 excitatory, 1 inhibitory) and the limits of
+    simulated neurons ``cell_type``: :mod:`devices.culture`'s codes) and the limits of
     the stimulation it takes (``max_amplitude_ua``, ``max_width_ms``, ``max_pulse_hz``
     per channel; :mod:`hub.limits`). A body lists its range finders and drive geometry
     (``max_wheel_mps`` is its speed limit). A real device says it runs in real time only

@@ -6,10 +6,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from devices.culture import EXCITATORY, INHIBITORY
 from sim_network.config import LayoutConfig
 
-EXCITATORY = 0
-INHIBITORY = 1
+__all__ = ["EXCITATORY", "INHIBITORY", "Layout", "build_layout"]
 
 
 @dataclass(frozen=True)

@@ -10,9 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-#: Cell-type codes (as in the wire contract's ``Description.cell_type``).
-EXCITATORY = 0
-INHIBITORY = 1
+from devices.culture import EXCITATORY, INHIBITORY  # the wire contract's cell-type codes
 
 POPULATIONS = ("all", "exc", "inh")
 
