@@ -5,7 +5,7 @@ for that analysis (the end of a large network burst takes tens of milliseconds o
 Python), so it runs here, on the bus beside the loop. The hub forwards it the culture's
 SpikeBatches it took, as the culture sent them (``ObservedSpikes``: what came in 30 ms
 in realtime, in 50 ms in lockstep, one put for many steps); the observer
-feeds them to :class:`~hub.live.LiveBursts` and publishes a
+feeds them to :class:`~hub.live_bursts.LiveBursts` and publishes a
 :class:`~hub.protocol.BurstReport` when a network burst completes, when one starts or
 stops being under way, and every ``REPORT_EVERY_MS`` of run time besides (those with no
 news at most every ``REPORT_GAP_S`` of wall time). The hub
@@ -49,7 +49,7 @@ from hub.analysis.network_bursts import NetworkBurstParams
 from hub.analysis.online import OnlineBurstDetector
 from hub.bus import LOOP_PUBLISH, UNSERVED, HubWatch, open_session, payload_bytes
 from hub.config import BusSection
-from hub.live import LiveBursts
+from hub.live_bursts import LiveBursts
 from hub.protocol import (
     BurstReport,
     Keys,

@@ -6,7 +6,7 @@ import pytest
 from hub.analysis.bursts import BurstParams
 from hub.analysis.network_bursts import NetworkBurstParams
 from hub.config import ConfigError, load_config
-from hub.live import LiveBursts
+from hub.live_bursts import LiveBursts
 from hub.loop import Hub
 from hub.protocol import SpikeBatch
 from tests.endpoints import EchoBody, EchoCulture
