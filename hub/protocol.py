@@ -852,7 +852,13 @@ class StepWindow:
     @classmethod
     def of(cls, run: str, step: int, period_s: float) -> StepWindow:
         """Step ``step`` of a run with period ``period_s``: ``[step·T, (step+1)·T)``."""
-        return cls(run, step, step * period_s, (step + 1) * period_s)
+        return cls(run, step, *cls.bounds_s(step, period_s))
+
+    @staticmethod
+    def bounds_s(step: int, period_s: float) -> tuple[float, float]:
+        """``(t0_s, t1_s)`` of step ``step`` at period ``period_s`` (what :meth:`of`
+        builds on; for checks that need the times alone)."""
+        return step * period_s, (step + 1) * period_s
 
     @property
     def period_s(self) -> float:

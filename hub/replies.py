@@ -17,11 +17,13 @@ from hub.protocol import (
     Description,
     Message,
     ProtocolError,
+    StepWindow,
     kernels,
 )
 
 # The largest table of known channels, one byte a channel number: larger numbers go to a set.
 _MAX_TABLE_BYTES = 1 << 20
+_bounds_s = StepWindow.bounds_s
 
 
 class ReplyChecker:
@@ -71,18 +73,19 @@ class ReplyChecker:
         message = OUTPUT_TYPE[role].decode(raw)
         if message.run != self.run:
             raise ProtocolError("foreign", f"reply of run {message.run!r}")
-        step, period_s = message.step, self.period_s
+        step = message.step
+        t0_s, t1_s = _bounds_s(step, self.period_s)
         if role == "culture":
             if (
-                abs(message.t0_s - step * period_s) > WINDOW_TOLERANCE_S
-                or abs(message.t1_s - (step + 1) * period_s) > WINDOW_TOLERANCE_S
+                abs(message.t0_s - t0_s) > WINDOW_TOLERANCE_S
+                or abs(message.t1_s - t1_s) > WINDOW_TOLERANCE_S
             ):
                 raise ProtocolError(
                     "window", f"spikes of step {step} over [{message.t0_s}, {message.t1_s})"
                 )
             self._check_channels(message.channel)
         else:
-            if message.t_s > (step + 1) * period_s + WINDOW_TOLERANCE_S:
+            if message.t_s > t1_s + WINDOW_TOLERANCE_S:
                 raise ProtocolError("window", f"reading of step {step} taken at {message.t_s} s")
             self._check_ranges(message.ranges_m)
         return message

@@ -7,8 +7,8 @@ It reads the record with ``hub.record.read_run`` and uses, from it:
   from the first batch's ``t0_s`` to the last batch's ``t1_s``;
 - the culture's ``Description`` (channel ids, positions, cell types), when there is one;
   channel ids are mapped to indices ``0..n-1`` in the order of the description;
-- the sent ``Stimulation`` messages: each distinct pulse onset
-  ``step * loop.period_ms + onset_ms`` is one stimulus of the PSTH (pulses into several
+- the sent ``Stimulation`` messages: each distinct pulse onset, its step window's
+  ``t0_s`` (in ms) plus ``onset_ms``, is one stimulus of the PSTH (pulses into several
   channels at the same time count once) -- unless the stimuli come closer together than the
   PSTH's window (a closed loop stimulating every step): then no PSTH, and
   ``psth_not_computed`` says why; network bursts whose extents a channel bursting
