@@ -57,6 +57,8 @@ from hub.protocol import (
 Factory = Callable[[], Endpoint]
 
 PERIOD_MS = 10.0
+#: a second run's period: an endpoint must take the period the hub announces, not its own
+OTHER_PERIOD_MS = 5.0
 N_STEPS = 20
 INPUT_TIMEOUT_S = 0.3  # the suite shortens the endpoint's input timeout to this
 REPLY_TIMEOUT_S = 10.0  # a step of a slow model on a busy machine still answers within this
@@ -193,12 +195,25 @@ class FakeHub:
 
     # ------------------------------------------------------------ the loop
 
-    def window(self, step: int, run: str | None = None) -> StepWindow:
-        return StepWindow.of(run or self.run.run, step, self.run.period_ms / 1e3)
+    def window(
+        self, step: int, run: str | None = None, period_ms: float | None = None
+    ) -> StepWindow:
+        """Step ``step``'s window in the current run (or ``run``), at the run's period
+        (or ``period_ms``: a window that is not the run's)."""
+        period_ms = self.run.period_ms if period_ms is None else period_ms
+        return StepWindow.of(run or self.run.run, step, period_ms / 1e3)
 
-    def valid_input(self, step: int, *, run: str | None = None, pulse: bool = False) -> Message:
-        """An input of ``step`` within the endpoint's limits (a culture: one pulse if asked)."""
-        w = self.window(step, run)
+    def valid_input(
+        self,
+        step: int,
+        *,
+        run: str | None = None,
+        pulse: bool = False,
+        period_ms: float | None = None,
+    ) -> Message:
+        """An input of ``step`` within the endpoint's limits (a culture: one pulse if
+        asked), in the run's window of that step (or the window at ``period_ms``)."""
+        w = self.window(step, run, period_ms)
         d = self.description
         if self.role == "body":
             speed = min(0.01, d.max_wheel_mps)
@@ -352,17 +367,24 @@ def check_run_lifecycle(factory: Factory) -> None:
 
 def check_replies_carry_run_and_window(factory: Factory) -> None:
     """Every step's reply carries the run and its input's window, in a run of every step
-    up to ``n_steps`` (the last one being the hub's final stop)."""
+    up to ``n_steps`` (the last one being the hub's final stop); and in a second run at
+    another period, the windows of that period (the hub's, announced with the run)."""
     with served(factory) as hub:
         assert hub.start(n_steps=5).ok
         for k in range(6):
             hub.step(k, **({"pulse": True} if hub.role == "culture" and k == 2 else {}))
         assert hub.counters()["steps"] == 6
+        assert hub.end().ok
+        hub.run = None
+        assert hub.start(n_steps=3, period_ms=OTHER_PERIOD_MS, deadline_ms=OTHER_PERIOD_MS).ok
+        for k in range(4):
+            hub.step(k)  # checked against the windows of OTHER_PERIOD_MS
 
 
 def check_bad_inputs_are_dropped_and_counted(factory: Factory) -> None:
-    """Inputs with no run, stale, future, foreign (unsealed, a bad tag, another run) and
-    over-limit ones are dropped, counted by kind, and never stepped on."""
+    """Inputs with no run, stale, future, foreign (unsealed, a bad tag, another run), in a
+    window that is not the run's, and over-limit ones are dropped, counted by kind, and
+    never stepped on."""
     with served(factory) as hub:
         hub.run = RunStart(
             run=new_run_id(),
@@ -384,7 +406,8 @@ def check_bad_inputs_are_dropped_and_counted(factory: Factory) -> None:
         hub.send(hub.valid_input(2), key=None)  # unsealed
         hub.send(hub.valid_input(2), key=wire.new_key())  # sealed with another key
         hub.send(hub.valid_input(2, run=new_run_id()))  # another run, sealed with this key
-        expected |= {"stale": 1, "future": 1, "foreign": 4}
+        hub.send(hub.valid_input(2, period_ms=2 * PERIOD_MS))  # another period's window
+        expected |= {"stale": 1, "future": 1, "foreign": 4, "window": 1}
         over = hub.over_limit_input(2)
         safe_before = hub.hooks.calls["make_safe"]
         if over is not None:

@@ -47,6 +47,39 @@ log = logging.getLogger(__name__)
 
 #: the longest watchdog_s allowed at periods under 1.25 s (else four periods)
 WATCHDOG_MAX_S = 5.0
+
+
+def watchdog_problem(watchdog_s: float, period_ms: float) -> str | None:
+    """Why a motor watchdog of ``watchdog_s`` does not suit a loop of ``period_ms``, or None.
+
+    The watchdog is also the endpoint's input timeout: under two periods the motors would
+    stop between steps. It is also how long the robot drives on blind when its commands
+    stop (the hub killed, the network cut): at most :data:`WATCHDOG_MAX_S`, or four periods
+    if longer.
+
+    Parameters
+    ----------
+    watchdog_s : float
+        No motor command for this long stops the motors.
+    period_ms : float
+        The loop's period.
+    """
+    least_s = 2 * period_ms / 1e3
+    if watchdog_s < least_s:
+        return (
+            f"watchdog_s {watchdog_s:g} s is under two loop periods ({least_s:g} s): "
+            "the motors would stop between steps"
+        )
+    most_s = max(WATCHDOG_MAX_S, 4 * period_ms / 1e3)
+    if watchdog_s > most_s:
+        return (
+            f"watchdog_s {watchdog_s:g} s: the robot would drive on that long with no "
+            f"command (the hub gone, the network cut); at most {most_s:g} s "
+            f"({WATCHDOG_MAX_S:g} s, or four loop periods if longer)"
+        )
+    return None
+
+
 LOCKSTEP_REFUSAL = (
     "a Khepera is a real device: it moves in real time and cannot wait for a lockstep "
     'loop; set loop.mode = "realtime"'
@@ -125,23 +158,9 @@ class KheperaEndpoint(Endpoint):
             raise ConfigError(f"body.params.stop_bits must be 1 or 2, got {out['stop_bits']!r}")
         for key in ("timeout_s", "silent_s", "watchdog_s"):
             out[key] = check_value(f"body.params.{key}", float, out[key], gt=0)
-        # The watchdog is also the endpoint's input timeout: under two periods, the motors
-        # stopped between steps and the robot made safe at nearly every step.
-        least_s = 2 * cfg.loop.period_ms / 1e3
-        if out["watchdog_s"] < least_s:
-            raise ConfigError(
-                f"body.params.watchdog_s {out['watchdog_s']:g} s is under two loop periods "
-                f"({least_s:g} s): the motors would stop between steps"
-            )
-        # It is also how long the robot drives on blind when its commands stop (the hub
-        # killed, the network cut): long enough to cross the arena.
-        most_s = max(WATCHDOG_MAX_S, 4 * cfg.loop.period_ms / 1e3)
-        if out["watchdog_s"] > most_s:
-            raise ConfigError(
-                f"body.params.watchdog_s {out['watchdog_s']:g} s: the robot would drive on "
-                f"that long with no command (the hub gone, the network cut); at most "
-                f"{most_s:g} s ({WATCHDOG_MAX_S:g} s, or four loop periods if longer)"
-            )
+        why = watchdog_problem(out["watchdog_s"], cfg.loop.period_ms)
+        if why is not None:
+            raise ConfigError(f"body.params.{why}")
         # A failed reply and its retry are a live thread's longest silence; shorter, the
         # guard would stop a robot whose adapter is only waiting for its link.
         out["freeze_s"] = check_value("body.params.freeze_s", float, out["freeze_s"], ge=0)
@@ -242,6 +261,11 @@ class KheperaEndpoint(Endpoint):
     def start_run(self, run: RunStart) -> None:
         if run.mode != "realtime":
             raise RunRefused(LOCKSTEP_REFUSAL)
+        # The run's period is the hub's, announced here: this endpoint's own experiment
+        # file (checked at start-up) may be another's.
+        why = watchdog_problem(self.driver.watchdog_s, run.period_ms)
+        if why is not None:
+            raise RunRefused(f"{why} (the run's period is {run.period_ms:g} ms)")
         if self.driver.fault is not None:
             raise RunRefused(f"the serial link failed: {self.driver.fault}")
         self._origin_s = math.inf

@@ -44,6 +44,17 @@ def test_it_describes_the_real_robot_and_its_measured_serial_cycle(emulators):
         endpoint.close()
 
 
+def test_a_run_whose_period_does_not_suit_the_watchdog_is_refused(emulators):
+    """The hub's period is announced with the run: an adapter started with another
+    experiment file checks its watchdog against that period, not its own file's."""
+    with conformance.served(lambda: make_endpoint(emulators(), watchdog_s=0.5)) as hub:
+        reply = hub.start(period_ms=400.0, deadline_ms=400.0)
+        assert not reply.ok
+        assert "watchdog_s 0.5 s is under two loop periods (0.8 s)" in reply.reason
+        assert "the run's period is 400 ms" in reply.reason
+        assert hub.start(period_ms=50.0, deadline_ms=50.0).ok
+
+
 def config(*overrides):
     return load_config(HYBRID, list(overrides))
 
