@@ -646,6 +646,7 @@ def record_summary(rec) -> dict:
         "frames": len(rec.frames),
         "steps_recorded": rec.steps_recorded(),
         **({"record_short": short} if short else {}),
+        **({"record_damaged": damaged} if (damaged := rec.damage_note()) else {}),
         "recorded_span_s": round(span_s, 3),
         "messages": per_key,
         "events": events,
@@ -736,11 +737,13 @@ def cmd_compare(args) -> int:
 def cmd_analyze(args) -> int:
     from hub.analysis.spikes import AnalysisInputError
     from hub.record import UNFINISHED, read_manifest
-    from lab.run_analysis import analyze_run
+    from lab.run_analysis import ANALYSIS_DIR, analyze_run
 
     run_dir = _recorded_run(args.run_dir, "analyse")
     if args.out is not None:
-        make_output_folder(args.out, "--out")
+        out = make_output_folder(args.out, "--out")
+    else:
+        out = make_output_folder(run_dir / ANALYSIS_DIR, "the run folder (--out writes elsewhere)")
     manifest = read_manifest(run_dir)  # its outcome as read back
     if manifest.get("outcome") == UNFINISHED:
         print(f"neuvision: note: {run_dir} is unfinished: {manifest['reason']}", file=sys.stderr)
@@ -754,8 +757,11 @@ def cmd_analyze(args) -> int:
         metrics = analyze_run(run_dir, args.out)
     except AnalysisInputError as exc:
         raise InputError(f"cannot analyse {run_dir}: {exc}") from None
-    if "record_short" in metrics["metrics"]:
-        print(f"neuvision: note: {metrics['metrics']['record_short']}", file=sys.stderr)
+    except OSError as exc:  # a full disk: what was written before is whole (write_whole)
+        raise OutputError(f"cannot write the analysis in {out}: {exc.strerror or exc}") from None
+    for note in ("record_short", "record_damaged"):
+        if note in metrics["metrics"]:
+            print(f"neuvision: note: {metrics['metrics'][note]}", file=sys.stderr)
     _emit(json.dumps(metrics, indent=2, default=str))
     return EXIT_OK
 
@@ -801,8 +807,9 @@ def cmd_export(args) -> int:
         path = export_nwb(run, args.nwb)
     except ExportError as exc:
         raise InputError(str(exc)) from None
-    if short := run.record.short_note():
-        print(f"neuvision: note: {short}", file=sys.stderr)
+    for note in (run.record.short_note(), run.record.damage_note()):
+        if note:
+            print(f"neuvision: note: {note}", file=sys.stderr)
     replaced = " (it replaced the file there)" if replaced else ""
     print(f"neuvision: {run_dir} written to {path}{replaced}", file=sys.stderr)
     return EXIT_OK

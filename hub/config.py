@@ -87,7 +87,7 @@ def _callable(dotted: str, value: str) -> str:
 
 # A run folder is named <UTC time>-<experiment.name>: the name must be one safe folder-name
 # part (no separators, no "..", nothing a shell or another OS would trip on).
-NAME_CHARS = "letters, digits, '_', '-' and '.' (not first)"
+NAME_CHARS = "ASCII letters, digits, '_', '-' and '.' (not first)"
 _NAME = re.compile(r"[A-Za-z0-9_-][A-Za-z0-9._-]{0,99}")
 
 

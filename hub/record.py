@@ -32,7 +32,6 @@ everything up to a truncated or damaged tail without error.
 
 from __future__ import annotations
 
-import contextlib
 import datetime as _dt
 import hashlib
 import json
@@ -48,6 +47,7 @@ from typing import Any
 import msgpack
 import numpy as np
 
+from hub.analysis.output import write_whole
 from hub.protocol import (
     Description,
     MotorCommand,
@@ -102,7 +102,9 @@ def make_output_folder(path: str | Path, what: str) -> Path:
     except OSError as exc:
         raise OutputError(f"{what}: cannot make folder {path}: {_why_not(path, exc)}") from None
     if not os.access(path, os.W_OK | os.X_OK):
-        raise OutputError(f"{what}: cannot write in folder {path}: permission denied")
+        read_only = os.statvfs(path).f_flag & os.ST_RDONLY
+        why = "a read-only file system" if read_only else "permission denied"
+        raise OutputError(f"{what}: cannot write in folder {path}: {why}")
     return path
 
 
@@ -204,14 +206,7 @@ def experiment_text(source: str | Path | None) -> str | None:
 def write_manifest(run_dir: Path, manifest: dict[str, Any]) -> None:
     """Write ``manifest.json`` atomically (a reader never sees half a file; a write that
     fails, on a full disk, leaves the manifest as it was and no temporary file)."""
-    tmp = run_dir / (MANIFEST_FILE + ".tmp")
-    try:
-        tmp.write_text(json.dumps(manifest, indent=2, default=_json_default))
-        os.replace(tmp, run_dir / MANIFEST_FILE)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            tmp.unlink(missing_ok=True)
-        raise
+    write_whole(run_dir / MANIFEST_FILE, json.dumps(manifest, indent=2, default=_json_default))
 
 
 def _json_default(obj):
@@ -421,6 +416,9 @@ class RunRecord:
     run_dir: Path
     manifest: dict[str, Any]
     frames: list[Frame] = field(repr=False)
+    # each loop message kind decoded once: (direction, message) of the frames that decode,
+    # and how many of its frames did not
+    _decoded: dict[type, tuple[list, int]] = field(default_factory=dict, repr=False)
 
     @property
     def events(self) -> list[Frame]:
@@ -469,19 +467,47 @@ class RunRecord:
         return [f for f in self.frames if f.direction == "drop"]
 
     def decoded(self, kind: type, *directions: str) -> list:
-        """Valid messages of type ``kind`` with one of ``directions`` (default: all), in order."""
-        suffix = _SUFFIX[kind]
-        out = []
-        for f in self.frames:
-            if not isinstance(f.payload, bytes) or not f.key.endswith(suffix):
-                continue  # events, and drops stored capped
-            if directions and f.direction not in directions:
-                continue
-            try:
-                out.append(kind.decode(f.payload))
-            except ProtocolError:
-                continue
-        return out
+        """Valid messages of type ``kind`` with one of ``directions`` (default: all), in order.
+
+        A recorded message that does not decode is left out (it can only be damage: the hub
+        records what it sent, and what it took once checked); :meth:`damage_note` says
+        how many were.
+        """
+        messages, _ = self._decode(kind)
+        return [m for d, m in messages if not directions or d in directions]
+
+    def _decode(self, kind: type) -> tuple[list, int]:
+        if kind not in self._decoded:
+            suffix, messages, damaged = _SUFFIX[kind], [], 0
+            for f in self.frames:
+                if not isinstance(f.payload, bytes) or not f.key.endswith(suffix):
+                    continue  # events, and drops stored capped
+                if f.direction == "drop":
+                    continue  # refused when it came (version 1 records keep it whole)
+                try:
+                    messages.append((f.direction, kind.decode(f.payload)))
+                except ProtocolError:
+                    damaged += 1
+            self._decoded[kind] = (messages, damaged)
+        return self._decoded[kind]
+
+    def damaged(self) -> dict[str, int]:
+        """Recorded loop messages that no longer decode, by kind (none: empty)."""
+        counts = {kind.__name__: self._decode(kind)[1] for kind in _SUFFIX}
+        return {name: n for name, n in counts.items() if n}
+
+    def damage_note(self) -> str:
+        """What of the record is damaged and left out of what is read (empty: nothing)."""
+        damaged = self.damaged()
+        if not damaged:
+            return ""
+        kinds = ", ".join(f"{n} {name}" for name, n in damaged.items())
+        n = sum(damaged.values())
+        what = "1 recorded message is" if n == 1 else f"{n} recorded messages are"
+        return (
+            f"{what} damaged ({kinds}): no longer decoding, left out of what is read from "
+            "the record"
+        )
 
     def descriptions(self) -> dict[str, Description]:
         return {d.role: d for d in self.decoded(Description, "rx")}

@@ -189,7 +189,8 @@ def run_experiment(
         try:
             summary = after_run(result, cfg)
         except Exception as exc:  # the run is recorded whatever its summary does
-            log.exception("the summary of %s failed", result.run_dir)
+            if not isinstance(exc, OSError):  # a full disk needs no traceback; a bug does
+                log.exception("the summary of %s failed", result.run_dir)
             announce(f"the run's summary failed ({type(exc).__name__}: {exc}); its record is whole")
         else:
             for failure in summary.get("failures", []):

@@ -47,7 +47,7 @@ def export_nwb(run_dir: str | Path | Run, path: str | Path) -> Path:
     NWB file ``path``; return the path.
 
     A record cut short is exported as far as it goes, and its file's ``notes`` say so
-    (``record_short``).
+    (``record_short``); so are damaged messages left out (``record_damaged``).
 
     Raises
     ------
@@ -85,6 +85,8 @@ def export_nwb(run_dir: str | Path | Run, path: str | Path) -> Path:
         )
     if short:
         m = {**m, "record_short": short}
+    if damaged := run.record.damage_note():
+        m = {**m, "record_damaged": damaged}
     start = dt.datetime.fromisoformat(m["start_utc"]) if m.get("start_utc") else None
     nwb = NWBFile(
         session_description=f"NeuVision run {m.get('name')} (seed {m.get('seed')}): "

@@ -15,6 +15,7 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from hub.analysis.figures import FORMATS
+from hub.analysis.output import save_figure
 from hub.coding import CultureFrame
 from hub.decoding import WINDOW_MS
 from hub.protocol import MotorCommand, SensorReading, SpikeBatch, Stimulation
@@ -204,6 +205,6 @@ def _save(fig, out: Path) -> list[Path]:
     paths = []
     for fmt in FORMATS:
         path = out.with_suffix(f".{fmt}")
-        fig.savefig(path, dpi=120)
+        save_figure(fig, path, dpi=120)
         paths.append(path)
     return paths

@@ -25,10 +25,11 @@ import numpy as np
 
 from hub.analysis.figures import plot_raster
 from hub.analysis.network_bursts import NetworkBursts
+from hub.analysis.output import save_figure, write_whole
 from hub.protocol import Stimulation
 from hub.record import read_run, write_manifest
 from lab.behaviour import behaviour_metrics, world_of
-from sim_robot.render import save_trajectory
+from sim_robot.render import TRAJECTORY_SAVE, trajectory_figure
 
 log = logging.getLogger(__name__)
 
@@ -107,9 +108,8 @@ def summarize_run(run_dir: str | Path) -> dict:
             body = rec.descriptions().get("body")
             summary["behaviour"] = behaviour_metrics(t_s, poses, world, body)
             for suffix in (".png", ".svg") if world is not None else ():
-                path = save_trajectory(
-                    world, t_s, poses, run_dir / f"trajectory{suffix}", title=title
-                )
+                figure = trajectory_figure(world, t_s, poses, title=title)
+                path = save_figure(figure, run_dir / f"trajectory{suffix}", **TRAJECTORY_SAVE)
                 summary["figures"].append(path.name)
 
         attempt("behaviour and trajectory", behaviour)
@@ -127,7 +127,7 @@ def summarize_run(run_dir: str | Path) -> dict:
 
         attempt("raster", raster)
     summary["stimulation_pulses"] = _pulse_count(rec)
-    (run_dir / SUMMARY_FILE).write_text(json.dumps(summary, indent=2))
+    write_whole(run_dir / SUMMARY_FILE, json.dumps(summary, indent=2))
     if summary["failures"]:
         write_manifest(run_dir, {**m, "postrun_failures": summary["failures"]})
     return summary

@@ -30,6 +30,7 @@ import numpy as np
 
 from hub.analysis.figures import FORMATS, plot_all
 from hub.analysis.metrics import AnalysisParams, analyze
+from hub.analysis.output import save_figure, write_whole
 from hub.analysis.report import write_report
 from hub.analysis.spikes import AnalysisInputError
 from hub.decoding import WINDOW_MS
@@ -37,7 +38,7 @@ from hub.protocol import SpikeBatch, Stimulation
 from hub.record import DATA_DIRECTIONS, read_run
 from lab.behaviour import behaviour_metrics, world_of
 from lab.loop_figure import loop_series, plot_loop, plot_stimulation_sites
-from sim_robot.render import save_trajectory
+from sim_robot.render import TRAJECTORY_SAVE, trajectory_figure
 
 ANALYSIS_DIR = "analysis"
 METRICS_FILE = "metrics.json"
@@ -147,10 +148,8 @@ def _trajectory(rec, config: dict, out: Path, title: str, metrics: dict) -> list
             metrics[f"body_{key}"] = value
     if world is None:
         return []
-    return [
-        save_trajectory(world, t_s, poses, out / f"trajectory.{fmt}", title=title)
-        for fmt in FORMATS
-    ]
+    figure = trajectory_figure(world, t_s, poses, title=title)
+    return [save_figure(figure, out / f"trajectory.{fmt}", **TRAJECTORY_SAVE) for fmt in FORMATS]
 
 
 def analyze_run(run_dir, out_dir=None, params: AnalysisParams | None = None) -> dict:
@@ -220,6 +219,11 @@ def analyze_run(run_dir, out_dir=None, params: AnalysisParams | None = None) -> 
         metrics["nb_extents_stretched"] = stretched
     if short:
         metrics["record_short"] = short
+    if damaged := rec.damage_note():
+        metrics["record_damaged"] = damaged
+    # a run killed, interrupted or still going is analysed as far as it went: said here,
+    # for a script gathering metrics over runs
+    metrics["run_outcome"] = manifest.get("outcome", "unknown")
 
     stim_channels = None
     if stim_ids is not None and culture is not None and culture.channel is not None:
@@ -241,7 +245,7 @@ def analyze_run(run_dir, out_dir=None, params: AnalysisParams | None = None) -> 
         figures += plot_stimulation_sites(rec, series, out / "stimulation_sites")
 
     metrics_path = out / METRICS_FILE
-    metrics_path.write_text(json.dumps(metrics, indent=2))
+    write_whole(metrics_path, json.dumps(metrics, indent=2))
     timing = dict(manifest.get("timing") or {})
     for key in ("outcome", "reason", "start_utc", "end_utc", "steps"):
         if manifest.get(key) not in (None, ""):

@@ -149,6 +149,10 @@ def path_points(xy_m, step_m: float) -> np.ndarray:
     return keep if keep[-1] == len(xy) - 1 else np.append(keep, len(xy) - 1)
 
 
+#: how the trajectory picture is saved (``Figure.savefig`` options)
+TRAJECTORY_SAVE = {"dpi": 150, "bbox_inches": "tight"}
+
+
 def save_trajectory(world: World, t_s, poses, path, title: str | None = None) -> Path:
     """Save the trajectory picture (`trajectory_figure`).
 
@@ -168,5 +172,5 @@ def save_trajectory(world: World, t_s, poses, path, title: str | None = None) ->
     if path.suffix.lower() not in (".png", ".svg"):
         raise ValueError(f"path must end in .png or .svg, got {path.name!r}")
     fig = trajectory_figure(world, t_s, poses, title=title)
-    fig.savefig(path, dpi=150, bbox_inches="tight")
+    fig.savefig(path, **TRAJECTORY_SAVE)
     return path

@@ -20,6 +20,7 @@ from matplotlib.figure import Figure
 
 from hub.analysis.center_of_activity import Cat
 from hub.analysis.network_bursts import NetworkBursts, inter_burst_intervals_ms
+from hub.analysis.output import save_figure
 from hub.analysis.spikes import (
     EXCITATORY,
     INHIBITORY,
@@ -62,7 +63,7 @@ def _save(fig: Figure, out, formats, dpi) -> list[Path]:
         if fmt not in FORMATS:
             raise AnalysisInputError(f"formats must be among {FORMATS}, got {fmt!r}")
         path = base.with_name(f"{base.name}.{fmt}")
-        fig.savefig(path, format=fmt, dpi=dpi)
+        save_figure(fig, path, format=fmt, dpi=dpi)
         paths.append(path)
     return paths
 

@@ -15,6 +15,7 @@ from pathlib import Path
 
 from hub.analysis.glossary import FIGURES, METRICS, TIMING
 from hub.analysis.glossary import metric as glossary_entry
+from hub.analysis.output import write_whole
 from hub.analysis.spikes import AnalysisInputError
 
 _MIME = {".png": "image/png", ".svg": "image/svg+xml"}
@@ -156,5 +157,5 @@ def write_report(
     cfg = json.dumps(config, indent=2, sort_keys=True, default=str)
     parts += ["<h2>Configuration</h2>", f"<pre>{html.escape(cfg)}</pre>", "</body></html>"]
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text("\n".join(parts), encoding="utf-8")
+    write_whole(out, "\n".join(parts))
     return out

@@ -1,6 +1,7 @@
 """The command line: any bad input is one line on stderr and exit status 3, before a run
 folder or a process exists."""
 
+import errno
 import os
 import signal
 import subprocess
@@ -13,6 +14,9 @@ import pytest
 import hub.launch
 from hub import stopping
 from hub.cli import EXIT_CONFIG, main
+from hub.protocol import SpikeBatch
+from hub.record import Recorder, write_manifest
+from tests.windows import RUN
 
 CLOSED_LOOP = Path(__file__).resolve().parents[2] / "configs" / "closed_loop.toml"
 PNG = b"\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR\x00\x00\x00\x01\x00\x00\x00\x01\x08\x02"
@@ -365,6 +369,28 @@ def test_a_missing_certificate_is_a_config_error_before_any_folder(capsys, tmp_p
     )  # fmt: skip
     assert f"no ca file '{certs}/ca.pem' for the hub" in err
     assert f"neuvision certs {certs}" in err  # how to make it
+
+
+def test_a_full_disk_while_analysing_is_one_line_and_leaves_no_half_written_file(
+    capsys, tmp_path, monkeypatch
+):
+    write_manifest(tmp_path, {"outcome": "completed", "steps": 100,
+                              "config": {"loop": {"period_ms": 10.0}}})  # fmt: skip
+    rec = Recorder(tmp_path)
+    for k in range(100):
+        batch = SpikeBatch(step=k, run=RUN, t0_s=k * 0.01, t1_s=(k + 1) * 0.01)
+        rec.message("rx", "nv/s/culture/0/spikes", batch.encode())
+    rec.close()
+    write_bytes = Path.write_bytes
+
+    def full_disk(path, data):
+        write_bytes(path, data[:10])  # some of it, then no room
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(Path, "write_bytes", full_disk)
+    err = refused(capsys, ["analyze", str(tmp_path)])
+    assert f"cannot write the analysis in {tmp_path / 'analysis'}: No space left" in err
+    assert list((tmp_path / "analysis").iterdir()) == []
 
 
 @pytest.fixture

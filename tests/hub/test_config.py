@@ -296,5 +296,5 @@ def test_a_plain_experiment_name_is_a_folder_name(name):
     "name", ["", "a/b", "../../escape", "..", ".hidden", "a\\\\b", "a b", "a..b", "x" * 101]
 )
 def test_a_name_that_is_not_one_safe_folder_name_is_refused(name):
-    with pytest.raises(ConfigError, match=r"^experiment\.name must be 1 to 100 of letters"):
+    with pytest.raises(ConfigError, match=r"^experiment\.name must be 1 to 100 of ASCII letters"):
         load_config(None, [f'experiment.name="{name}"'])

@@ -100,13 +100,13 @@ def test_a_manifest_write_that_fails_leaves_the_manifest_as_it_was_and_no_stray_
     tmp_path, monkeypatch
 ):
     write_manifest(tmp_path, {"outcome": "running"})
-    write_text = Path.write_text
+    write_bytes = Path.write_bytes
 
-    def full_disk(path, text, *args, **kwargs):
-        write_text(path, text[:10], *args, **kwargs)  # some of it, then no room
+    def full_disk(path, data):
+        write_bytes(path, data[:10])  # some of it, then no room
         raise OSError(errno.ENOSPC, "No space left on device")
 
-    monkeypatch.setattr(Path, "write_text", full_disk)
+    monkeypatch.setattr(Path, "write_bytes", full_disk)
     with pytest.raises(OSError, match="No space left"):
         write_manifest(tmp_path, {"outcome": "completed"})
     monkeypatch.undo()

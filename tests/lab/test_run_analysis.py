@@ -198,15 +198,17 @@ def test_a_silent_culture_still_gets_metrics_and_report(tmp_path):
     assert out["report_path"].stat().st_size > 0
 
 
-def _silent_run(run_dir, recorded_steps: int, manifest_steps: int):
+def _silent_run(run_dir, recorded_steps: int, manifest_steps: int, damaged: int = -1):
+    """A run of silent steps; the reply of step ``damaged`` recorded damaged (no longer a
+    SpikeBatch)."""
     write_manifest(
         run_dir,
         {"name": "cut", "steps": manifest_steps, "config": {"loop": {"period_ms": 10.0}}},
     )
     rec = Recorder(run_dir)
     for k in range(recorded_steps):
-        batch = SpikeBatch(step=k, run=RUN, t0_s=k * 0.01, t1_s=(k + 1) * 0.01)
-        rec.message("rx", "nv/s/culture/0/spikes", batch.encode())
+        batch = SpikeBatch(step=k, run=RUN, t0_s=k * 0.01, t1_s=(k + 1) * 0.01).encode()
+        rec.message("rx", "nv/s/culture/0/spikes", batch if k != damaged else b"\x81\xa1x\x01")
     rec.close()
 
 
@@ -222,6 +224,21 @@ def test_a_record_cut_short_is_analysed_as_far_as_it_goes_and_says_so(tmp_path):
 def test_a_whole_record_has_no_note(tmp_path):
     _silent_run(tmp_path, recorded_steps=100, manifest_steps=100)
     assert "record_short" not in analyze_run(tmp_path)["metrics"]
+
+
+def test_a_damaged_message_is_left_out_counted_and_said(tmp_path):
+    _silent_run(tmp_path, recorded_steps=100, manifest_steps=100, damaged=99)
+    metrics = analyze_run(tmp_path)["metrics"]
+    assert metrics["record_damaged"].startswith("1 recorded message is damaged (1 SpikeBatch)")
+    assert metrics["duration_s"] == pytest.approx(0.99)  # the last batch's end: step 98's
+
+
+def test_metrics_say_how_the_run_ended(tmp_path):
+    _silent_run(tmp_path, recorded_steps=100, manifest_steps=100)
+    assert analyze_run(tmp_path)["metrics"]["run_outcome"] == "unknown"
+    manifest = json.loads((tmp_path / "manifest.json").read_text())
+    write_manifest(tmp_path, {**manifest, "outcome": "interrupted"})
+    assert analyze_run(tmp_path)["metrics"]["run_outcome"] == "interrupted"
 
 
 def test_a_record_that_holds_no_step_of_its_run_is_refused(tmp_path):
