@@ -138,6 +138,8 @@ class _Parser(argparse.ArgumentParser):
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The ``neuvision`` command line: every command's options and help (refused options
+    exit with status 3, see :data:`EXIT_CONFIG`)."""
     parser = _Parser(
         prog="neuvision",
         description="Closed-loop experiments between a spiking culture (simulated, or a real "
@@ -417,6 +419,18 @@ def _add_dashboard_commands(sub) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run one ``neuvision`` command and return its exit status.
+
+    Bad input (a config error, a missing run folder, an unwritable output folder) is one
+    line on stderr and status 3; a bus error 2; an interrupt while starting 130 (an
+    endpoint or observer: 0). Called from the main thread, it installs the signal handlers
+    that make SIGINT, SIGTERM (and, for ``run``/``hub``, SIGHUP) stop a command cleanly.
+
+    Parameters
+    ----------
+    argv : list of str, optional
+        The arguments after ``neuvision``; ``sys.argv[1:]`` when None.
+    """
     in_main_thread = threading.current_thread() is threading.main_thread()
     stopping.forget_start_signal()
     if in_main_thread and signal.getsignal(signal.SIGINT) in (
@@ -502,6 +516,8 @@ def _emit(text: str) -> None:
 
 
 def cmd_endpoint(args) -> int:
+    """``neuvision endpoint ROLE CONFIG``: serve one endpoint until stopped; the status
+    ``serve`` returns, or 2 on a device fault."""
     from hub.bus import check_security_files
     from hub.endpoint import DeviceFault
     from hub.launch import make_endpoint, settings_digest
@@ -527,6 +543,7 @@ def cmd_endpoint(args) -> int:
 
 
 def cmd_observe(args) -> int:
+    """``neuvision observe bursts CONFIG``: serve the burst observer until stopped."""
     from hub.burst_observer import main as observe_bursts
     from hub.bus import check_security_files
 
@@ -536,6 +553,16 @@ def cmd_observe(args) -> int:
 
 
 def cmd_hub(args, local: bool = False) -> int:
+    """``neuvision hub CONFIG``: run and record an experiment whose endpoints are started
+    elsewhere; 0 when it ends, 2 on a fault, 130 when interrupted.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The command's parsed arguments.
+    local : bool
+        Also start every ``launch = "local"`` endpoint (``neuvision run``).
+    """
     from lab.experiment import run_experiment
 
     result = run_experiment(
@@ -554,10 +581,12 @@ def cmd_hub(args, local: bool = False) -> int:
 
 
 def cmd_run(args) -> int:
+    """``neuvision run CONFIG``: :func:`cmd_hub` with the local endpoints started too."""
     return cmd_hub(args, local=True)
 
 
 def cmd_record_info(args) -> int:
+    """``neuvision record-info RUN_DIR``: :func:`record_summary` as JSON on stdout."""
     from hub.record import read_run
 
     run_dir = _run_folder(args.run_dir)
@@ -712,6 +741,7 @@ class ProgressBar:
             self.tty, self._last_line = False, math.inf
 
     def close(self) -> None:
+        """End the bar's line on a terminal, so that what follows starts a line of its own."""
         if self.tty:
             try:
                 self.stream.write("\n")
@@ -721,6 +751,8 @@ class ProgressBar:
 
 
 def cmd_compare(args) -> int:
+    """``neuvision compare CONFIG...``: run each condition over seeds and compare them; 2
+    when a run failed."""
     from lab.compare import CompareError, compare
 
     overrides = list(args.set or [])
@@ -735,6 +767,8 @@ def cmd_compare(args) -> int:
 
 
 def cmd_analyze(args) -> int:
+    """``neuvision analyze RUN_DIR``: analyse a recorded run (metrics, figures, report)
+    and print its metrics as JSON; an unfinished or running run is noted on stderr."""
     from hub.analysis.spikes import AnalysisInputError
     from hub.record import UNFINISHED, read_manifest
     from lab.run_analysis import ANALYSIS_DIR, analyze_run
@@ -767,6 +801,8 @@ def cmd_analyze(args) -> int:
 
 
 def cmd_reproduce(args) -> int:
+    """``neuvision reproduce``: the paper's validation of the simulated culture, for one
+    seed or several (``--seeds``), in ``--out`` or a new folder under ``runs``."""
     from hub.record import new_run_dir
     from lab.reproduce import DEFAULT_CULTURE, reproduce, reproduce_seeds
     from lab.seeds import parse_seeds
@@ -791,6 +827,8 @@ def cmd_reproduce(args) -> int:
 
 
 def cmd_export(args) -> int:
+    """``neuvision export RUN_DIR --nwb FILE``: write a recorded run as an NWB file
+    (replacing one there)."""
     from lab.experiment import Run
     from lab.export_nwb import ExportError, export_nwb
 
@@ -822,6 +860,8 @@ _INTAN_ONLY = ("culture", "command_port", "spike_port", "realtime_priority")
 
 
 def cmd_emulate(args) -> int:
+    """``neuvision emulate khepera|intan``: serve an emulated device until signalled;
+    the other device's options are refused."""
     from adapters.khepera.calibration import IRCalibration
     from adapters.khepera.emulator import KheperaEmulator, run_until_signalled
     from adapters.khepera.link import BAUDS
@@ -913,6 +953,8 @@ def _check_link(link: Path) -> None:
 
 
 def cmd_certs(args) -> int:
+    """``neuvision certs DIR``: make the certificate authority, each role's certificate
+    and, with ``--passwords``, their passwords; the files written, one a line on stdout."""
     try:
         from hub.certs import MAX_DAYS, CertsError, make_certificates, make_passwords
     except ImportError:
@@ -942,6 +984,9 @@ def cmd_certs(args) -> int:
 
 
 def cmd_dashboard(args) -> int:
+    """``neuvision dashboard [CONFIG]``: serve the live dashboard (following the session's
+    hub on this machine when no address is given), or ``--replay`` a recorded run; 2 when
+    it cannot serve."""
     try:
         from dashboard.app import run_dashboard
         from dashboard.replay import ReplayError
@@ -1019,6 +1064,8 @@ def _hub_config(args):
 
 
 def cmd_ctl(args) -> int:
+    """``neuvision ctl CMD``: send a control command to a running hub and print its reply
+    as JSON; 0 when the hub took it, 2 when it refused it or none answered."""
     from hub.ctl import ctl
 
     cfg, not_found = _hub_config(args)

@@ -146,6 +146,7 @@ class FakeHub:
     # ------------------------------------------------------------ queries
 
     def describe(self) -> Description:
+        """Query the endpoint's description now (it must answer exactly once)."""
         replies = wire.get(
             self.session, self.keys.describe(self.role, self.id), timeout_s=REPLY_TIMEOUT_S
         )
@@ -153,9 +154,11 @@ class FakeHub:
         return Description.decode(replies[0])
 
     def counters(self) -> dict:
+        """The counters of a fresh description (``{}`` when it has none)."""
         return self.describe().counters or {}
 
     def dropped(self) -> dict:
+        """The inputs the endpoint has dropped so far, counted by kind."""
         return dict(self.counters().get("dropped", {}))
 
     def _run_query(self, message: Message) -> RunReply:
@@ -187,9 +190,19 @@ class FakeHub:
         return reply
 
     def hold(self, hold: bool, run: str | None = None) -> RunReply:
+        """Pause (``hold=True``) or resume a run with ``RunHold``; the endpoint's reply.
+
+        Parameters
+        ----------
+        hold : bool
+            True pauses, False resumes.
+        run : str, optional
+            The run's id; the current run's when not given.
+        """
         return self._run_query(RunHold(run=run or self.run.run, hold=hold))
 
     def end(self, outcome: str = "completed") -> RunReply:
+        """End the current run with ``RunEnd`` of ``outcome``; the endpoint's reply."""
         reply = self._run_query(RunEnd(run=self.run.run, outcome=outcome))
         return reply
 
@@ -199,7 +212,17 @@ class FakeHub:
         self, step: int, run: str | None = None, period_ms: float | None = None
     ) -> StepWindow:
         """Step ``step``'s window in the current run (or ``run``), at the run's period
-        (or ``period_ms``: a window that is not the run's)."""
+        (or ``period_ms``: a window that is not the run's).
+
+        Parameters
+        ----------
+        step : int
+            The step.
+        run : str, optional
+            Another run's id.
+        period_ms : float, optional
+            Another period.
+        """
         period_ms = self.run.period_ms if period_ms is None else period_ms
         return StepWindow.of(run or self.run.run, step, period_ms / 1e3)
 
@@ -211,8 +234,20 @@ class FakeHub:
         pulse: bool = False,
         period_ms: float | None = None,
     ) -> Message:
-        """An input of ``step`` within the endpoint's limits (a culture: one pulse if
-        asked), in the run's window of that step (or the window at ``period_ms``)."""
+        """An input of ``step`` within the endpoint's limits, in the run's window of that
+        step: a body's wheels both at 0.01 m/s (or its limit), a culture's stimulation.
+
+        Parameters
+        ----------
+        step : int
+            The step.
+        run : str, optional
+            Another run's id for the window.
+        pulse : bool
+            A culture's input holds one pulse (on its first channel) instead of none.
+        period_ms : float, optional
+            Another period for the window (an input the endpoint should drop).
+        """
         w = self.window(step, run, period_ms)
         d = self.description
         if self.role == "body":
@@ -246,8 +281,16 @@ class FakeHub:
         )
 
     def send(self, message: Message | bytes, *, key: bytes | None | str = "run") -> None:
-        """Put an input: sealed with the run's key (default), another ``key``, or unsealed
-        (``key=None``, no attachment at all)."""
+        """Put an input on the endpoint's input key.
+
+        Parameters
+        ----------
+        message : Message or bytes
+            The input, or a payload as it is to go on the bus.
+        key : bytes, None or "run"
+            ``"run"`` seals it with the current run's key; bytes with that key; None puts
+            it unsealed (no attachment at all).
+        """
         payload = message if isinstance(message, bytes) else message.encode()
         if key is None:
             self.publisher.put(payload)
@@ -298,7 +341,22 @@ class FakeHub:
 
 
 def check_reply(output: Message, window: StepWindow) -> None:
-    """The reply to an input of ``window``: same run and step, the input's window."""
+    """Assert that ``output`` answers an input of ``window``: same run and step, and the
+    input's window (spikes: ``t0_s``/``t1_s`` within :data:`WINDOW_TOLERANCE_S`; sensors:
+    read by ``t1_s``).
+
+    Parameters
+    ----------
+    output : Message
+        The endpoint's reply.
+    window : StepWindow
+        The input's window.
+
+    Raises
+    ------
+    AssertionError
+        Naming what does not match.
+    """
     assert output.run == window.run, f"reply of run {output.run!r}, not {window.run!r}"
     assert output.step == window.step, f"reply of step {output.step}, not {window.step}"
     if isinstance(output, SpikeBatch):

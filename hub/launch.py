@@ -54,7 +54,21 @@ NEUVISION = (sys.executable, "-P", "-m", "hub.cli")
 
 
 def endpoint_class(role: str, kind: str) -> type[Endpoint]:
-    """The endpoint class for ``<role>.kind`` (a short name or ``module:Class``)."""
+    """The endpoint class for ``<role>.kind``, imported.
+
+    Parameters
+    ----------
+    role : str
+        ``"body"`` or ``"culture"``: the class must serve that role.
+    kind : str
+        A short name of :data:`ENDPOINT_KINDS` or ``module:Class``.
+
+    Raises
+    ------
+    ConfigError
+        Naming ``<role>.kind``: not of that form, not importable, or not an endpoint of
+        ``role``.
+    """
     spec = ENDPOINT_KINDS.get(kind, kind)
     module_name, sep, attr = spec.partition(":")
     if not sep:
@@ -75,6 +89,20 @@ def check_endpoint(cls: type[Endpoint], section: EndpointSection, cfg: Experimen
     A class without ``check_config`` has its params returned as given (its
     ``from_config`` checks them when the endpoint starts), except that a class keeping the
     base ``from_config`` takes no parameters at all.
+
+    Parameters
+    ----------
+    cls : type of Endpoint
+        The section's class (:func:`endpoint_class`).
+    section : EndpointSection
+        The endpoint's section of the experiment.
+    cfg : ExperimentConfig
+        The whole experiment, for checks that need more than the section.
+
+    Raises
+    ------
+    ConfigError
+        Naming ``<role>.params.<key>``.
     """
     check = getattr(cls, "check_config", None)
     if check is not None:
@@ -94,6 +122,13 @@ def resolve_endpoints(cfg: ExperimentConfig, local_only: bool = False) -> Experi
     checked when its class loads on this machine (a device's package may live only where
     the device is); otherwise its params are kept as given (``local_only`` skips external
     endpoints altogether).
+
+    Parameters
+    ----------
+    cfg : ExperimentConfig
+        The experiment as loaded.
+    local_only : bool
+        Leave external endpoints' sections out of the check (kept as given).
 
     Raises
     ------
@@ -122,7 +157,15 @@ def settings_digest(cfg: ExperimentConfig, role: str) -> str | None:
     endpoint serves, compared by the hub with its own (an endpoint started with another
     experiment file, other ``--set`` items or another seed is refused before the run).
     Resolving is idempotent, so a hub's resolved config gives the digest of the files it was
-    made from. None when the kind does not load here or its params do not check."""
+    made from. None when the kind does not load here or its params do not check.
+
+    Parameters
+    ----------
+    cfg : ExperimentConfig
+        The experiment, resolved or not.
+    role : str
+        ``"body"`` or ``"culture"``.
+    """
     section = cfg.endpoint(role)
     try:
         params = check_endpoint(endpoint_class(role, section.kind), section, cfg)
@@ -138,12 +181,30 @@ def settings_digest(cfg: ExperimentConfig, role: str) -> str | None:
 
 
 def make_endpoint(cfg: ExperimentConfig, role: str) -> Endpoint:
+    """The endpoint of ``role`` built by its kind's ``from_config`` (not yet serving).
+
+    Parameters
+    ----------
+    cfg : ExperimentConfig
+        The experiment.
+    role : str
+        ``"body"`` or ``"culture"``.
+
+    Raises
+    ------
+    ConfigError
+        The kind does not load, or its ``from_config`` refuses the section.
+    """
     section = cfg.endpoint(role)
     return endpoint_class(role, section.kind).from_config(section, cfg)
 
 
 @dataclass
 class LocalProcess:
+    """A child process started by this module: its role (``body``, ``culture``,
+    ``observer`` or ``dashboard``), its ``Popen`` and the log its output goes to (None:
+    discarded)."""
+
     role: str
     popen: subprocess.Popen
     log_path: Path | None
@@ -165,7 +226,26 @@ def die_with_parent() -> None:
 def start_local_endpoints(
     config_path: str | None, overrides: list[str], cfg: ExperimentConfig, log_dir: Path | None
 ) -> list[LocalProcess]:
-    """Start every ``launch = "local"`` endpoint as ``neuvision endpoint ROLE``."""
+    """Start every ``launch = "local"`` endpoint as ``neuvision endpoint ROLE``, a child
+    that ends with this process (call from the main thread, before opening a Zenoh
+    session: see :func:`die_with_parent` and the module docstring).
+
+    Parameters
+    ----------
+    config_path : str or None
+        The experiment file the children read.
+    overrides : list of str
+        The ``--set`` items they are given, as the runner was.
+    cfg : ExperimentConfig
+        The experiment, which says which endpoints are local.
+    log_dir : Path or None
+        Where each writes ``<role>.log``; None discards their output.
+
+    Raises
+    ------
+    ConfigError
+        A local endpoint's kind does not load (checked before any child starts).
+    """
     procs = []
     for role in ("body", "culture"):
         if cfg.endpoint(role).launch != "local":
@@ -181,7 +261,18 @@ def start_burst_observer(
 ) -> LocalProcess:
     """Start ``neuvision observe bursts --once`` on the hub's bus, off the CPUs kept for the
     hub (``loop.cpus``) where others are left. The hub starts it for a run with
-    ``online.launch = "local"``."""
+    ``online.launch = "local"``.
+
+    Parameters
+    ----------
+    bus : BusSection
+        The hub's bus; the observer connects where the hub listens, unless
+        ``bus.connect`` says where.
+    log_dir : Path or None
+        Where it writes ``observer.log``; None discards its output.
+    hub_cpus : sequence of int
+        The CPUs kept for the hub; empty: no affinity is set.
+    """
     overrides = [f"bus.{k}={json.dumps(v)}" for k, v in dataclasses.asdict(bus).items()]
     # It reaches the hub where the hub listens (a wildcard address: on this machine).
     connect = [re.sub(r"/(0\.0\.0\.0|\[::\]):", "/127.0.0.1:", a) for a in bus.listen]
@@ -262,13 +353,33 @@ def start_local_dashboard(
     config_path: str | None, overrides: list[str], port: int, log_dir: Path | None
 ) -> LocalProcess:
     """Start ``neuvision dashboard`` on the run's bus, serving on ``port``; it ends with its
-    runner (like the endpoints, started before the hub opens its session)."""
+    runner (like the endpoints, started before the hub opens its session).
+
+    Parameters
+    ----------
+    config_path : str or None
+        The experiment file it reads.
+    overrides : list of str
+        The ``--set`` items it is given.
+    port : int
+        Where it serves (:func:`dashboard_address`).
+    log_dir : Path or None
+        Where it writes ``dashboard.log``; None discards its output.
+    """
     command = ["dashboard", "--port", str(port)]
     return _start_local("dashboard", command, config_path, overrides, log_dir)
 
 
 def stop_local_endpoints(procs: list[LocalProcess], timeout_s: float = 10.0) -> dict[str, int]:
-    """SIGTERM each, wait, SIGKILL what is left; return the exit codes by role."""
+    """SIGTERM each, wait, SIGKILL what is left; return the exit codes by role.
+
+    Parameters
+    ----------
+    procs : list of LocalProcess
+        The children to stop (those already ended just give their code).
+    timeout_s : float
+        How long all of them together have to end before SIGKILL.
+    """
     for p in procs:
         if p.popen.poll() is None:
             p.popen.send_signal(signal.SIGTERM)
@@ -286,7 +397,18 @@ def stop_local_endpoints(procs: list[LocalProcess], timeout_s: float = 10.0) -> 
 def watch_local_endpoints(procs: list[LocalProcess], on_exit) -> threading.Event:
     """Call ``on_exit(message)`` once if a local endpoint process ends on its own.
 
-    Returns an event; set it to stop watching (before stopping the processes).
+    Parameters
+    ----------
+    procs : list of LocalProcess
+        The children to watch (polled every 0.1 s from a daemon thread).
+    on_exit : callable
+        Called from that thread with one line: which ended, its status and its log's last
+        line.
+
+    Returns
+    -------
+    threading.Event
+        Set it to stop watching (before stopping the processes).
     """
     done = threading.Event()
 

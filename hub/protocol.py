@@ -72,7 +72,15 @@ class ProtocolError(ValueError):
 
 def key_chunk_problem(text: str, what: str) -> str:
     """Why ``text`` cannot be one chunk of a key expression (a session name, an endpoint's
-    id), or "" when it can."""
+    id), or "" when it can.
+
+    Parameters
+    ----------
+    text : str
+        The candidate chunk.
+    what : str
+        What it names, to begin the message with (``"session name"``).
+    """
     if not text:
         return f"{what} is needed (it may not be empty)"
     bad = set("/*$?#") & set(text)
@@ -97,26 +105,47 @@ class Keys:
 
     @property
     def root(self) -> str:
+        """``nv/<session>``, the prefix of every key of the session."""
         return f"nv/{self.session}"
 
     def input(self, role: str, id: str) -> str:
-        """Hub → endpoint: motor commands for a body, stimulation for a culture."""
+        """Hub → endpoint: motor commands for a body, stimulation for a culture.
+
+        Parameters
+        ----------
+        role : str
+            ``"body"``; any other role is taken for a culture.
+        id : str
+            The endpoint's id.
+        """
         return self.motor(id) if role == "body" else self.stim(id)
 
     def output(self, role: str, id: str) -> str:
-        """Endpoint → hub: sensor readings of a body, spikes of a culture."""
+        """Endpoint → hub: sensor readings of a body, spikes of a culture.
+
+        Parameters
+        ----------
+        role : str
+            ``"body"``; any other role is taken for a culture.
+        id : str
+            The endpoint's id.
+        """
         return self.sensors(id) if role == "body" else self.spikes(id)
 
     def motor(self, id: str) -> str:
+        """Hub → body ``id``: its ``MotorCommand``."""
         return f"{self.root}/body/{id}/motor"
 
     def sensors(self, id: str) -> str:
+        """Body ``id`` → hub: its ``SensorReading``."""
         return f"{self.root}/body/{id}/sensors"
 
     def stim(self, id: str) -> str:
+        """Hub → culture ``id``: its ``Stimulation``."""
         return f"{self.root}/culture/{id}/stim"
 
     def spikes(self, id: str) -> str:
+        """Culture ``id`` → hub: its ``SpikeBatch``."""
         return f"{self.root}/culture/{id}/spikes"
 
     @property
@@ -128,16 +157,43 @@ class Keys:
         return f"{self.root}/*/*/s$*s"
 
     def potentials(self, id: str) -> str:
+        """Simulated culture ``id`` → observers: its ``Potentials`` snapshots."""
         return f"{self.root}/culture/{id}/potentials"
 
     def describe(self, role: str, id: str) -> str:
+        """Queryable of each endpoint: its ``Description``.
+
+        Parameters
+        ----------
+        role : str
+            ``"body"`` or ``"culture"``; ``"*"`` for a key expression of any.
+        id : str
+            The endpoint's id, or ``"*"``.
+        """
         return f"{self.root}/{role}/{id}/describe"
 
     def run(self, role: str, id: str) -> str:
-        """Queryable of each endpoint: the hub's ``RunStart`` / ``RunEnd`` → ``RunReply``."""
+        """Queryable of each endpoint: the hub's ``RunStart`` / ``RunEnd`` → ``RunReply``.
+
+        Parameters
+        ----------
+        role : str
+            ``"body"`` or ``"culture"``; ``"*"`` for a key expression of any.
+        id : str
+            The endpoint's id, or ``"*"``.
+        """
         return f"{self.root}/{role}/{id}/run"
 
     def alive(self, role: str, id: str) -> str:
+        """The liveliness token of a participant: ``nv/<session>/alive/<role>/<id>``.
+
+        Parameters
+        ----------
+        role : str
+            An endpoint's role, ``"hub"`` or ``"observer"`` (see :meth:`parse_alive`).
+        id : str
+            Its id (an observer's name), or ``"*"``.
+        """
         return f"{self.root}/alive/{role}/{id}"
 
     @property
@@ -147,14 +203,18 @@ class Keys:
 
     @property
     def alive_all(self) -> str:
+        """Every liveliness token of the session (endpoints, hub, observers)."""
         return f"{self.root}/alive/**"
 
     @property
     def hub_status(self) -> str:
+        """Hub → observers: ``HubStatus``, published a few times a second and answered
+        on query."""
         return f"{self.root}/hub/status"
 
     @property
     def hub_control(self) -> str:
+        """Queryable of the hub: a ``ControlRequest`` → ``ControlReply`` (hub/ctl.py)."""
         return f"{self.root}/hub/control"
 
     @property
@@ -553,6 +613,8 @@ class Message:
         raise NotImplementedError
 
     def encode(self) -> bytes:
+        """This message as msgpack bytes, as it goes on the bus. Any thread may call it
+        (each packs with a ``Packer`` of its own)."""
         try:
             pack = _PER_THREAD.pack
         except AttributeError:  # this thread's first message (packb builds a Packer per call)
@@ -851,17 +913,36 @@ class StepWindow:
 
     @classmethod
     def of(cls, run: str, step: int, period_s: float) -> StepWindow:
-        """Step ``step`` of a run with period ``period_s``: ``[step·T, (step+1)·T)``."""
+        """Step ``step`` of a run with period ``period_s``: ``[step·T, (step+1)·T)``.
+
+        Parameters
+        ----------
+        run : str
+            The run's id.
+        step : int
+            The step, from 0.
+        period_s : float
+            The run's period ``T``.
+        """
         return cls(run, step, *cls.bounds_s(step, period_s))
 
     @staticmethod
     def bounds_s(step: int, period_s: float) -> tuple[float, float]:
         """``(t0_s, t1_s)`` of step ``step`` at period ``period_s`` (what :meth:`of`
-        builds on; for checks that need the times alone)."""
+        builds on; for checks that need the times alone).
+
+        Parameters
+        ----------
+        step : int
+            The step, from 0.
+        period_s : float
+            The run's period.
+        """
         return step * period_s, (step + 1) * period_s
 
     @property
     def period_s(self) -> float:
+        """The window's length, ``t1_s - t0_s``."""
         return self.t1_s - self.t0_s
 
     @property
@@ -911,6 +992,7 @@ class MotorCommand(Message):
 
     @property
     def window(self) -> StepWindow:
+        """The step window this command is for."""
         return StepWindow(self.run, self.step, self.t0_s, self.t1_s)
 
 
@@ -979,10 +1061,12 @@ class Stimulation(Message):
 
     @property
     def window(self) -> StepWindow:
+        """The step window the pulses are for."""
         return StepWindow(self.run, self.step, self.t0_s, self.t1_s)
 
     @property
     def n_pulses(self) -> int:
+        """How many pulses this message carries."""
         return int(self.channel.size)
 
 
@@ -1023,6 +1107,7 @@ class SpikeBatch(Message):
 
     @property
     def window(self) -> StepWindow:
+        """The step window the spikes were fired in."""
         return StepWindow(self.run, self.step, self.t0_s, self.t1_s)
 
     def _check(self):
@@ -1052,7 +1137,15 @@ class SpikeBatch(Message):
 
 def merge_parts(parts: list[SpikeBatch], batch: SpikeBatch) -> SpikeBatch:
     """A window's spikes in one batch: its streamed ``parts`` and its final ``batch``
-    (which keeps its late spikes), in time order."""
+    (which keeps its late spikes), in time order.
+
+    Parameters
+    ----------
+    parts : list of SpikeBatch
+        The window's parts (``partial=True``) as they came; empty returns ``batch`` itself.
+    batch : SpikeBatch
+        The window's final batch.
+    """
     if not parts:
         return batch
     every = [*parts, batch]
@@ -1151,6 +1244,7 @@ class Description(Message):
 
     @property
     def n_sensors(self) -> int:
+        """How many range finders a body has (a body's description only)."""
         return int(self.sensor_angles_rad.size)
 
 
@@ -1293,6 +1387,7 @@ class RunStart(Message):
 
     @property
     def period_s(self) -> float:
+        """The run's period in s."""
         return self.period_ms / 1e3
 
     def window(self, step: int) -> StepWindow:

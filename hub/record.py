@@ -78,6 +78,7 @@ _DROP_FRAME_OVERHEAD_BYTES = 40  # time, direction, map keys and msgpack headers
 
 
 def utc_now() -> str:
+    """The time now, UTC, in ISO 8601 to the millisecond (the manifest's times)."""
     return _dt.datetime.now(_dt.UTC).isoformat(timespec="milliseconds")
 
 
@@ -89,12 +90,18 @@ class OutputError(Exception):
 def make_output_folder(path: str | Path, what: str) -> Path:
     """Make the folder ``path`` (and its parents) unless it is there; return it.
 
+    Parameters
+    ----------
+    path : str or Path
+        The folder.
+    what : str
+        Where the path came from, for the error (``--out``, ``experiment.runs_dir``).
+
     Raises
     ------
     OutputError
         It cannot be made (a file in the way, a parent missing on a read-only file system)
-        or written in; ``what`` names where the path came from (``--out``,
-        ``experiment.runs_dir``).
+        or written in.
     """
     path = Path(path)
     try:
@@ -118,8 +125,24 @@ def _why_not(path: Path, exc: OSError) -> str:
 
 
 def new_run_dir(runs_dir: str | Path, name: str, what: str = "experiment.runs_dir") -> Path:
-    """Create ``runs_dir/<UTC time>-<name>[-n]`` and return it (OutputError naming ``what``
-    when ``runs_dir`` cannot hold it)."""
+    """Create ``runs_dir/<UTC time>-<name>[-n]`` and return it.
+
+    Parameters
+    ----------
+    runs_dir : str or Path
+        Where run folders go (made if missing).
+    name : str
+        The run's name, after the time (``-1``, ``-2``... added when one is taken).
+    what : str
+        Where ``runs_dir`` came from, for the error.
+
+    Raises
+    ------
+    OutputError
+        ``runs_dir`` cannot be made or written in.
+    FileExistsError
+        The time and name are taken a thousand times over.
+    """
     make_output_folder(runs_dir, what)
     stamp = _dt.datetime.now(_dt.UTC).strftime("%Y%m%d-%H%M%S")
     base = Path(runs_dir) / f"{stamp}-{name}"
@@ -205,7 +228,15 @@ def experiment_text(source: str | Path | None) -> str | None:
 
 def write_manifest(run_dir: Path, manifest: dict[str, Any]) -> None:
     """Write ``manifest.json`` atomically (a reader never sees half a file; a write that
-    fails, on a full disk, leaves the manifest as it was and no temporary file)."""
+    fails, on a full disk, leaves the manifest as it was and no temporary file).
+
+    Parameters
+    ----------
+    run_dir : Path
+        The run's folder.
+    manifest : dict
+        The manifest; numpy scalars and arrays in it are written as plain JSON.
+    """
     write_whole(run_dir / MANIFEST_FILE, json.dumps(manifest, indent=2, default=_json_default))
 
 
@@ -228,7 +259,17 @@ class Recorder:
     A write that fails raises :class:`RecordError`.
 
     Frames are held, and packed and written by :meth:`tick` (or once HELD_FRAMES are
-    held), so that recording a message costs the loop's critical path one append."""
+    held), so that recording a message costs the loop's critical path one append.
+
+    Parameters
+    ----------
+    run_dir : str or Path
+        The run's folder; the record is appended to its ``record.nvrec``.
+    flush_s : float
+        Longest time between flushes, in s: it bounds what a crash may lose.
+    drop_budget_bytes : int
+        What the dropped payloads stored may take in all; past it drops are only counted.
+    """
 
     def __init__(
         self,
@@ -274,7 +315,19 @@ class Recorder:
         """Record a message sent or received, with the loop's verdict on it.
 
         A ``drop`` is stored capped (head, length, digest) while the run's drop budget
-        lasts, and only counted past it."""
+        lasts, and only counted past it.
+
+        Parameters
+        ----------
+        direction : str
+            One of :data:`DIRECTIONS` but ``ev``.
+        key : str
+            The key expression it was sent or received on.
+        payload : bytes
+            The message as it went on the bus.
+        t_wall_ns : int, optional
+            When it was sent or received (``time.time_ns``); now when not given.
+        """
         if direction == "drop":
             self._drop(key, payload, t_wall_ns)
             return
@@ -362,6 +415,9 @@ class Dropped:
 
 @dataclass
 class Frame:
+    """One frame of a record: a message or an event, when (wall clock, ns) and how the
+    loop took it (``direction``, one of :data:`DIRECTIONS`)."""
+
     t_wall_ns: int
     direction: str  # one of DIRECTIONS
     key: str
@@ -422,6 +478,7 @@ class RunRecord:
 
     @property
     def events(self) -> list[Frame]:
+        """The hub's events (``ev`` frames: the name in ``key``, details in ``payload``)."""
         return [f for f in self.frames if f.direction == "ev"]
 
     def steps_recorded(self) -> int:
@@ -467,11 +524,19 @@ class RunRecord:
         return [f for f in self.frames if f.direction == "drop"]
 
     def decoded(self, kind: type, *directions: str) -> list:
-        """Valid messages of type ``kind`` with one of ``directions`` (default: all), in order.
+        """Valid messages of one type, in the record's order.
 
         A recorded message that does not decode is left out (it can only be damage: the hub
         records what it sent, and what it took once checked); :meth:`damage_note` says
         how many were.
+
+        Parameters
+        ----------
+        kind : type
+            ``MotorCommand``, ``SensorReading``, ``Stimulation``, ``SpikeBatch`` or
+            ``Description`` (told apart by their key).
+        *directions : str
+            The directions to keep (:data:`DIRECTIONS`); all when none is given.
         """
         messages, _ = self._decode(kind)
         return [m for d, m in messages if not directions or d in directions]
@@ -510,6 +575,7 @@ class RunRecord:
         )
 
     def descriptions(self) -> dict[str, Description]:
+        """The endpoints' descriptions the hub received, by role (the last of each role)."""
         return {d.role: d for d in self.decoded(Description, "rx")}
 
     def spikes(self) -> tuple[np.ndarray, np.ndarray]:

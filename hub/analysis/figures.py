@@ -249,7 +249,39 @@ def plot_connectivity(
 ) -> list[Path]:
     """Connections drawn as lines: colour by the presynaptic type (red exc, blue inh),
     transparency by |weight|. With ``neuron``, only its inputs (``direction="in"``), outputs
-    (``"out"``) or both. Above ``max_links`` links an evenly spaced subset is drawn."""
+    (``"out"``) or both. Above ``max_links`` links an evenly spaced subset is drawn.
+
+    Parameters
+    ----------
+    pre, post : int array_like[m]
+        Each link's presynaptic and postsynaptic neuron.
+    x_um, y_um : float array_like[n_neurons]
+        The neurons' positions.
+    out : matplotlib Axes or path
+        Where to draw (see the module docstring).
+    weight : float array_like[m], optional
+        Each link's weight; without it every link is drawn alike.
+    cell_type : uint8[n_neurons], optional
+        Colours by type; without it every link is drawn alike.
+    neuron : int, optional
+        Draw only this neuron's links, and ring it.
+    direction : {"in", "out", "both"}
+        Which of ``neuron``'s links.
+    max_links : int
+        The most links drawn.
+    formats : tuple of str
+        File formats with a path ``out``.
+
+    Returns
+    -------
+    list of Path
+        The files written (``[]`` when drawing into an Axes).
+
+    Raises
+    ------
+    AnalysisInputError
+        ``pre``, ``post`` and ``weight`` differ in shape, or ``direction`` is none of the three.
+    """
     pre = np.asarray(pre, dtype=np.int64)
     post = np.asarray(post, dtype=np.int64)
     x = np.asarray(x_um, dtype=np.float64)
@@ -456,6 +488,28 @@ def plot_cats(
 
     Channel positions are drawn as small dots (red exc, blue inh); ``stim_channels`` are
     ringed; each CAT's first point is a black dot.
+
+    Parameters
+    ----------
+    cats : list of Cat
+        The trajectories (empty ones are left out).
+    x_um, y_um : float array_like[n_channels]
+        Channel positions.
+    out : matplotlib Axes or path
+        Where to draw (see the module docstring).
+    cell_type : uint8[n_channels], optional
+        Colours the channels by type.
+    stim_channels : int array_like, optional
+        Channels to ring as stimulated.
+    title : str, optional
+        Default: the number of trajectories drawn.
+    formats : tuple of str
+        File formats with a path ``out``.
+
+    Returns
+    -------
+    list of Path
+        The files written (``[]`` when drawing into an Axes).
     """
     x = np.asarray(x_um, dtype=np.float64)
     y = np.asarray(y_um, dtype=np.float64)

@@ -159,5 +159,13 @@ FIGURES: dict[str, str] = {
 
 
 def metric(key: str, table: dict[str, tuple[str, str]] = METRICS) -> tuple[str, str]:
-    """``(label, definition)`` of ``key``; the key itself and "" when not listed."""
+    """``(label, definition)`` of ``key``; the key itself and "" when not listed.
+
+    Parameters
+    ----------
+    key : str
+        The key, as in ``metrics.json`` or the manifest's timing.
+    table : dict
+        Where to look it up: :data:`METRICS` or :data:`TIMING`.
+    """
     return table.get(key, (key, ""))

@@ -103,6 +103,7 @@ class NetworkBursts:
 
     @property
     def duration_ms(self) -> np.ndarray:
+        """Each network burst's extent, end minus start (ms)."""
         return self.end_ms - self.start_ms
 
     @property

@@ -76,6 +76,7 @@ class NetworkBurst:
 
     @property
     def duration_ms(self) -> float:
+        """Its extent, end minus start (ms)."""
         return self.end_ms - self.start_ms
 
 

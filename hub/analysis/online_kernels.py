@@ -17,7 +17,23 @@ from numba import njit
 def add_spikes(ch, t, q_t, q_core, q_head, q_len, min_spikes, window_ms):
     """Queue spikes (sorted by time) on their channels, marking every spike of a run of
     ``min_spikes`` spanning ``<= window_ms`` as core. Returns how many were queued: fewer
-    than all when a channel's buffer is full (grow it and queue the rest)."""
+    than all when a channel's buffer is full (grow it and queue the rest).
+
+    Parameters
+    ----------
+    ch : int array[k]
+        Each spike's channel.
+    t : float64[k]
+        Each spike's time (ms), ascending.
+    q_t, q_core : float64[n_channels, cap], bool[n_channels, cap]
+        The ring buffers of queued spikes' times and core marks (updated in place).
+    q_head, q_len : int64[n_channels]
+        Each buffer's first slot and length (updated in place).
+    min_spikes : int
+        Spikes of a core run.
+    window_ms : float
+        The longest span of a core run.
+    """
     cap = q_t.shape[1]
     for i in range(ch.size):
         c = ch[i]
@@ -70,8 +86,33 @@ def advance_bursts(
     start, end, spike count; room for every queued spike plus one per channel).
     ``open_n[c] == 0``: no open burst on ``c``.
 
-    Returns the number of bursts completed, and the time before which every burst start
-    is known (the earliest open burst start or queued spike, else ``w_ms``)."""
+    Parameters
+    ----------
+    w_ms : float
+        The new watermark: no spike before it is still to come.
+    q_t, q_core, q_head, q_len
+        The queues, as for :func:`add_spikes` (updated in place).
+    open_start, open_last : float64[n_channels]
+        Each channel's open burst: its first and last spike time (updated in place).
+    open_n : int64[n_channels]
+        Its spike count (updated in place).
+    min_spikes : int
+        The fewest spikes of a burst.
+    window_ms : float
+        How far behind the watermark a spike is final.
+    isi_ms : float
+        The longest interval within a burst.
+    out : float64[rows, 4]
+        Where completed bursts are written, from row 0.
+
+    Returns
+    -------
+    n : int
+        The number of bursts completed (rows of ``out`` written).
+    safe_ms : float
+        The time before which every burst start is known (the earliest open burst start
+        or queued spike, else ``w_ms``).
+    """
     cap = q_t.shape[1]
     safe = w_ms
     nb = 0

@@ -216,6 +216,7 @@ class Psth:
 
     @property
     def centers_ms(self) -> np.ndarray:
+        """The bins' centres relative to the stimulus (ms)."""
         return 0.5 * (self.edges_ms[1:] + self.edges_ms[:-1])
 
     def peak_latency_ms(self, min_latency_ms: float = 0.0) -> float:
