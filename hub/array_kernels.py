@@ -26,7 +26,15 @@ _BOUNDED = (types.float32, types.float64, types.uint32, types.uint8)  # the sche
 @njit([(any_array(dtype), *_BOUNDS) for dtype in _BOUNDED], cache=True)
 def within(arr, lo, hi):
     """True if every value is in ``[lo, hi]`` (so for floats none is NaN; with finite
-    bounds none is infinite)."""
+    bounds none is infinite).
+
+    Parameters
+    ----------
+    arr : 1-D array
+        Of one of the schemas' dtypes (float32, float64, uint32, uint8).
+    lo, hi : float
+        The inclusive bounds.
+    """
     for i in range(arr.size):
         if not (lo <= arr[i] <= hi):
             return False
@@ -44,7 +52,15 @@ def ascending(arr):
 
 @njit([(any_array(types.uint32), any_array(types.boolean))], cache=True)
 def all_known(channel, known):
-    """True if every channel indexes a True of ``known`` (a table by channel number)."""
+    """True if every channel indexes a True of ``known``.
+
+    Parameters
+    ----------
+    channel : 1-D uint32 array
+        Channel numbers.
+    known : 1-D bool array
+        A table by channel number; a channel past its end is unknown.
+    """
     for i in range(channel.size):
         c = channel[i]
         if c >= known.size or not known[c]:

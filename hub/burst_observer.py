@@ -123,9 +123,20 @@ class BurstObserver:
     def serve(self, stop: threading.Event | StopFlag, *, once: bool = False) -> bool:
         """Handle runs until ``stop`` is set (or, with ``once``, the first run ends).
 
-        Returns False when, with ``once``, the hub it reached left before giving it a run
-        (it ended, faulted waiting for its endpoints, or runs under another session): it
-        will not get one, and waiting on would be for ever."""
+        Parameters
+        ----------
+        stop : threading.Event or StopFlag
+            Set (by a signal handler, another thread) to return.
+        once : bool
+            Return when the first run ends.
+
+        Returns
+        -------
+        bool
+            False when, with ``once``, the hub it reached left before giving it a run (it
+            ended, faulted waiting for its endpoints, or runs under another session): it
+            will not get one, and waiting on would be for ever; else True.
+        """
         hub_left = HubWatch(self.session, self.keys) if once else None
         while not stop.is_set() and not (once and self.runs_done):
             try:
@@ -398,7 +409,21 @@ class _StoppedWaiting(Exception):
 
 
 def main(bus: BusSection, *, once: bool = False) -> int:
-    """``neuvision observe bursts``: serve on the bus until SIGINT/SIGTERM."""
+    """``neuvision observe bursts``: serve on the bus until SIGINT/SIGTERM.
+
+    Parameters
+    ----------
+    bus : BusSection
+        Where the hub is and how to reach it (the observer takes part as ``observer``).
+    once : bool
+        Return when the first run ends.
+
+    Returns
+    -------
+    int
+        The exit status: 0, or :data:`~hub.bus.UNSERVED` when, with ``once``, the hub left
+        without giving it a run.
+    """
     stop = StopFlag()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())

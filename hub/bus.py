@@ -113,9 +113,21 @@ def zenoh_config(bus: BusSection, *, listener: bool, role: str | None = None) ->
 
 
 def check_security_files(bus: BusSection, roles) -> None:
-    """With ``bus.security`` on: each of ``roles`` (``hub``, ``body``, ...) has its
-    certificate or password in ``bus.certs_dir``, before a folder or a process exists
-    (or a model is built). Raises :class:`ConfigError` naming the file and how to make it."""
+    """With ``bus.security`` on: each of ``roles`` has its certificate or password in
+    ``bus.certs_dir``, checked before a folder or a process exists (or a model is built).
+
+    Parameters
+    ----------
+    bus : BusSection
+        The experiment's bus settings (nothing is checked with ``security = "none"``).
+    roles : iterable of str
+        The participants to check (``hub``, ``body``, ...).
+
+    Raises
+    ------
+    ConfigError
+        A file is missing; the message names it and how to make it.
+    """
     for role in roles if bus.security != "none" else ():
         try:
             zenoh_config(bus, listener=role == "hub", role=role)
@@ -138,10 +150,21 @@ def open_session(
     """Open a Zenoh session for one participant (caller must close it).
 
     An endpoint (``listener`` False) whose hub is not up yet keeps trying for
-    ``bus.connect_timeout_s``, calling ``on_wait(where, waited_s)`` before each new try
-    (to tell the user where it is trying). ``role`` picks the participant's certificate
-    or password when ``bus.security`` is on. ``timeout_name`` is what the message calls the
-    wait (a command's own option, where it sets it).
+    ``bus.connect_timeout_s``.
+
+    Parameters
+    ----------
+    bus : BusSection
+        The experiment's bus settings.
+    listener : bool
+        True for the hub (listens on ``bus.listen``); False for any other participant.
+    role : str, optional
+        Picks the participant's certificate or password when ``bus.security`` is on.
+    on_wait : callable, optional
+        ``on_wait(where, waited_s)``, called before each new try (to tell the user where
+        it is trying).
+    timeout_name : str
+        What the message calls the wait (a command's own option, where it sets it).
 
     Raises
     ------
@@ -205,7 +228,17 @@ def payload_bytes(sample) -> bytes:
 
 
 def hub_answers(session, keys, timeout_s: float = 0.5) -> bool:
-    """Whether the hub's liveliness token is on the bus (asked, not waited for)."""
+    """Whether the hub's liveliness token is on the bus (asked, not waited for).
+
+    Parameters
+    ----------
+    session : zenoh.Session
+        An open session on the hub's bus.
+    keys : Keys
+        The bus session's key expressions.
+    timeout_s : float
+        How long the liveliness query waits for answers; a Zenoh error counts as no.
+    """
     try:
         replies = session.liveliness().get(keys.hub_alive, timeout=timeout_s)
         return any(reply.ok is not None for reply in replies)

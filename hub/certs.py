@@ -47,6 +47,18 @@ def make_certificates(
     An existing CA in ``folder`` is kept and signs the new certificates, so that a
     participant can be added later; a role's existing files are replaced.
 
+    Parameters
+    ----------
+    folder : str or Path
+        Where the files go (made if missing).
+    roles : list of str
+        Participants (:data:`hub.security.PARTICIPANTS`) to make a certificate for.
+    hub_hosts : list of str, optional
+        Host names and IP addresses the hub is reached by, named in every certificate
+        (default: :func:`default_hub_hosts`).
+    days : int
+        How long the certificates (and a new CA) stay valid, from now.
+
     Returns
     -------
     list of Path
@@ -170,6 +182,13 @@ def make_passwords(folder: str | Path, roles: list[str]) -> list[Path]:
     """Write a fresh random password for each role but the hub (``<role>.password``) and
     the hub's dictionary of them (``passwords``), keeping other roles' entries; both
     readable by their owner only.
+
+    Parameters
+    ----------
+    folder : str or Path
+        Where the files go (made if missing).
+    roles : list of str
+        Participants (:data:`hub.security.PARTICIPANTS`); ``hub`` gets no password.
 
     Returns
     -------

@@ -64,6 +64,13 @@ class CultureFrame:
 
     @classmethod
     def of(cls, culture: Description) -> CultureFrame:
+        """The frame of ``culture``'s channel positions.
+
+        Raises
+        ------
+        ConfigError
+            The description lists no channels.
+        """
         x = np.asarray(culture.x_um, dtype=np.float64)
         y = np.asarray(culture.y_um, dtype=np.float64)
         if x.size == 0:
@@ -74,7 +81,15 @@ class CultureFrame:
         )
 
     def point_at(self, angle_rad: float, distance_um: float) -> tuple[float, float]:
-        """The culture point at body angle ``angle_rad`` (CCW from forward) and distance."""
+        """The culture point ``(x_um, y_um)`` at a body angle and a distance from the centre.
+
+        Parameters
+        ----------
+        angle_rad : float
+            Body angle, counter-clockwise from forward.
+        distance_um : float
+            Distance from the centre.
+        """
         return (
             self.centre_x_um - distance_um * math.sin(angle_rad),
             self.centre_y_um + distance_um * math.cos(angle_rad),

@@ -166,6 +166,8 @@ class LoopSection:
 
     @property
     def deadline_s(self) -> float:
+        """The realtime reply deadline after a step's start, in s (``deadline_ms``, or one
+        period when it is 0)."""
         return (self.deadline_ms or self.period_ms) / 1e3
 
     def late_window_problem(self) -> str:
@@ -282,6 +284,7 @@ class BusSection:
 
     @property
     def keys(self) -> Keys:
+        """The key expressions of this bus session (``session``)."""
         return Keys(self.session)
 
 
@@ -473,6 +476,22 @@ def from_dict(data: dict[str, Any]) -> ExperimentConfig:
 
 
 def check_value(dotted: str, kind: type, value, **limits) -> Any:
-    """Check one value against a type and ``gt``/``ge``/``lt``/``le`` limits; the error
-    names ``dotted``."""
+    """Check one value against a type and limits; return it typed.
+
+    Parameters
+    ----------
+    dotted : str
+        The value's name in the config (``section.key``), named by the error.
+    kind : type
+        What the value must be (bool, int, float, str, ...).
+    value
+        The value to check.
+    **limits
+        ``gt``, ``ge``, ``lt``, ``le``, ``choices``, ... as :func:`settings.schema.bounds`.
+
+    Raises
+    ------
+    ConfigError
+        The value is not of ``kind`` or not within the limits.
+    """
     return settings.coerce(dotted, kind, value, bounds(**limits))

@@ -53,9 +53,24 @@ def ctl(
     bus: BusSection, cmd: str, *, timeout_s: float = 5.0, timeout_name: str = "timeout_s"
 ) -> ControlReply | None:
     """:func:`request` over a session of its own, opened as a client of the hub's router
-    (trying to reach it for at most ``timeout_s``) and closed after. With ``bus.security``
-    on it takes part as an ``operator`` (the role that may send controls). ``timeout_name``
-    names the wait in the message of a hub not reached.
+    and closed after. With ``bus.security`` on it takes part as an ``operator`` (the role
+    that may send controls).
+
+    Parameters
+    ----------
+    bus : BusSection
+        The hub's bus settings (where its router is, security).
+    cmd : str
+        One of :data:`hub.protocol.CONTROL_COMMANDS`.
+    timeout_s : float
+        How long to try to reach the router and get a reply, in all.
+    timeout_name : str
+        The name of that wait in the message of a hub not reached.
+
+    Returns
+    -------
+    ControlReply or None
+        The hub's reply, or None if no hub answered in time.
 
     Raises
     ------

@@ -48,16 +48,23 @@ RATE_GAIN_MPS_PER_HZ = 0.005
 class SpikeWindow:
     """Per-channel weights summed over the spikes of the last ``window_ms``.
 
-    ``weights`` is ``(n_channels, k)``, one row per described channel (in the culture
-    description's order). :meth:`add` takes a batch and returns the k sums of the rows of the
-    spikes that fall in ``[t1 − window_ms, t1)`` (``t1`` the batch's end) and the length of
-    culture time covered (less than ``window_ms`` until that much has been seen). A batch
-    that starts before the previous one ended (a restarted culture) clears the window.
+    :meth:`add` takes a batch and returns the k sums of the weight rows of the spikes that
+    fall in ``[t1 − window_ms, t1)`` (``t1`` the batch's end). A batch that starts before
+    the previous one ended (a restarted culture) clears the window.
 
     Each batch is kept as its spikes' weight rows and their total; only the oldest batch,
     when the window starts inside it, is summed again. Channel ids index a table of weight
     rows directly (ids up to ``DENSE_CHANNEL_IDS``; larger ids are looked up by bisection);
     undescribed ids get a zero row, so their spikes count for nothing.
+
+    Parameters
+    ----------
+    culture : Description
+        The culture's description (its channel ids).
+    weights : array of shape (n_channels, k)
+        One row per described channel, in the description's order.
+    window_ms : float
+        The window's length in culture time (> 0).
     """
 
     DENSE_CHANNEL_IDS = 1 << 16
@@ -87,6 +94,16 @@ class SpikeWindow:
         return self._table[pos]
 
     def add(self, spikes: SpikeBatch) -> tuple[np.ndarray, float]:
+        """Take the next batch and sum the window that ends at its end.
+
+        Returns
+        -------
+        sums : ndarray of shape (k,)
+            The weight rows of the window's spikes, summed.
+        covered_ms : float
+            The culture time the window covers: less than ``window_ms`` until that much
+            has been seen.
+        """
         t0_ms, t1_ms = spikes.t0_s * 1e3, spikes.t1_s * 1e3
         ring = self._ring
         if ring and t0_ms < ring[-1][1] - 1e-6:
@@ -112,7 +129,17 @@ def wheel_speeds(v_mps: float, omega_rad_s: float, body: Description) -> tuple[f
     Turning has priority: ``ω`` is first limited to what the wheels can do
     (``|ω|·b/2 ≤ max``), then ``v`` to what is left (``|v| + |ω|·b/2 ≤ max``), so the robot
     keeps the wanted turn rate, slows down if it must, and both wheels stay within limits.
-    The returned ``v`` and ``ω`` are the ones the wheels give.
+    The returned ``v`` and ``ω`` are the ones the wheels give (m/s, rad/s).
+
+    Parameters
+    ----------
+    v_mps : float
+        Wanted forward speed.
+    omega_rad_s : float
+        Wanted turn rate, positive counter-clockwise.
+    body : Description
+        The body's description (``max_wheel_mps``, ``wheel_base_m``; a wheel base of 0
+        allows no turn).
     """
     max_wheel = float(body.max_wheel_mps)
     half_base = float(body.wheel_base_m) / 2.0

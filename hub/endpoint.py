@@ -174,6 +174,18 @@ class Endpoint(abc.ABC):
 
         Subclasses read ``section.params`` here, raising
         :class:`~hub.config.ConfigError` that names ``<role>.params.<key>``.
+
+        Parameters
+        ----------
+        section : EndpointSection
+            This endpoint's section (its ``id`` and ``params``).
+        cfg : ExperimentConfig
+            The whole experiment, for what a subclass needs beyond its section.
+
+        Raises
+        ------
+        ConfigError
+            A parameter this endpoint does not take (by default: any).
         """
         if section.params:
             raise ConfigError(
@@ -190,13 +202,21 @@ class Endpoint(abc.ABC):
     def step(self, message: Message, window: StepWindow) -> Message | None:
         """Apply one step's input over ``window`` and return the output for it.
 
-        ``message`` is a validated :class:`~hub.protocol.MotorCommand` (body) or
-        :class:`~hub.protocol.Stimulation` (culture) of the current run; ``window`` is
-        its step and run time ``[t0_s, t1_s)``. Return the
-        :class:`~hub.protocol.SensorReading` or :class:`~hub.protocol.SpikeBatch` for
-        that window (same ``step`` and ``run``; a SpikeBatch with the window's
-        ``t0_s``/``t1_s``), or None to reply later through :meth:`reply` (a device that
-        collects over the window answers when the window has passed).
+        Parameters
+        ----------
+        message : Message
+            A validated :class:`~hub.protocol.MotorCommand` (body) or
+            :class:`~hub.protocol.Stimulation` (culture) of the current run.
+        window : StepWindow
+            Its step and run time ``[t0_s, t1_s)``.
+
+        Returns
+        -------
+        Message or None
+            The :class:`~hub.protocol.SensorReading` or :class:`~hub.protocol.SpikeBatch`
+            for that window (same ``step`` and ``run``; a SpikeBatch with the window's
+            ``t0_s``/``t1_s``), or None to reply later through :meth:`reply` (a device
+            that collects over the window answers when the window has passed).
         """
 
     def start_run(self, run: RunStart) -> None:
@@ -226,7 +246,17 @@ class Endpoint(abc.ABC):
         """Stop the device and release it. Default: nothing."""
 
     def publish_telemetry(self, key: str, message: Message) -> None:
-        """Publish an observer-only message (newest wins; never blocks the loop)."""
+        """Publish an observer-only message (newest wins; never blocks the loop).
+
+        Nothing is sent while no session is open.
+
+        Parameters
+        ----------
+        key : str
+            The key expression it goes on (a publisher is declared on first use).
+        message : Message
+            What to send, encoded here.
+        """
         if self._session is None:
             return
         publisher = self._telemetry.get(key)
@@ -477,16 +507,28 @@ class Endpoint(abc.ABC):
     ) -> int:
         """Serve on the bus until stopped; return the exit status (0 on a clean stop).
 
-        An endpoint serves one run after another (each ``RunStart`` resets it); with
-        ``once`` it returns when its first run ends: 0 when the hub ended it, whatever the
-        run's outcome; :data:`UNSERVED` when the hub went in the middle of it without
-        ending it, or when a hub that answered leaves without starting one (it refused this
-        endpoint: other settings, a second endpoint of the same name).
-        ``realtime_priority`` > 0 puts this process's threads under ``SCHED_FIFO`` at that
-        priority once warmed up (see :mod:`hub.scheduling`; refused: ordinary scheduling).
-        ``cpus`` keeps the process's threads on those CPUs (``<role>.cpus``; empty: the OS
-        decides). ``keep_cpus_awake`` asks the OS to keep idle CPUs awake while a run is
-        served (``loop.keep_cpus_awake``; :func:`hub.scheduling.hold_cpus_awake`).
+        An endpoint serves one run after another (each ``RunStart`` resets it).
+
+        Parameters
+        ----------
+        bus : BusSection
+            Where the hub is and how to reach it.
+        install_signals : bool
+            Stop on SIGINT/SIGTERM (only from the main thread).
+        realtime_priority : int
+            > 0: this process's threads go under ``SCHED_FIFO`` at that priority once
+            warmed up (see :mod:`hub.scheduling`; refused: ordinary scheduling).
+        cpus : sequence of int
+            Keep the process's threads on those CPUs (``<role>.cpus``; empty: the OS
+            decides).
+        keep_cpus_awake : bool
+            Ask the OS to keep idle CPUs awake while a run is served
+            (``loop.keep_cpus_awake``; :func:`hub.scheduling.hold_cpus_awake`).
+        once : bool
+            Return when the first run ends: 0 when the hub ended it, whatever the run's
+            outcome; :data:`UNSERVED` when the hub went in the middle of it without ending
+            it, or when a hub that answered leaves without starting one (it refused this
+            endpoint: other settings, a second endpoint of the same name).
         """
         self._once = once
         self._keep_cpus_awake = keep_cpus_awake

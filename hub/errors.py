@@ -10,7 +10,15 @@ class HubError(RuntimeError):
 
 class EndpointDied(HubError):
     """An endpoint's liveliness token vanished during the steps (``policy.endpoint_death =
-    "stop"``)."""
+    "stop"``).
+
+    Parameters
+    ----------
+    role, id : str
+        The endpoint that died (also kept as attributes).
+    step : int
+        The step during which its token vanished.
+    """
 
     def __init__(self, role: str, id: str, step: int):
         super().__init__(f"{role}/{id} died at step {step} (its liveliness token vanished)")

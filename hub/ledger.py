@@ -68,15 +68,38 @@ class Ledger:
         self._in_late: dict[str, int] = {}  # owed replies that came after their deadline
 
     def sent(self, role: str, step: int) -> None:
-        """An input of ``step`` went to ``role``: a reply for it may come."""
+        """An input went to a role: a reply for it may come.
+
+        Parameters
+        ----------
+        role : str
+            ``"body"`` or ``"culture"``.
+        step : int
+            The input's step.
+        """
         self.last_sent[role] = step
 
     def judge(self, role: str, message: Message, t_arrival: float, *, running: bool) -> str:
-        """The verdict on one checked reply that arrived at ``t_arrival`` (monotonic).
+        """The verdict on one checked reply.
 
-        ``rx``: accepted, now in ``pending``; ``late``: in after the policy stood in for it
-        (counted); ``final``: the answer to the final stop; ``drop``: early (``running``
-        False), a duplicate, stale or from the future (counted by kind).
+        Parameters
+        ----------
+        role : str
+            Whose reply it is.
+        message : Message
+            The reply, checked by :class:`~hub.replies.ReplyChecker`.
+        t_arrival : float
+            When it arrived (monotonic, s): a reply owed now that came after its
+            deadline is missed and late, however soon the loop looked at it.
+        running : bool
+            Whether the run's steps have started (False: any reply is early).
+
+        Returns
+        -------
+        str
+            ``rx``: accepted, now in ``pending``; ``late``: in after the policy stood in
+            for it (counted); ``final``: the answer to the final stop; ``drop``: early, a
+            duplicate, stale or from the future (counted by kind).
         """
         step, expected = message.step, self.expect[role]
         if role == "body" and step == self.final_step:
@@ -109,9 +132,21 @@ class Ledger:
     def judge_part(self, role: str, message: Message, *, running: bool) -> str:
         """The verdict on one part of a step's reply (contract v4's partial SpikeBatch).
 
-        ``part``: kept for its step's reply; ``late``: of a step the policy stood in for
-        already (the run's data, not a late reply); ``drop``: early, stale, from the
-        future, or after its step's reply (counted by kind).
+        Parameters
+        ----------
+        role : str
+            Whose part it is.
+        message : Message
+            The part, checked by :class:`~hub.replies.ReplyChecker`.
+        running : bool
+            Whether the run's steps have started (False: any part is early).
+
+        Returns
+        -------
+        str
+            ``part``: kept for its step's reply; ``late``: of a step the policy stood in
+            for already (the run's data, not a late reply); ``drop``: early, stale, from
+            the future, or after its step's reply (counted by kind).
         """
         step, expected = message.step, self.expect[role]
         if not running:
@@ -128,14 +163,37 @@ class Ledger:
         return self.drop(role, "future", f"a part of step {step} awaiting step {expected}")
 
     def miss(self, role: str, step: int) -> None:
-        """The reply of ``role`` for ``step`` is missing: the policy stands in for it (its
-        parts, recorded already, are stranded: no reply will take them)."""
+        """A reply is missing: the policy stands in for it (its parts, recorded already,
+        are stranded: no reply will take them).
+
+        Parameters
+        ----------
+        role : str
+            Whose reply is missing.
+        step : int
+            The step it was owed for.
+        """
         self.stranded.extend(self.parts[role].pop(step, ()))
         self.missed[role].add(step)
         self.on_event("missed", role=role, step=step)
 
     def drop(self, role: str, kind: str, detail: str) -> str:
-        """Count (and log once per kind) a dropped message; returns the record's verdict."""
+        """Count (and log once per kind and role) a dropped message.
+
+        Parameters
+        ----------
+        role : str
+            Whose message it was.
+        kind : str
+            Why it was dropped (``early``, ``duplicate``, ``stale``, ``future``, ...).
+        detail : str
+            What the log line and the ``dropped`` event say about it.
+
+        Returns
+        -------
+        str
+            ``"drop"``, the record's verdict.
+        """
         if not self.dropped[role][kind]:
             log.warning("dropped a %s message (%s): %s", role, kind, detail)
             self.on_event("dropped", role=role, kind=kind, detail=detail)
@@ -145,8 +203,15 @@ class Ledger:
     # ------------------------------------------------------------ realtime deadlines
 
     def await_replies(self, steps: dict[str, int], deadlines: dict[str, float]) -> None:
-        """Each role in ``steps`` owes the reply of that step by its deadline (monotonic);
-        a negative step owes nothing yet."""
+        """Each role in ``steps`` owes the reply of that step by its deadline.
+
+        Parameters
+        ----------
+        steps : dict
+            Role → the step whose reply it owes now; a negative step owes nothing yet.
+        deadlines : dict
+            Role → when that reply is due (monotonic, s).
+        """
         self._owed = {role: k for role, k in steps.items() if k >= 0}
         self._deadlines = dict(deadlines)
         self._in_late = {}
@@ -160,6 +225,7 @@ class Ledger:
         ]
 
     def next_deadline(self, roles: list[str]) -> float:
+        """The earliest deadline (monotonic, s) of ``roles``' owed replies (not empty)."""
         return min(self._deadlines[r] for r in roles)
 
     def settle(self) -> bool:

@@ -30,7 +30,13 @@ _f32 = np.float32
 # they are compared with the limit at the wire's precision: the limit itself passes, the
 # next float32 value above it does not.
 def over(value: float, limit: float) -> bool:
-    """``value`` is over ``limit`` at float32 precision (the wire's, for pulses)."""
+    """``value`` is over ``limit`` at float32 precision (the wire's, for pulses).
+
+    Parameters
+    ----------
+    value, limit : float
+        Both rounded to float32 before they are compared.
+    """
     return _f32(value) > _f32(limit)
 
 
@@ -41,12 +47,26 @@ def _as_f32(limit: float | None) -> float | None:
 
 
 def under(value: float, limit: float) -> bool:
-    """``value`` is under ``limit`` at float32 precision (the wire's, for pulses)."""
+    """``value`` is under ``limit`` at float32 precision (the wire's, for pulses).
+
+    Parameters
+    ----------
+    value, limit : float
+        Both rounded to float32 before they are compared.
+    """
     return _f32(value) < _f32(limit)
 
 
 def motor_violation(motor: MotorCommand, body: Description) -> str | None:
-    """Why ``motor`` exceeds the body's ``max_wheel_mps``, or None if it does not."""
+    """Why ``motor`` exceeds the body's ``max_wheel_mps``, or None if it does not.
+
+    Parameters
+    ----------
+    motor : MotorCommand
+        The wheel speeds asked for (either sign).
+    body : Description
+        The body's description; ``max_wheel_mps`` None is not checked.
+    """
     limit = body.max_wheel_mps
     if limit is None:
         return None

@@ -66,6 +66,21 @@ def check(
     as ``index`` and that channel's count with the pulses asked for as ``value``;
     ``UNKNOWN`` a pulse on a channel not in ``ids``. With ``rate`` true the pulses at
     or before ``since_s`` leave the window first. Nothing is counted.
+
+    Parameters
+    ----------
+    channel, amplitude_ua, width_ms : 1-D arrays
+        The stimulation's pulses (uint32, float32, float32).
+    max_amplitude_ua, max_width_ms : float
+        The limits (infinite: not checked).
+    rate : bool
+        Whether the rate limit is checked.
+    since_s : float
+        Run time at which the rate window starts (pulses at or before it leave).
+    allowed : float
+        Pulses a channel may have in the window.
+    ids, counts, ring_t, ring_c, pos
+        The rate limit's state (module docstring), updated in place.
     """
     n = channel.size
     top = 0.0
@@ -111,7 +126,17 @@ def check(
 )
 def accept(channel, onset_ms, t0_s, ids, counts, ring_t, ring_c, pos):
     """Count the pulses of a delivered stimulation: ``OK``, or ``UNKNOWN`` / ``FULL``
-    with nothing counted. A pulse's time is ``t0_s + onset_ms / 1e3``."""
+    with nothing counted.
+
+    Parameters
+    ----------
+    channel, onset_ms : 1-D arrays
+        The stimulation's pulses (uint32, float32).
+    t0_s : float
+        Run time of the step's start: a pulse's time is ``t0_s + onset_ms / 1e3``.
+    ids, counts, ring_t, ring_c, pos
+        The rate limit's state (module docstring), updated in place.
+    """
     n = channel.size
     head, length = pos[0], pos[1]
     cap = ring_t.size

@@ -10,6 +10,7 @@ token. What it hears becomes plain event tuples handed to ``deliver``::
     ("refused", role, payload, kind, detail, t_wall_ns)  # not its endpoint's, or broken
     ("alive", key, present)                               # a liveliness token came or went
     ("control", query)                                    # a query on hub/control
+    ("status", query)                                     # a query on hub/status
 
 The loop decides what the events mean; nothing here keeps loop state.
 """
@@ -113,10 +114,20 @@ class HubLink:
         ]
 
     def watch_observer(self, name: str, key: bytes, keep: int) -> None:
-        """Declare the run's exchange with the burst observer ``name``, sealed both ways
-        with ``key``: the spikes left for it to ask for (:meth:`forward_spikes`; the last
-        ``keep`` messages kept) and its reports, each one whole delivered as ``("report",
-        raw)``, one that does not unseal as ``("report_refused", kind, detail)``."""
+        """Declare the run's exchange with a burst observer: the spikes left for it to ask
+        for (:meth:`forward_spikes`) and its reports, each one whole delivered as
+        ``("report", raw)``, one that does not unseal as ``("report_refused", kind,
+        detail)``.
+
+        Parameters
+        ----------
+        name : str
+            The observer's name (in its keys).
+        key : bytes
+            The run key that seals the exchange both ways.
+        keep : int
+            How many of the latest spike messages are kept for it to ask for.
+        """
         inbox = wire.Inbox(key)
 
         def on_report(sample):
@@ -142,7 +153,15 @@ class HubLink:
         self._observer.put(raw)
 
     def send(self, role: str, raw: bytes) -> None:
-        """Put an input to ``role``, sealed with its run key (framed if large)."""
+        """Put an input to an endpoint, sealed with its run key (framed if large).
+
+        Parameters
+        ----------
+        role : str
+            ``"body"`` or ``"culture"``.
+        raw : bytes
+            The encoded input.
+        """
         self.outboxes[role].put(raw)
 
     def publish_status(self, raw: bytes) -> None:
@@ -158,5 +177,15 @@ class HubLink:
         self.views.put(raw)
 
     def query(self, key: str, payload: bytes | None = None, *, timeout_s: float) -> list[bytes]:
-        """The whole payloads of every reply to a query (``describe``, ``run``)."""
+        """The whole payloads of every reply to a query (``describe``, ``run``).
+
+        Parameters
+        ----------
+        key : str
+            The key expression queried.
+        payload : bytes, optional
+            The query's payload.
+        timeout_s : float
+            How long to wait for replies.
+        """
         return wire.get(self.session, key, payload, timeout_s=timeout_s)

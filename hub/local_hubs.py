@@ -77,7 +77,22 @@ def reachable_here(locator: str) -> str:
 def announced(session: str, locators: list[str], run_dir: str | Path) -> Iterator[Path]:
     """Say, while the block runs, that a hub of this process listens on ``locators``
     for ``session``; the file is removed after. A folder that cannot be written leaves
-    the hub unannounced (it runs all the same: ``--connect`` still finds it)."""
+    the hub unannounced (it runs all the same: ``--connect`` still finds it).
+
+    Parameters
+    ----------
+    session : str
+        The hub's bus session.
+    locators : list of str
+        Where it listens (``bus.listen``).
+    run_dir : str or Path
+        Its run folder (announced resolved).
+
+    Yields
+    ------
+    Path or None
+        The announcement's file, or None when it could not be written.
+    """
     try:
         path = folder() / f"{_prefix(session)}{os.getpid()}-{uuid.uuid4().hex[:8]}.json"
         record = {

@@ -16,7 +16,15 @@ MAX_LOG_CHARS = 2_000
 
 
 def cap_text(text: str, max_chars: int = MAX_LOG_CHARS) -> str:
-    """``text`` if it is at most ``max_chars`` long, else its start and ``… (N chars)``."""
+    """``text`` if it is at most ``max_chars`` long, else its start and ``… (N chars)``.
+
+    Parameters
+    ----------
+    text : str
+        The text to cap.
+    max_chars : int
+        Characters kept; N is the length of the whole ``text``.
+    """
     if len(text) <= max_chars:
         return text
     return f"{text[:max_chars]}… ({len(text)} chars)"
@@ -39,6 +47,7 @@ class CapFilter(logging.Filter):
         self.max_chars = max_chars
 
     def filter(self, record: logging.LogRecord) -> bool:
+        """Cap ``record``'s message, traceback and stack text in place; always True."""
         message = record.getMessage()
         if len(message) > self.max_chars:
             record.msg, record.args = cap_text(message, self.max_chars), None

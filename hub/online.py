@@ -116,8 +116,17 @@ class OnlineAnalysis:
         )
 
     def announce(self, link: HubLink, n_steps: int, channel) -> None:
-        """Give the observer the run: the culture's ``channel`` ids, the detector's
+        """Give the observer the run: the culture's channel ids, the detector's
         parameters, the sealing key; and keep the spikes for it to ask for.
+
+        Parameters
+        ----------
+        link : HubLink
+            The hub's declarations for the run (the observer's exchange is added to it).
+        n_steps : int
+            The run's steps.
+        channel : array of uint32
+            The culture's channel ids (its description's).
 
         Raises
         ------
@@ -209,9 +218,18 @@ class OnlineAnalysis:
 
     def end(self, steps_done: int, *, there: bool, take_waiting: Callable[[], None]) -> None:
         """After the steps: ask the observer for its final report (every step's spikes
-        analysed, every burst still open completed), and count it. ``there``: whether
-        its token is on the bus; ``take_waiting`` handles the reports that came before
-        the question."""
+        analysed, every burst still open completed), and count it; waits up to
+        :data:`OBSERVER_END_TIMEOUT_S`. Without it, ``tally.lost`` says why.
+
+        Parameters
+        ----------
+        steps_done : int
+            The steps the run made (those the observer should have had).
+        there : bool
+            Whether the observer's token is on the bus (False: it is not asked).
+        take_waiting : callable
+            Handles the reports that came before the question (called with no argument).
+        """
         tally = self.tally
         if tally.final:
             return

@@ -106,7 +106,25 @@ class InputPolicy:
         return window
 
     def motor_for(self, k: int, spikes: SpikeBatch | None) -> MotorCommand:
-        """The body's input of step ``k``, from the culture's spikes of step ``k``−1."""
+        """The body's input of step ``k``, from the culture's spikes of step ``k``−1.
+
+        Step 0 and a decoded command over ``max_wheel_mps`` (refused, counted) stop the
+        robot.
+
+        Parameters
+        ----------
+        k : int
+            The step.
+        spikes : SpikeBatch or None
+            The culture's reply of step ``k``−1; None when it is missing
+            (``policy.missing_spikes`` decides).
+
+        Raises
+        ------
+        SchemeError
+            The decoder raised, or returned something other than this step's
+            MotorCommand.
+        """
         window = self.window(k)
         if k == 0:
             return MotorCommand.stop(window)
@@ -136,7 +154,24 @@ class InputPolicy:
         return self.last_motor
 
     def stim_for(self, k: int, sensors: SensorReading | None) -> Stimulation:
-        """The culture's input of step ``k``, from the body's sensors of step ``k``−1."""
+        """The culture's input of step ``k``, from the body's sensors of step ``k``−1.
+
+        Step 0 and a coded stimulation over the culture's limits (refused, counted) are no
+        stimulation; a stimulation returned is counted towards the rate limit.
+
+        Parameters
+        ----------
+        k : int
+            The step.
+        sensors : SensorReading or None
+            The body's reply of step ``k``−1; None when it is missing
+            (``policy.missing_sensors`` decides).
+
+        Raises
+        ------
+        SchemeError
+            The coder raised, or returned something other than this step's Stimulation.
+        """
         window = self.window(k)
         if k == 0:
             return Stimulation.none(window)

@@ -63,6 +63,13 @@ class ReplyChecker:
     def check(self, role: str, raw: bytes) -> Message:
         """The reply of ``role`` decoded, if its content is right.
 
+        Parameters
+        ----------
+        role : str
+            Who sent it: ``"body"`` (a SensorReading) or ``"culture"`` (a SpikeBatch).
+        raw : bytes
+            The reply's payload, unsealed and whole.
+
         Raises
         ------
         ProtocolError

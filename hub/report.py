@@ -63,6 +63,17 @@ class LoopTimes:
 
     @classmethod
     def for_run(cls, mode: str, period_ms: float, n_steps: int) -> LoopTimes:
+        """The times of a run not started yet: every per-step value NaN.
+
+        Parameters
+        ----------
+        mode : str
+            ``loop.mode`` (``"lockstep"`` or ``"realtime"``).
+        period_ms : float
+            The loop's period.
+        n_steps : int
+            The run's steps (the length of the per-step arrays).
+        """
         times = cls(mode, period_ms, np.full(n_steps, np.nan), np.full(n_steps, np.nan))
         times.round_trip_s = {role: np.full(n_steps, np.nan) for role in ("body", "culture")}
         return times
@@ -151,7 +162,18 @@ class LoopTimes:
     def report(
         self, steps: int, scheduling: Scheduling | None, cpus_awake: CpusAwake | None = None
     ) -> dict:
-        """Loop timing figures of the first ``steps`` steps (wall time, lateness, late steps)."""
+        """Loop timing figures of the first ``steps`` steps (wall time, lateness, late steps):
+        the manifest's ``timing``.
+
+        Parameters
+        ----------
+        steps : int
+            The steps made (those the figures cover).
+        scheduling : Scheduling or None
+            How the hub's threads were scheduled (None: not reported).
+        cpus_awake : CpusAwake, optional
+            Whether idle CPUs were held awake (None: not reported).
+        """
         n, wall, running = steps, self.wall_s(), self.running_s()
         out = {
             "mode": self.mode,
@@ -189,9 +211,19 @@ class LoopTimes:
 
 
 def counts(online, late: Counter, missed: dict[str, set[int]], dropped: dict[str, Counter]) -> dict:
-    """The manifest's ``counts``: online bursts (``online``: the hub's
-    :class:`~hub.burst_observer.OnlineTally`, None when off), late, missing and dropped
-    messages by role."""
+    """The manifest's ``counts``: online bursts, late, missing and dropped messages by role.
+
+    Parameters
+    ----------
+    online : OnlineTally or None
+        The hub's :class:`~hub.burst_observer.OnlineTally`; None when ``[online]`` is off.
+    late : Counter
+        Role → replies that came after the policy stood in for them.
+    missed : dict
+        Role → the steps whose reply was missing.
+    dropped : dict
+        Role → Counter of dropped messages by kind.
+    """
     if online is not None:
         found = online.counts()
     else:
@@ -207,7 +239,15 @@ def counts(online, late: Counter, missed: dict[str, set[int]], dropped: dict[str
 
 def steps_share(desc: Description, final: dict[str, dict]) -> dict:
     """An endpoint's final counters, its CPU time made that of the steps alone (the
-    counters it described itself with at the start taken off)."""
+    counters it described itself with at the start taken off).
+
+    Parameters
+    ----------
+    desc : Description
+        What the endpoint described at the start (its role, its ``counters``).
+    final : dict
+        Role → that endpoint's counters at the end.
+    """
     out = dict(final.get(desc.role, {}))
     start = (desc.counters or {}).get("cpu_s")
     if isinstance(out.get("cpu_s"), float) and isinstance(start, float):

@@ -49,9 +49,24 @@ class Roster:
         self._digests: dict[str, str | None] = {}
 
     def describe(self, role: str, i: str) -> tuple[Description, dict]:
-        """Ask ``role/i`` to describe itself: its description, and what the manifest keeps
-        of where it runs (``host``, ``clock_offset_ms``: its clock minus the hub's at the
-        middle of the query, ± half ``describe_round_trip_ms``; ``settings_digest``).
+        """Ask an endpoint to describe itself.
+
+        Parameters
+        ----------
+        role : str
+            ``"body"`` or ``"culture"``.
+        i : str
+            The endpoint's id.
+
+        Returns
+        -------
+        desc : Description
+            Its description.
+        where : dict
+            What the manifest keeps of where it runs: ``host``, ``clock_offset_ms`` (its
+            clock minus the hub's at the middle of the query, ± half
+            ``describe_round_trip_ms``; None if it sent no time), ``describe_round_trip_ms``,
+            ``settings_digest``.
 
         Raises
         ------
@@ -98,7 +113,16 @@ class Roster:
         return desc, where
 
     def announce(self, role: str, i: str, start: RunStart) -> None:
-        """Give ``role/i`` the run (again, when it rejoins: the same id, timing and key).
+        """Give an endpoint the run (again, when it rejoins: the same id, timing and key).
+
+        Parameters
+        ----------
+        role : str
+            ``"body"`` or ``"culture"``.
+        i : str
+            The endpoint's id.
+        start : RunStart
+            The run's announcement (its key is that endpoint's).
 
         Raises
         ------
@@ -116,8 +140,23 @@ class Roster:
             raise HubError(f"{role}/{i} refused the run: {refusals[0]}")
 
     def hold(self, who: list[tuple[str, str]], run: str, hold: bool) -> dict[str, bool]:
-        """Tell each of ``who`` that ``run`` is paused (it makes itself safe at once: the
-        wheels stop, nothing is delivered) or resumed: whether each acknowledged, by role."""
+        """Tell endpoints that the run is paused (each makes itself safe at once: the
+        wheels stop, nothing is delivered) or resumed.
+
+        Parameters
+        ----------
+        who : list of (str, str)
+            The endpoints, as (role, id).
+        run : str
+            The run id.
+        hold : bool
+            True: paused; False: resumed.
+
+        Returns
+        -------
+        dict
+            Role → whether that endpoint acknowledged (within :data:`HOLD_TIMEOUT_S`).
+        """
         message = RunHold(run=run, hold=hold)
         return {
             role: any(
@@ -128,7 +167,18 @@ class Roster:
         }
 
     def end(self, who: list[tuple[str, str]], run: str, outcome: str) -> None:
-        """Tell each of ``who`` (role, id) that the run is over (each makes itself safe)."""
+        """Tell endpoints that the run is over (each makes itself safe); answers are not
+        waited for beyond :data:`END_TIMEOUT_S` each, nor checked.
+
+        Parameters
+        ----------
+        who : list of (str, str)
+            The endpoints, as (role, id).
+        run : str
+            The run id.
+        outcome : str
+            The run's outcome, as the manifest says it.
+        """
         end = RunEnd(run=run, outcome=outcome).encode()
         for role, i in who:
             self.link.query(self.keys.run(role, i), end, timeout_s=END_TIMEOUT_S)
@@ -159,8 +209,18 @@ class Roster:
         return out
 
     def several(self, role: str, i: str, counters: list) -> HubError:
-        """More than one endpoint answers as ``role/i`` (one left running elsewhere): each
-        would take the run and step, and the hub take whichever reply came first."""
+        """The error for more than one endpoint answering as ``role/i`` (one left running
+        elsewhere): each would take the run and step, and the hub take whichever reply
+        came first.
+
+        Parameters
+        ----------
+        role, i : str
+            The role and id they answer as.
+        counters : list
+            Each one's description counters (None where unknown): their hosts and process
+            ids are named.
+        """
         where = []
         for c in counters:
             host = (c or {}).get("host") or {}
@@ -217,7 +277,19 @@ class Roster:
 
 
 def run_replies(link: HubLink, key: str, request, timeout_s: float) -> list[RunReply]:
-    """The ``RunReply``s to a request on a ``run`` queryable (a malformed one left out)."""
+    """The ``RunReply``s to a request on a ``run`` queryable (a malformed one left out).
+
+    Parameters
+    ----------
+    link : HubLink
+        Through which the query goes.
+    key : str
+        The ``run`` queryable's key.
+    request : Message
+        What is asked (``RunStart``, ``RunHold``, ``ObserverStart``, ...), encoded here.
+    timeout_s : float
+        How long to wait for replies.
+    """
     answers = []
     for raw in link.query(key, request.encode(), timeout_s=timeout_s):
         try:
@@ -230,6 +302,13 @@ def run_replies(link: HubLink, key: str, request, timeout_s: float) -> list[RunR
 def check_fits_loop(desc: Description, loop: LoopSection) -> str | None:
     """Whether an endpoint so described can take a run of ``loop``: a warning to record, or
     None.
+
+    Parameters
+    ----------
+    desc : Description
+        The endpoint's description.
+    loop : LoopSection
+        The run's loop settings.
 
     Raises
     ------

@@ -60,6 +60,8 @@ class Scheduling:
                 pass
 
     def to_dict(self) -> dict:
+        """The manifest's entry: the policy, with its priority and threads raised (``fifo``)
+        or why (``normal``)."""
         out = {"policy": self.policy}
         if self.policy == "fifo":
             out.update(priority=self.priority, threads=self.threads)
@@ -72,7 +74,16 @@ _FIFO = getattr(os, "SCHED_FIFO", 1) | getattr(os, "SCHED_RESET_ON_FORK", 0)
 
 
 def endpoint_priority(mode: str, hub_priority: int) -> int:
-    """The real-time priority an endpoint takes for a run (0: none) — two below the hub's."""
+    """The real-time priority an endpoint takes for a run (0: none) — two below the hub's
+    (at least 1).
+
+    Parameters
+    ----------
+    mode : str
+        ``loop.mode``: only a realtime run raises its endpoints.
+    hub_priority : int
+        ``loop.realtime_priority`` (0: none).
+    """
     if mode != "realtime" or hub_priority <= 0:
         return 0
     return max(hub_priority - 2, 1)
@@ -83,12 +94,24 @@ def _thread_ids() -> list[int]:
 
 
 def raise_threads(priority: int, tids: Sequence[int] | None = None) -> Scheduling:
-    """Put every thread of this process (or those of ``tids``: a thread raising itself
-    passes ``[threading.get_native_id()]``) under ``SCHED_FIFO`` at ``priority``.
+    """Put threads of this process under ``SCHED_FIFO``.
 
     Threads and processes started later do not inherit it (``SCHED_RESET_ON_FORK``):
-    call this once the threads that matter (Zenoh's) exist. Returns what was done,
-    with what to undo in :func:`restore_threads`.
+    call this once the threads that matter (Zenoh's) exist.
+
+    Parameters
+    ----------
+    priority : int
+        The real-time priority (1-99); 0 or less leaves the scheduler alone.
+    tids : sequence of int, optional
+        The threads to raise (a thread raising itself passes
+        ``[threading.get_native_id()]``); default: every thread of this process.
+
+    Returns
+    -------
+    Scheduling
+        What was done (``normal`` with the reason when refused: nothing is left raised),
+        with what to undo in :func:`restore_threads`.
     """
     if priority <= 0:
         return Scheduling(
@@ -162,8 +185,20 @@ def available_cpus() -> frozenset[int] | None:
 
 
 def check_cpus(key: str, cpus: Sequence[int]) -> None:
-    """Raise :class:`~hub.config.ConfigError` naming ``key`` if ``cpus`` asks for a CPU
-    this process may not run on (checked before anything starts)."""
+    """Check, before anything starts, that ``cpus`` are all CPUs this process may run on.
+
+    Parameters
+    ----------
+    key : str
+        The config key that asked for them (``loop.cpus``, ``<role>.cpus``).
+    cpus : sequence of int
+        The CPUs asked for (empty: nothing to check).
+
+    Raises
+    ------
+    ConfigError
+        A CPU this process may not run on; the message names ``key``.
+    """
     available = available_cpus()
     if not cpus or available is None:
         return
@@ -186,13 +221,25 @@ class Placement:
 
 def place_threads(key: str, cpus: Sequence[int]) -> Placement:
     """Keep every thread of this process on ``cpus``, and the threads they start later,
-    which inherit it: call this before Zenoh starts its threads. Empty ``cpus`` leaves
-    placement to the OS. A CPU not available is a :class:`~hub.config.ConfigError`
-    naming ``key``; a platform without CPU affinity gets a placement with a reason.
+    which inherit it: call this before Zenoh starts its threads. A platform without CPU
+    affinity gets a placement with a reason; undo with :func:`restore_placement`.
 
     Why: the hub's threads hand each message to one another; kept on one CPU of their
     own, they neither wait behind the endpoints' threads nor wake a thread on another
-    CPU (costly in a virtual machine). See docs/architecture.md, "CPU placement"."""
+    CPU (costly in a virtual machine). See docs/architecture.md, "CPU placement".
+
+    Parameters
+    ----------
+    key : str
+        The config key that asked for them (named by the error).
+    cpus : sequence of int
+        The CPUs to keep the threads on; empty leaves placement to the OS.
+
+    Raises
+    ------
+    ConfigError
+        A CPU this process may not run on.
+    """
     if not cpus:
         return Placement()
     if not hasattr(os, "sched_setaffinity"):
@@ -239,6 +286,7 @@ class CpusAwake:
             os.close(fd)
 
     def to_dict(self) -> dict:
+        """The manifest's entry: held (at a latency of 0 µs), or not and why."""
         return (
             {"held": True, "latency_us": 0} if self.held else {"held": False, "reason": self.reason}
         )
@@ -250,6 +298,13 @@ def hold_cpus_awake(asked: bool = True, device: str = PM_QOS_DEVICE) -> CpusAwak
 
     Needs write access to ``device`` (root, or a udev rule: docs/architecture.md); without
     it, or on a system without PM QoS, nothing changes and the result says why.
+
+    Parameters
+    ----------
+    asked : bool
+        ``loop.keep_cpus_awake``; False asks nothing (the result says so).
+    device : str
+        The PM QoS device file written to.
     """
     if not asked:
         return CpusAwake(False, reason="not asked (loop.keep_cpus_awake = false)")

@@ -57,9 +57,27 @@ class SchemeContext:
     section: str = "coding"  # for error messages: "<section>.params.<key>"
 
     def param(self, name: str, default, *, kind=float, ge=None, gt=None, le=None, bounds=""):
-        """A validated parameter: ``params[name]`` or ``default`` (None when absent and
-        ``default`` is None: a default that needs a description). ``bounds`` says where
-        bounds that follow other parameters come from, in the error."""
+        """A validated parameter: ``params[name]`` or ``default``.
+
+        Parameters
+        ----------
+        name : str
+            The parameter's name in ``params``.
+        default
+            Its value when absent; None: None is returned (a default that needs a
+            description).
+        kind : type
+            What the value must be.
+        ge, gt, le : float, optional
+            Its limits.
+        bounds : str
+            Where limits that follow other parameters come from, added to the error.
+
+        Raises
+        ------
+        ConfigError
+            Naming ``<section>.params.<name>``.
+        """
         if default is None and name not in self.params:
             return None
         value = self.params.get(name, default)
@@ -82,7 +100,20 @@ class SchemeContext:
 
 
 def load_scheme(spec: str, section: str) -> Callable[[SchemeContext], Callable]:
-    """Import the factory named ``module:function`` (error names ``<section>.scheme``)."""
+    """Import the factory named ``module:function``.
+
+    Parameters
+    ----------
+    spec : str
+        ``module:function``.
+    section : str
+        ``"coding"`` or ``"decoding"``, named by the error.
+
+    Raises
+    ------
+    ConfigError
+        The module does not import, or has no such callable; naming ``<section>.scheme``.
+    """
     module_name, _, attr = spec.partition(":")
     try:
         module = importlib.import_module(module_name)
@@ -108,6 +139,19 @@ def checked_by(check: Callable[[SchemeContext], object]) -> Callable:
 def check_scheme(section: str, spec: str, params: dict, period_ms: float, seed: int = 0) -> None:
     """Check a scheme before the run: it imports, and its params pass the factory's
     description-free checks (:func:`checked_by`; a factory without them: only when called).
+
+    Parameters
+    ----------
+    section : str
+        ``"coding"`` or ``"decoding"``.
+    spec : str
+        The scheme, ``module:function``.
+    params : dict
+        Its parameters (``<section>.params``).
+    period_ms : float
+        The loop's period.
+    seed : int
+        The experiment's seed.
 
     Raises
     ------

@@ -39,12 +39,33 @@ PASSWORDS_FILE = "passwords"
 
 
 def password_file(certs_dir: str | Path, role: str) -> Path:
-    """The file that holds one participant's password (``bus.security = "password"``)."""
+    """The file that holds one participant's password (``bus.security = "password"``).
+
+    Parameters
+    ----------
+    certs_dir : str or Path
+        The folder of the experiment's certificates and passwords (``bus.certs_dir``).
+    role : str
+        The participant.
+    """
     return Path(certs_dir) / f"{role}.password"
 
 
 def certificate_files(certs_dir: str | Path, role: str) -> dict[str, Path]:
-    """The files a participant of ``role`` uses: the CA, its certificate and its key."""
+    """The files a participant of ``role`` uses: the CA, its certificate and its key.
+
+    Parameters
+    ----------
+    certs_dir : str or Path
+        The folder of the experiment's certificates (``bus.certs_dir``).
+    role : str
+        The participant.
+
+    Returns
+    -------
+    dict
+        ``"ca"``, ``"certificate"`` and ``"key"`` → their paths (whether they exist or not).
+    """
     folder = Path(certs_dir)
     return {
         "ca": folder / CA_FILE,
@@ -75,6 +96,17 @@ def tls_settings(
     """Zenoh's ``transport/link/tls`` settings of one participant: mutual TLS (``mode``
     "mtls"), or TLS with the hub's certificate only ("password").
 
+    Parameters
+    ----------
+    certs_dir : str or Path
+        The folder of the experiment's certificates (``bus.certs_dir``).
+    role : str or None
+        The participant (:data:`PARTICIPANTS`).
+    listener : bool
+        True for the hub (its certificate is the listening side's).
+    mode : str
+        ``bus.security``: ``"mtls"`` or ``"password"``.
+
     Raises
     ------
     SecurityError
@@ -104,6 +136,15 @@ def tls_settings(
 def password_settings(certs_dir: str | Path, role: str | None, *, listener: bool) -> dict:
     """Zenoh's ``transport/auth/usrpwd`` settings: the hub's dictionary of passwords, or a
     participant's user (its role) and password.
+
+    Parameters
+    ----------
+    certs_dir : str or Path
+        The folder of the experiment's passwords (``bus.certs_dir``).
+    role : str or None
+        The participant (:data:`PARTICIPANTS`).
+    listener : bool
+        True for the hub, which checks the passwords.
 
     Raises
     ------
@@ -146,8 +187,16 @@ _WATCH = ["declare_subscriber", "declare_liveliness_subscriber", "liveliness_que
 
 def access_control(keys: Keys, mode: str = "mtls") -> dict:
     """The access-control policy of the hub's router for one session (Zenoh's
-    ``access_control`` value): default deny; each rule names what a role may send in. A
-    role is known by its certificate's common name ("mtls") or its user name ("password")."""
+    ``access_control`` value): default deny; each rule names what a role may send in.
+
+    Parameters
+    ----------
+    keys : Keys
+        The session's key expressions.
+    mode : str
+        ``bus.security``: a role is known by its certificate's common name (``"mtls"``)
+        or its user name (``"password"``).
+    """
     root = keys.root
 
     def serve(role: str) -> list[str]:
@@ -221,7 +270,19 @@ def diagnose(locator: str, certs_dir: str | Path, role: str | None, mode: str) -
     of its own (Zenoh says only "Timeout!"): nothing listening there, the hub's certificate
     not valid for the address or not of this ``ca.pem``, or the hub refusing this
     participant's certificate. None when the handshake goes through (with ``"password"``:
-    then the password was refused) or the reason is not known."""
+    then the password was refused) or the reason is not known. Takes up to about 3 s.
+
+    Parameters
+    ----------
+    locator : str
+        Where the hub was reached (``tls/HOST:PORT``; another scheme: None).
+    certs_dir : str or Path
+        The participant's certificate folder (``bus.certs_dir``).
+    role : str or None
+        The participant.
+    mode : str
+        ``bus.security``: with ``"mtls"`` the participant's own certificate is shown.
+    """
     import socket
     import ssl
 

@@ -69,16 +69,24 @@ class Shelf:
             self._items.append((self.seq, raw))
 
     def after(self, mark: str, max_bytes: int = ANSWER_MAX_BYTES) -> list[tuple[str, bytes]]:
-        """The messages kept after the one named ``mark`` (``<epoch>-<number>``; from the
-        oldest kept if it is not one of this shelf's), oldest first, up to ``max_bytes``
-        (at least one); and note the question.
+        """The messages kept after the one named ``mark``, oldest first, as ``(name, raw)``
+        pairs; and note the question (thread-safe).
 
         Each comes with its name, ``<epoch>-<number>-<follows>``: ``follows`` is the
         number of the message before it in the answer, or for the first the number asked
         after (0 for a mark not of this shelf's) — a first that does not follow it on
         (``number > follows + 1``) says that the shelf no longer keeps those between. An
         asker that missed a reply on the way (dropped on a congested link) sees the next
-        not follow what it has, and asks again (:class:`Asker`)."""
+        not follow what it has, and asks again (:class:`Asker`).
+
+        Parameters
+        ----------
+        mark : str
+            ``<epoch>-<number>`` (a whole name is taken too); one not of this shelf's
+            asks from the oldest kept.
+        max_bytes : int
+            The answer's messages stop before this many bytes (at least one is given).
+        """
         epoch, _, seq = mark.partition("-")
         seq = seq.partition("-")[0]  # an asker that sends a whole name back
         with self._lock:
@@ -109,13 +117,29 @@ class Shelf:
 
     def declare(self, session, key_prefix: str):
         """The queryable ``<key_prefix>/*`` on ``session`` that answers from this shelf
-        (:meth:`answer`, in Zenoh's thread); keep it as long as the shelf serves."""
+        (:meth:`answer`, in Zenoh's thread); keep it as long as the shelf serves.
+
+        Parameters
+        ----------
+        session : zenoh.Session
+            Where it is declared.
+        key_prefix : str
+            The key expression its questions and answers go under.
+        """
         return session.declare_queryable(f"{key_prefix}/*", lambda q: self.answer(q, key_prefix))
 
     def answer(self, query, key_prefix: str) -> None:
         """Answer a question ``<key_prefix>/*?after=MARK``: each message after the one
         named ``MARK`` on ``<key_prefix>/<its name>``, framed if large (sealed with the
-        shelf's key if it has one), then the end."""
+        shelf's key if it has one), then the end (the query is always finished).
+
+        Parameters
+        ----------
+        query : zenoh.Query
+            The question.
+        key_prefix : str
+            The prefix its answers' keys go under.
+        """
         try:
             for name, raw in self.after(str(query.parameters.get("after") or "")):
                 wire.reply(query, raw, key_expr=f"{key_prefix}/{name}", final=False, key=self.key)
@@ -143,6 +167,8 @@ class Asker:
         counted in ``dropped["foreign"]``); None: open.
     on_answer : callable, optional
         Called (in Zenoh's thread) when a question has been answered in full.
+    timeout_s : float
+        How long a question waits for its answer before the next may be asked.
     """
 
     def __init__(

@@ -30,6 +30,7 @@ class StopFlag:
                 os.close(fd)
 
     def set(self) -> None:
+        """Set the flag and wake every :meth:`wait` (no lock: safe in a signal handler)."""
         self._set = True
         try:
             os.write(self._write_fd, b"\0")
@@ -37,6 +38,7 @@ class StopFlag:
             pass
 
     def is_set(self) -> bool:
+        """Whether the flag was set."""
         return self._set
 
     def wait(self, timeout_s: float) -> bool:
@@ -60,7 +62,15 @@ _signalled_while_starting = False
 
 
 def interrupt_while_starting(signum, frame) -> None:
-    """Signal handler for a command's start-up: remember the signal, raise KeyboardInterrupt."""
+    """Signal handler for a command's start-up: remember the signal, raise KeyboardInterrupt.
+
+    Parameters
+    ----------
+    signum : int
+        The signal (not used: any stop signal counts).
+    frame : frame or None
+        The interrupted frame (not used).
+    """
     global _signalled_while_starting
     _signalled_while_starting = True
     raise KeyboardInterrupt

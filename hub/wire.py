@@ -74,7 +74,15 @@ def new_key() -> bytes:
 
 
 def tag(payload: bytes, key: bytes) -> bytes:
-    """The 16-byte keyed BLAKE2b tag of ``payload`` under ``key``."""
+    """The 16-byte keyed BLAKE2b tag of ``payload`` under ``key``.
+
+    Parameters
+    ----------
+    payload : bytes
+        What the tag covers.
+    key : bytes
+        The run key (at most 64 bytes; :data:`KEY_BYTES` in the project).
+    """
     return _blake2b(payload, key=key, digest_size=TAG_BYTES).digest()
 
 
@@ -98,6 +106,13 @@ class WireError(ValueError):
     kind : str
         ``"foreign"`` (missing or bad tag: not from the holder of the key) or
         ``"frame"`` (malformed or out-of-order framing, or a message too large).
+
+    Parameters
+    ----------
+    kind : str
+        As the attribute.
+    message : str
+        What was wrong.
     """
 
     def __init__(self, kind: str, message: str):
@@ -110,7 +125,19 @@ def frames(
 ) -> list[tuple[bytes | memoryview, bytes | None]]:
     """The ``(put payload, attachment)`` pairs that carry ``payload`` (one when it fits):
     sealed, each frame followed by its tag and header, with no attachment; open, each frame
-    as it is, with its header as the attachment."""
+    as it is, with its header as the attachment.
+
+    Parameters
+    ----------
+    payload : bytes
+        The whole message.
+    key : bytes or None
+        The run key that seals it; None: open.
+    message_id : int
+        The message's id in the headers (taken modulo 2**32).
+    frame_max_bytes : int
+        Largest payload of one frame.
+    """
     n = len(payload)
     message_id &= _ID_MASK
     count = max(-(-n // frame_max_bytes), 1)
@@ -347,13 +374,24 @@ def reply(
     final: bool = True,
     key: bytes | None = None,
 ) -> None:
-    """Answer ``query`` with ``payload`` (on ``key_expr``, else the query's key), in several
-    framed replies if it is large (sealed with ``key`` if given), and finish it unless
-    ``final`` is False (more to come).
+    """Answer ``query`` with ``payload``, in several framed replies if it is large.
 
     The query is dropped explicitly: Zenoh sends a query's final answer when the object is
     freed, and a reference kept elsewhere (a logged exception's traceback reaches the
     callback's frame) would leave the asker waiting for its whole timeout.
+
+    Parameters
+    ----------
+    query : zenoh.Query
+        The query answered.
+    payload : bytes
+        The whole answer.
+    key_expr : str, optional
+        The key the replies go on (default: the query's).
+    final : bool
+        Finish the query after this answer; False: more answers to come.
+    key : bytes, optional
+        The run key that seals the replies; None: open.
     """
     key_expr = key_expr or query.key_expr
     for chunk, attachment in frames(payload, key, secrets.randbits(32)):
@@ -366,7 +404,19 @@ def get(session, key: str, payload: bytes | None = None, *, timeout_s: float) ->
     """Query ``key`` and return the whole payload of each reply (framed replies reassembled).
 
     Replies in error and malformed frame sequences are left out. Replies of several
-    queryables are kept apart by replier and key, in the order they completed.
+    queryables are kept apart by replier and key, in the order they completed. Replies
+    are taken open (no run key).
+
+    Parameters
+    ----------
+    session : zenoh.Session
+        An open session.
+    key : str
+        The key expression queried (parameters may follow a ``?``).
+    payload : bytes, optional
+        The query's payload.
+    timeout_s : float
+        How long to wait for replies.
     """
     import zenoh
 
