@@ -132,6 +132,7 @@ class KheperaModel:
 
     @property
     def max_wheel_mps(self) -> float:
+        """The fastest a wheel turns, in m/s (``max_speed_units`` in the dialect's units)."""
         return self.speed_unit_mps * self.max_speed_units
 
 

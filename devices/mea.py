@@ -49,9 +49,21 @@ def positions(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Electrode positions of a grid, row-major (as :func:`grid`), centred on ``centre_um``.
 
+    Parameters
+    ----------
+    rows, cols : int
+        Grid size (>= 1).
+    pitch_um : float
+        Distance between neighbouring electrodes, µm.
+    drop_corners : bool
+        As for :func:`grid`.
+    centre_um : (float, float)
+        Where the grid's centre is, µm.
+
     Returns
     -------
     x_um, y_um : float32[n]
+        x from the column, y from the row (row 0 at the smallest y).
     """
     r, c = grid(rows, cols, drop_corners)
     x = centre_um[0] + (c - (cols - 1) / 2.0) * pitch_um

@@ -140,7 +140,18 @@ def evoked(net, seconds: float, warmup_s: float = 5.0) -> dict:
 
 
 def relative_difference(nest_value, sim_value) -> float:
-    """NEST's figure relative to sim_network's (NaN when either is missing or 0)."""
+    """NEST's figure relative to sim_network's: ``nest / sim - 1``.
+
+    Parameters
+    ----------
+    nest_value, sim_value : float or None
+        One metric of each backend; None: not computed.
+
+    Returns
+    -------
+    float
+        NaN when either is None or ``sim_value`` is 0.
+    """
     if nest_value is None or sim_value is None or not sim_value:
         return math.nan
     return float(nest_value) / float(sim_value) - 1.0

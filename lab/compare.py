@@ -55,6 +55,12 @@ class CompareError(ValueError):
 
 @dataclass
 class Job:
+    """One run of a comparison: a condition at one seed, a ``neuvision run`` of its own.
+
+    ``runs_dir`` receives the run's folder and its ``run.log``; ``popen``, ``run_dir``,
+    ``status`` and ``reason`` (empty: it completed with a summary) are set as it runs.
+    """
+
     config: str
     name: str
     seed: int

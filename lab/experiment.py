@@ -300,8 +300,20 @@ class Experiment:
         check_hub_sections(cfg)
 
     def set(self, key: str, value) -> Experiment:
-        """Change one key (``"loop.period_ms"``, ``"culture.params.config"``); checked now
-        as ``neuvision run`` checks it (a bad one is not kept)."""
+        """Change one key, checked now as ``neuvision run`` checks it; returns self.
+
+        Parameters
+        ----------
+        key : str
+            Dotted (``"loop.period_ms"``, ``"culture.params.config"``).
+        value : Any
+            A TOML value: number, bool, string, path, list or table of them.
+
+        Raises
+        ------
+        ConfigError
+            The key or value is refused; the experiment is left as it was.
+        """
         return self._set({key: value})
 
     def _set(self, items: dict) -> Experiment:
@@ -333,9 +345,20 @@ class Experiment:
     def run(self, runs_dir: str | Path | None = None, *, progress: bool = False) -> Run:
         """Run it (the mode is the file's ``loop.mode``) and return the recorded run.
 
-        ``runs_dir`` overrides ``experiment.runs_dir``; ``progress`` shows the progress bar
-        on stderr. A scheme given as a function of ``__main__`` runs in the hub's process
-        (this one); the endpoints are processes of their own.
+        A scheme given as a function of ``__main__`` runs in the hub's process (this one);
+        the endpoints are processes of their own. Blocks until the run ends.
+
+        Parameters
+        ----------
+        runs_dir : path, optional
+            Where the run's folder is made (default ``experiment.runs_dir``).
+        progress : bool
+            Show the progress bar on stderr.
+
+        Raises
+        ------
+        RuntimeError
+            The run left no record (it ended before its folder was made).
         """
         items = self._items()
         if runs_dir is not None:
@@ -370,6 +393,7 @@ class Run:
 
     @classmethod
     def open(cls, run_dir: str | Path) -> Run:
+        """The run in ``run_dir`` (as ``Run(run_dir)``); FileNotFoundError if not a run folder."""
         return cls(run_dir)
 
     def __repr__(self) -> str:
@@ -384,14 +408,17 @@ class Run:
 
     @property
     def manifest(self) -> dict:
+        """``manifest.json``: the run's config, seed, hosts, start, end, outcome, timing."""
         return self.record.manifest
 
     @property
     def outcome(self) -> str:
+        """How the run ended, as its manifest says ("" if it says nothing)."""
         return self.manifest.get("outcome", "")
 
     @property
     def steps(self) -> int:
+        """The steps the run made, as its manifest says (0 if it says nothing)."""
         return int(self.manifest.get("steps") or 0)
 
     @property

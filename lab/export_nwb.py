@@ -43,11 +43,17 @@ class ExportError(Exception):
 
 
 def export_nwb(run_dir: str | Path | Run, path: str | Path) -> Path:
-    """Write the run in ``run_dir`` (a folder, or a :class:`Run` opened on one) to the
-    NWB file ``path``; return the path.
+    """Write a recorded run to an NWB file; return the file's path.
 
     A record cut short is exported as far as it goes, and its file's ``notes`` say so
     (``record_short``); so are damaged messages left out (``record_damaged``).
+
+    Parameters
+    ----------
+    run_dir : path or Run
+        A run folder, or a :class:`Run` opened on one.
+    path : path
+        The NWB file; one already there is replaced, once the new one is whole.
 
     Raises
     ------

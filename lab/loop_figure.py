@@ -42,10 +42,19 @@ class LoopSeries:
 def loop_series(
     rec: RunRecord, ca_window_ms: float = WINDOW_MS, centre_tau_s: float = 0.0
 ) -> LoopSeries:
-    """The loop's arrays from a record; the CA over the last ``ca_window_ms`` before the
-    end of each step, as the Center-of-Activity decoder computes it: from the culture's
-    geometric centre (the paper), or with ``centre_tau_s > 0`` from the decoder's running
-    mean of the CA (``decoding.params.centre_tau_s``, :func:`hub.decoding.center_of_activity`)."""
+    """The loop's arrays from a record, the Center of Activity (CA) as the decoder computes it.
+
+    Parameters
+    ----------
+    rec : RunRecord
+        The run.
+    ca_window_ms : float
+        The window, ending at each culture step's end, whose spikes give the CA.
+    centre_tau_s : float
+        0: the CA from the culture's geometric centre (the paper); > 0: from the decoder's
+        running mean of the CA (``decoding.params.centre_tau_s``,
+        :func:`hub.decoding.center_of_activity`).
+    """
     readings = sorted(rec.decoded(SensorReading, *DATA_DIRECTIONS), key=lambda r: r.step)
     body = rec.descriptions().get("body")
     culture = rec.descriptions().get("culture")
@@ -127,7 +136,20 @@ def plot_loop(
     centre_tau_s: float = 0.0,
 ) -> list[Path]:
     """Four panels on one time axis: sensor ranges, pulses by channel (amplitude as
-    colour), the CA's distance and angle, the wheel speeds. Returns the files written."""
+    colour), the CA's distance and angle, the wheel speeds. Returns the files written.
+
+    Parameters
+    ----------
+    series : LoopSeries
+        From :func:`loop_series`.
+    out : path
+        The files' path without its suffix: one file per format of
+        :data:`hub.analysis.figures.FORMATS`.
+    title : str
+        Above the panels; "" for none.
+    ca_window_ms, centre_tau_s : float
+        Those ``series`` was made with, for the CA panel's title.
+    """
     fig = Figure(figsize=(11, 9), layout="constrained")
     axes = fig.subplots(4, 1, sharex=True)
     ax = axes[0]
@@ -180,7 +202,22 @@ def plot_loop(
 
 
 def plot_stimulation_sites(rec: RunRecord, series: LoopSeries, out: str | Path) -> list[Path]:
-    """The culture's electrodes, the stimulated ones sized and coloured by pulses received."""
+    """The culture's electrodes, the stimulated ones sized and coloured by pulses received.
+
+    Parameters
+    ----------
+    rec : RunRecord
+        The run: its culture's description gives the electrodes' positions.
+    series : LoopSeries
+        Its pulses (:func:`loop_series`).
+    out : path
+        As for :func:`plot_loop`.
+
+    Returns
+    -------
+    list of Path
+        The files written; none when the culture has no positions or no pulse was sent.
+    """
     culture = rec.descriptions().get("culture")
     if culture is None or culture.x_um is None or series.pulse_channel.size == 0:
         return []

@@ -110,9 +110,29 @@ def stimulation_targets(
     within ``SITE_CELLS`` grid cells of the one target; else (likely for the 20 % inhibitory
     cells, whose nearest such block lay ~600 µm off on seed 1) the four neurons of that type
     nearest the one target.
-    Neurons flagged in ``excluded`` (bool[n]) count as of no type: the protocols pass the
-    culture's chattering-like cells (`Network.chattering_like`), as the paper stimulates
-    regular-spiking excitatory cells.
+
+    Parameters
+    ----------
+    layout : sim_network.layout.Layout
+        The culture's grid: positions, cell types, rows and columns.
+    cell_type : int
+        0 excitatory, 1 inhibitory.
+    n_targets : int
+        1 or 4.
+    excluded : bool[n], optional
+        Neurons that count as of no type: the protocols pass the culture's
+        chattering-like cells (`Network.chattering_like`), as the paper stimulates
+        regular-spiking excitatory cells.
+
+    Returns
+    -------
+    tuple of int
+        The targets' neuron indices, in increasing order.
+
+    Raises
+    ------
+    ValueError
+        ``n_targets`` is not 1 or 4, or no neuron is of ``cell_type``.
     """
     if n_targets not in (1, 4):
         raise ValueError(f"n_targets must be 1 or 4, got {n_targets}")

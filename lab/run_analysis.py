@@ -71,7 +71,15 @@ def stimulus_onsets_ms(stimulations) -> tuple[np.ndarray, np.ndarray]:
 
 def psth_applies(stim_ms: np.ndarray | None, params: AnalysisParams) -> str:
     """Why no PSTH is computed (empty: it is): stimuli closer together than the PSTH's
-    window (a closed loop stimulates every step) make every response overlap the next."""
+    window (a closed loop stimulates every step) make every response overlap the next.
+
+    Parameters
+    ----------
+    stim_ms : float array or None
+        The stimulus onsets (ms, sorted); fewer than two: a PSTH applies.
+    params : AnalysisParams
+        Its ``psth_window_ms`` is compared with the median interval between onsets.
+    """
     if stim_ms is None or stim_ms.size < 2:
         return ""
     window_ms = params.psth_window_ms[1] - params.psth_window_ms[0]

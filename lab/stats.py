@@ -23,6 +23,13 @@ def permutation_test(a, b, *, seed: int = 0) -> tuple[float, str]:
     likely under the null hypothesis; the p-value is the share of splits whose difference of
     means is at least as large (in absolute value) as the observed one.
 
+    Parameters
+    ----------
+    a, b : array_like of float
+        The two samples.
+    seed : int
+        For the random relabellings, drawn when there are more than :data:`MAX_EXACT`.
+
     Returns
     -------
     p_value : float

@@ -16,5 +16,12 @@ def under(prefix: str, exc: ConfigError) -> ConfigError:
 
     ``under("culture.params.", ConfigError("noise.sd must be >= 0, got -1.0"))`` reads
     ``culture.params.noise.sd must be >= 0, got -1.0``.
+
+    Parameters
+    ----------
+    prefix : str
+        Dotted path of the table the error's key is in, with its trailing dot.
+    exc : ConfigError
+        The error raised for a key of that table; left unchanged.
     """
     return type(exc)(f"{prefix}{exc}")

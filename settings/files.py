@@ -135,7 +135,18 @@ def _load(path: Path, what: str, paths: tuple[str, ...], seen: tuple[Path, ...])
 
 
 def merge(base: dict, over: dict) -> dict:
-    """``over`` laid over ``base`` by the one rule of this module (see its docstring)."""
+    """``over`` laid over ``base`` by the one rule of this module (see its docstring).
+
+    Parameters
+    ----------
+    base, over : dict
+        The base file's table and the extending file's; neither is changed.
+
+    Returns
+    -------
+    dict
+        A new table (values not merged are shared with the inputs, not copied).
+    """
     if SHAPE_KEY in over and SHAPE_KEY in base and over[SHAPE_KEY] != base[SHAPE_KEY]:
         return dict(over)
     out = dict(base)
@@ -152,7 +163,19 @@ def merge(base: dict, over: dict) -> dict:
 
 
 def resolve_paths(data: dict, patterns: Iterable[str], base_dir: Path, prefix: str = "") -> None:
-    """Make every relative path at a key matching ``patterns`` absolute from ``base_dir``."""
+    """Make every relative path at a key matching ``patterns`` absolute from ``base_dir``.
+
+    Parameters
+    ----------
+    data : dict
+        The table, changed in place; nested tables are walked.
+    patterns : iterable of str
+        Dotted ``fnmatch`` patterns of the path-valued keys (``"*.params.world"``).
+    base_dir : Path
+        The folder relative paths are taken from (the file's own); ``~`` is expanded.
+    prefix : str
+        Dotted path of ``data`` within the whole file, with its trailing dot.
+    """
     patterns = tuple(patterns)
     if not patterns:
         return
@@ -179,8 +202,24 @@ def apply_overrides(
 ) -> dict:
     """Set each ``dotted.key=value`` item in ``data`` (in place; returned too).
 
-    An item replaces what is at its key (a table given whole replaces the table). Values
-    at path-valued keys are resolved from ``base_dir`` (default: the current folder).
+    An item replaces what is at its key (a table given whole replaces the table).
+
+    Parameters
+    ----------
+    data : dict
+        The table.
+    items : iterable of str
+        ``dotted.key=value`` overrides, values parsed as TOML (:func:`parse_override`).
+    paths : iterable of str
+        Dotted patterns of the path-valued keys, as for :func:`load`.
+    base_dir : Path, optional
+        The folder relative paths in the items are taken from (default: the current one).
+
+    Raises
+    ------
+    ConfigError
+        An item not of the form ``dotted.key=value``, or one whose key runs through a
+        value that is not a table.
     """
     patterns = tuple(paths)
     for item in items:

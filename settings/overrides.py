@@ -57,7 +57,22 @@ def parse_override(item: str) -> tuple[str, Any]:
 
 
 def set_dotted(data: dict, key: str, value: Any) -> None:
-    """Set ``data[a][b][c] = value`` for ``key = "a.b.c"``, making tables on the way."""
+    """Set ``data[a][b][c] = value`` for ``key = "a.b.c"``, making tables on the way.
+
+    Parameters
+    ----------
+    data : dict
+        The table, changed in place.
+    key : str
+        Dotted key.
+    value : Any
+        What to put there; replaces what was there (a table too).
+
+    Raises
+    ------
+    ConfigError
+        A part of ``key`` before the last names a value that is not a table.
+    """
     parts = key.split(".")
     node = data
     for i, part in enumerate(parts[:-1]):
@@ -69,7 +84,17 @@ def set_dotted(data: dict, key: str, value: Any) -> None:
 
 
 def get_dotted(data: dict, key: str, default: Any = None) -> Any:
-    """``data[a][b][c]`` for ``key = "a.b.c"``, or ``default`` where a part is missing."""
+    """``data[a][b][c]`` for ``key = "a.b.c"``, or ``default`` where a part is missing.
+
+    Parameters
+    ----------
+    data : dict
+        The table.
+    key : str
+        Dotted key.
+    default : Any
+        Returned when a part is missing or a part before the last is not a table.
+    """
     node: Any = data
     for part in key.split("."):
         if not isinstance(node, dict) or part not in node:

@@ -32,9 +32,21 @@ def bounds(
     check: Callable[[str, Any], Any] | None = None,
     parse: Callable[[str, Any], Any] | None = None,
 ) -> dict:
-    """Field metadata: limits of a value, choices, a ``check(dotted, value) -> value`` that
-    raises :class:`ConfigError` (run after the type and limits), or a ``parse(dotted, raw)
-    -> value`` that replaces the type check (for values with their own message)."""
+    """Field metadata (``field(metadata=bounds(...))``) that :func:`coerce` checks.
+
+    Parameters
+    ----------
+    gt, ge, lt, le : float, optional
+        Limits of the value: greater than, at least, less than, at most.
+    choices : tuple, optional
+        The values allowed.
+    check : callable, optional
+        ``check(dotted, value) -> value``, run after the type and limits; raises
+        :class:`ConfigError`.
+    parse : callable, optional
+        ``parse(dotted, raw) -> value``, run instead of the type check (for values with
+        their own message); the limits and ``check`` still apply.
+    """
     return {
         "gt": gt,
         "ge": ge,
@@ -52,8 +64,22 @@ def known_keys(cls) -> list[str]:
 
 
 def check_known(data: dict, known: list[str], prefix: str = "") -> None:
-    """Raise :class:`ConfigError` naming the first key of ``data`` not in ``known``, with a
-    close match if there is one, and the known keys."""
+    """Refuse a table with a key that is not known.
+
+    Parameters
+    ----------
+    data : dict
+        The table.
+    known : list of str
+        The keys it may have (:func:`known_keys`).
+    prefix : str
+        Dotted path of ``data`` within the whole file, put before the key in the message.
+
+    Raises
+    ------
+    ConfigError
+        Naming the first unknown key, with a close match if there is one, and the known keys.
+    """
     for key in data:
         if key not in known:
             hint = difflib.get_close_matches(str(key), known, n=1)
@@ -123,6 +149,22 @@ def coerce(dotted: str, hint: Any, value: Any, meta: dict | None = None) -> Any:
 
     Types: bool, int, float (finite), str, dict, ``X | None``, ``tuple[X, ...]``,
     ``tuple[X, Y]`` and dataclasses (a table).
+
+    Parameters
+    ----------
+    dotted : str
+        The value's dotted key, for the messages.
+    hint : type
+        The field's type annotation (resolved, not a string).
+    value : Any
+        As read from TOML; an int is taken for a float, a string for ``tuple[str, ...]``.
+    meta : dict, optional
+        The field's metadata (:func:`bounds`).
+
+    Raises
+    ------
+    ConfigError
+        ``<dotted> ...``: wrong type, not finite, out of bounds, not one of the choices.
     """
     meta = meta or {}
     if meta.get("parse") is not None:
@@ -219,6 +261,20 @@ def to_plain(obj: Any) -> Any:
 def with_overrides(obj: Any, items: list[str], prefix: str = "") -> Any:
     """A copy of config dataclass ``obj`` with ``dotted.key=value`` items applied, validated.
 
-    ``with_overrides(network_cfg, ["noise.sd=3.5"])``; errors name ``<prefix><key>``.
+    ``with_overrides(network_cfg, ["noise.sd=3.5"])``.
+
+    Parameters
+    ----------
+    obj : dataclass
+        The config; not changed.
+    items : list of str
+        ``dotted.key=value`` overrides, keys relative to ``obj``.
+    prefix : str
+        Dotted path of ``obj`` within the whole file, put before the key in a message.
+
+    Raises
+    ------
+    ConfigError
+        ``<prefix><key> ...``: a malformed item, or a value :func:`build` refuses.
     """
     return build(type(obj), apply_overrides(to_plain(obj), items), prefix)

@@ -55,6 +55,13 @@ class IRCalibration:
     def from_file(cls, path: str | Path, key: str = "body.params.ir_table_file") -> IRCalibration:
         """A lab's own table: a CSV file with the header ``distance_m,value``.
 
+        Parameters
+        ----------
+        path : path
+            The CSV file: the header, then one ``distance_m,value`` row per measured point.
+        key : str
+            The setting that named the file, for the message.
+
         Raises
         ------
         ConfigError
@@ -95,7 +102,16 @@ class Odometry:
         self._last: tuple[int, int] | None = None
 
     def reset(self, pose, counters: tuple[int, int] | None = None) -> None:
-        """Start again at ``pose`` (x_m, y_m, heading_rad), counters as they read now."""
+        """Start again at ``pose``, with the position counters as they read now.
+
+        Parameters
+        ----------
+        pose : (x_m, y_m, heading_rad)
+            Where the robot is.
+        counters : (int, int), optional
+            The wheels' counters (pulses) at ``pose``; None: the next :meth:`update`'s
+            counters are taken as the start, and it does not move the pose.
+        """
         self.pose = np.asarray(pose, dtype=np.float64).copy()
         self._last = counters
 

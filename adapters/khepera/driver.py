@@ -59,6 +59,7 @@ class WheelUnits:
 
     @property
     def max_mps(self) -> float:
+        """The fastest a wheel may be driven (m/s): ``max_units`` units."""
         return self.speed_unit_mps * self.max_units
 
     def to_units(self, speed_mps: float) -> tuple[int, bool]:
@@ -163,7 +164,16 @@ class KheperaDriver:
     # ------------------------------------------------------------ the loop's side
 
     def command(self, left_mps: float, right_mps: float) -> bool:
-        """Set the wheel speeds (sent by the next cycle); True when one was clamped."""
+        """Set the wheel speeds (sent by the next cycle); True when one was clamped.
+
+        Each call restarts the motor watchdog. Called from the loop's thread; never waits
+        for the serial line.
+
+        Parameters
+        ----------
+        left_mps, right_mps : float
+            The wheels' speeds, rounded to the robot's units and clamped to its limit.
+        """
         left, clamp_l = self.units.to_units(left_mps)
         right, clamp_r = self.units.to_units(right_mps)
         with self._lock:
@@ -199,6 +209,7 @@ class KheperaDriver:
             return self._latest
 
     def note_age(self, age_s: float) -> None:
+        """Count the age (s) of a reading a step answered with, for :meth:`stats`."""
         with self._lock:
             self.ages_s.append(age_s)
 

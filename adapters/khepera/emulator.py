@@ -193,10 +193,12 @@ class KheperaEmulator:
 
     @property
     def dialect(self) -> str:
+        """The emulated robot's serial dialect: ``khepera2`` or ``khepera3``."""
         return self.model.dialect
 
     @property
     def wheel_mps(self) -> tuple[float, float]:
+        """The left and right wheel speeds last commanded (``D``), in m/s."""
         unit = self.model.speed_unit_mps
         return (self.speed_units[0] * unit, self.speed_units[1] * unit)
 
@@ -303,8 +305,18 @@ def run_until_signalled(emulator: KheperaEmulator, *, link: str | None = None, r
     """Serve ``emulator`` until SIGINT/SIGTERM (``neuvision emulate khepera``).
 
     Prints the device path on stdout first (a script reads it from there), then a status
-    line on stderr every ``report_s`` seconds. ``link``: a symlink made to the device path
-    (an experiment file can name a fixed port), removed at exit.
+    line on stderr every ``report_s`` seconds; stops the emulator at exit. Called from the
+    main thread: it installs its own signal handlers.
+
+    Parameters
+    ----------
+    emulator : KheperaEmulator
+        Not yet started.
+    link : str, optional
+        A symlink made to the device path (an experiment file can name a fixed port);
+        one already there is replaced, and it is removed at exit if it still links here.
+    report_s : float
+        Seconds between status lines.
     """
     import signal
     import sys

@@ -127,6 +127,19 @@ class KheperaEndpoint(Endpoint):
     def check_config(cls, section: EndpointSection, cfg: ExperimentConfig) -> dict:
         """Check ``[body.params]`` and the loop's mode without opening the port.
 
+        Parameters
+        ----------
+        section : EndpointSection
+            The ``[body]`` section; its ``params`` are checked.
+        cfg : ExperimentConfig
+            The whole experiment: its loop's mode, and its period for ``watchdog_s``.
+
+        Returns
+        -------
+        dict
+            Every key of ``[body.params]``, the defaults filled in (``baud`` and
+            ``stop_bits`` the model's) and the values typed.
+
         Raises
         ------
         ConfigError

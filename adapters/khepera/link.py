@@ -31,7 +31,15 @@ class LinkFault(DeviceFault):
 
 
 def byte_time_s(baud: int, stop_bits: int = 2) -> float:
-    """Seconds one byte takes on the wire: a start bit, 8 data bits, the stop bits."""
+    """Seconds one byte takes on the wire: a start bit, 8 data bits, the stop bits.
+
+    Parameters
+    ----------
+    baud : int
+        The line's speed (bits/s).
+    stop_bits : int
+        1 or 2.
+    """
     return (1 + 8 + stop_bits) / baud
 
 
@@ -75,6 +83,7 @@ class SerialLink:
 
     @property
     def name(self) -> str:
+        """The port's device path, for messages."""
         return str(self.port.port)
 
     @property
@@ -84,6 +93,16 @@ class SerialLink:
 
     def transact(self, letter: str, *values: int) -> Reply:
         """Send one command and return its checked reply.
+
+        Stale input is drained first; a failed reply is retried (the command sent again).
+        Callers on several threads take turns.
+
+        Parameters
+        ----------
+        letter : str
+            The command's letter.
+        *values : int
+            Its arguments (:func:`~adapters.khepera.protocol.command`).
 
         Raises
         ------
@@ -194,6 +213,17 @@ def open_port(
     path: str, *, baud: int = 9600, stop_bits: int = 2, timeout_s: float = 0.2
 ) -> serial.Serial:
     """Open a Khepera's serial port: 8 data bits, no parity, no flow control.
+
+    Parameters
+    ----------
+    path : str
+        The device (``/dev/ttyUSB0``).
+    baud : int
+        The robot's baud (:data:`BAUDS` for a Khepera II's jumpers).
+    stop_bits : int
+        2, or anything else for 1.
+    timeout_s : float
+        How long a read or a write may wait.
 
     Raises
     ------

@@ -37,10 +37,16 @@ COUNTER_COMMANDS = {"khepera2": ("G", "H"), "khepera3": ("I", "R")}
 class ReplyError(Exception):
     """A reply line that is not the answer expected: never parsed as data.
 
-    ``kind`` is ``truncated`` (no line end: cut short or timed out), ``garbled`` (not
-    ASCII, wrong field count, a field that is not a number), ``order`` (the reply of
-    another command: a late answer) or ``refused`` (the robot did not know the command).
-    ``line`` holds the bytes as received, for the log.
+    Parameters
+    ----------
+    kind : str
+        ``truncated`` (no line end: cut short or timed out), ``garbled`` (not ASCII,
+        wrong field count, a field that is not a number), ``order`` (the reply of another
+        command: a late answer) or ``refused`` (the robot did not know the command).
+    detail : str
+        What is wrong, for the message.
+    line : bytes
+        The bytes as received, for the log.
     """
 
     def __init__(self, kind: str, detail: str, line: bytes):
@@ -49,7 +55,22 @@ class ReplyError(Exception):
 
 
 def command(letter: str, *values: int, dialect: str = "khepera2") -> bytes:
-    """The bytes of one command: ``command("D", 10, -10)`` → ``b"D,10,-10\\r"``."""
+    """The bytes of one command: ``command("D", 10, -10)`` → ``b"D,10,-10\\r"``.
+
+    Parameters
+    ----------
+    letter : str
+        The command's letter (either case).
+    *values : int
+        Its arguments; a Khepera III's go out with their type prefix (``l20000``).
+    dialect : str
+        ``khepera2`` or ``khepera3``.
+
+    Raises
+    ------
+    ValueError
+        An unknown dialect.
+    """
     if dialect not in DIALECTS:
         raise ValueError(f"dialect must be one of {DIALECTS}, got {dialect!r}")
     prefix = "l" if dialect == "khepera3" else ""
@@ -67,6 +88,15 @@ class Reply:
 
 def parse_reply(letter: str, line: bytes, *, dialect: str = "khepera2") -> Reply:
     """Check that ``line`` is the complete reply to command ``letter`` and parse it.
+
+    Parameters
+    ----------
+    letter : str
+        The command sent (either case).
+    line : bytes
+        The line received, with its ``\\r\\n``.
+    dialect : str
+        ``khepera2`` or ``khepera3``: how many fields each reply has.
 
     Raises
     ------
@@ -103,7 +133,15 @@ def parse_reply(letter: str, line: bytes, *, dialect: str = "khepera2") -> Reply
 
 
 def reply_line(letter: str, *values) -> bytes:
-    """The bytes a robot answers command ``letter`` with (the emulator's side)."""
+    """The bytes a robot answers command ``letter`` with (the emulator's side).
+
+    Parameters
+    ----------
+    letter : str
+        The command answered; the reply starts with it in lower case.
+    *values : int or str
+        The reply's fields, written with ``str``.
+    """
     return (",".join([letter.lower(), *(str(v) for v in values)]) + "\r\n").encode("ascii")
 
 

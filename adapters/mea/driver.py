@@ -21,8 +21,23 @@ from hub.endpoint import DeviceFault
 
 
 def spike_arrays(spikes: list[tuple], seconds_per_tick: float = 1.0):
-    """``(channel, instrument time, arrival)`` tuples as three arrays: channel, instrument
-    time in seconds (the tuples' time × ``seconds_per_tick``), arrival (``time.monotonic()``)."""
+    """Spikes read as tuples, as the three arrays of :meth:`MeaDriver.take_spikes`.
+
+    Parameters
+    ----------
+    spikes : list of (channel, instrument time, arrival)
+        Arrival on ``time.monotonic()``'s clock (s).
+    seconds_per_tick : float
+        The instrument time's unit, in s.
+
+    Returns
+    -------
+    channel : uint32[n]
+    inst_s : float64[n]
+        Instrument time, s.
+    arrived : float64[n]
+        Arrival, s on ``time.monotonic()``'s clock.
+    """
     if not spikes:
         return np.zeros(0, np.uint32), np.zeros(0), np.zeros(0)
     arr = np.array(spikes, dtype=np.float64)
@@ -55,6 +70,7 @@ class ClockMap:
         return fitted
 
     def to_local(self, inst_s: np.ndarray) -> np.ndarray:
+        """Instrument times (s) as times on ``time.monotonic()``'s clock (s), by the fit."""
         a, b = self.fit()
         return (np.asarray(inst_s) - a) / b
 

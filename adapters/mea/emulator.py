@@ -123,6 +123,7 @@ class IntanEmulator:
     # ------------------------------------------------------------ running
 
     def start(self) -> IntanEmulator:
+        """Serve both ports and run the culture, each on a thread of its own; returns self."""
         for target in (self._accept_commands, self._accept_spikes, self._simulate):
             t = threading.Thread(
                 target=self._raised, args=(target,), daemon=True, name=f"intan-{target.__name__}"
@@ -140,6 +141,7 @@ class IntanEmulator:
         target(*args)
 
     def stop(self) -> None:
+        """Stop serving: the threads ended, both ports and the spike clients closed."""
         self._stop.set()
         for t in self._threads:
             t.join(timeout=2.0)
@@ -346,8 +348,18 @@ def _merged(pending: list[Pulses]) -> Pulses | None:
 
 
 def run_until_signalled(emulator: IntanEmulator, report_s: float = 5.0) -> None:
-    """Serve until SIGINT/SIGTERM (``neuvision emulate intan``), a status line every
-    ``report_s`` seconds on stderr."""
+    """Serve until SIGINT/SIGTERM (``neuvision emulate intan``); stop the emulator at exit.
+
+    Called from the main thread: it installs its own signal handlers. It puts this thread
+    under ``SCHED_FIFO`` too when the emulator's ``realtime_priority`` asks for it.
+
+    Parameters
+    ----------
+    emulator : IntanEmulator
+        Not yet started.
+    report_s : float
+        Seconds between status lines on stderr.
+    """
     import signal
     import sys
 

@@ -140,7 +140,29 @@ class MeaEndpoint(Endpoint):
 
     @classmethod
     def check_config(cls, section: EndpointSection, cfg: ExperimentConfig) -> dict:
-        """Check ``[culture.params]`` and the mode, opening nothing."""
+        """Check ``[culture.params]`` and the mode, opening nothing.
+
+        Parameters
+        ----------
+        section : EndpointSection
+            The ``[culture]`` section; its ``params`` are checked.
+        cfg : ExperimentConfig
+            The whole experiment: its loop's mode and deadline.
+
+        Returns
+        -------
+        dict
+            ``driver``, ``reply_margin_ms``, ``stream_spikes_ms``, ``layout_file``,
+            ``safety`` and the driver's own keys, the defaults filled in and the values
+            typed.
+
+        Raises
+        ------
+        ConfigError
+            Naming ``culture.params.<key>`` (a key the driver does not take, a bad value or
+            file, pylsl missing for ``lsl``), ``loop.mode`` for a lockstep run, or
+            ``loop.deadline_ms`` outside one to two periods.
+        """
         if cfg.loop.mode != "realtime":
             raise ConfigError(f"loop.mode: {LOCKSTEP_REFUSAL}")
         if problem := cfg.loop.late_window_problem():  # an MEA answers after its window

@@ -33,10 +33,12 @@ class ElectrodeLayout:
 
     @property
     def n(self) -> int:
+        """How many electrodes."""
         return len(self.names)
 
     @property
     def channel(self) -> np.ndarray:
+        """The channel ids on the wire, ``0..n-1`` (uint32)."""
         return np.arange(self.n, dtype=np.uint32)
 
     def index(self) -> dict[str, int]:
@@ -53,6 +55,14 @@ class ElectrodeLayout:
     @classmethod
     def from_file(cls, path: str | Path, key: str = "culture.params.layout_file"):
         """A CSV ``name,x_um,y_um`` with that header.
+
+        Parameters
+        ----------
+        path : path
+            The file: the header, then one row per electrode in channel order (the
+            instrument's channel name, its position in µm); blank lines are skipped.
+        key : str
+            The setting that named the file, for the message.
 
         Raises
         ------

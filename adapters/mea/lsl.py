@@ -61,7 +61,18 @@ class LslError(DeviceFault):
 
 
 def predicate(name: str, type_: str, source_id: str) -> str:
-    """The XPath predicate that finds the spike stream (empty fields match anything)."""
+    """The XPath predicate that finds the spike stream (empty fields match anything).
+
+    Parameters
+    ----------
+    name, type_, source_id : str
+        The stream's name, type and source id; "" matches any.
+
+    Raises
+    ------
+    ValueError
+        A field holds a quote (``'``).
+    """
     parts = [f"{k}='{v}'" for k, v in (("name", name), ("type", type_), ("source_id", source_id))
              if v]  # fmt: skip
     for value in (name, type_, source_id):
@@ -71,7 +82,17 @@ def predicate(name: str, type_: str, source_id: str) -> str:
 
 
 def pulse_marker(pulse: BiphasicPulse, electrode: str, trigger: int) -> str:
-    """One pulse as the marker outlet carries it (JSON)."""
+    """One pulse as the marker outlet carries it (JSON, as in the module docstring).
+
+    Parameters
+    ----------
+    pulse : BiphasicPulse
+        An admitted pulse.
+    electrode : str
+        Its channel's name in the layout (``a-010``).
+    trigger : int
+        The number of the trigger it fires with (shared by the pulses fired together).
+    """
     return json.dumps(
         {
             "v": MARKER_VERSION,
@@ -142,6 +163,7 @@ class LslDriver:
 
     @property
     def stimulates(self) -> bool:
+        """Whether a marker outlet is configured: False for a record-only instrument."""
         return bool(self.stim_outlet)
 
     # ------------------------------------------------------------ life
@@ -220,6 +242,7 @@ class LslDriver:
         self.stop()
 
     def close(self) -> None:
+        """Send a ``stop`` marker, stop reading spikes and close the stream and the outlet."""
         self._stop.set()
         self.stop()
         if self._reader is not None:

@@ -63,6 +63,13 @@ def spike_records(buffer: bytearray, counts: Counter) -> np.ndarray:
     are dropped and counted (``bad_magic``) — the stream resynchronised on the next magic.
     Records are read as one array: a burst's thousands of records would otherwise hold the
     interpreter for milliseconds, and the thread firing pulses with it.
+
+    Parameters
+    ----------
+    buffer : bytearray
+        The bytes read from the spike port and not yet taken; changed in place.
+    counts : Counter
+        Where ``bad_magic`` is counted, once per resynchronisation.
     """
     out = []
     while len(buffer) >= SPIKE_RECORD.size:
@@ -86,8 +93,17 @@ def spike_records(buffer: bytearray, counts: Counter) -> np.ndarray:
 
 
 def spike_record_bytes(names: np.ndarray, timestamps: np.ndarray, spike_id: int = 1) -> bytes:
-    """Records for spikes on channels ``names`` (``S5``) at ``timestamps`` (the emulator's
-    side)."""
+    """The spike port's bytes for a batch of spikes (the emulator's side).
+
+    Parameters
+    ----------
+    names : S5 array
+        Each spike's channel name.
+    timestamps : uint32 array_like
+        Each spike's time, in samples.
+    spike_id : int
+        The id every record carries.
+    """
     records = np.empty(len(names), SPIKE_DTYPE)
     records["magic"] = SPIKE_MAGIC
     records["name"] = names
@@ -97,7 +113,17 @@ def spike_record_bytes(names: np.ndarray, timestamps: np.ndarray, spike_id: int 
 
 
 def spike_record(name: str, timestamp: int, spike_id: int = 1) -> bytes:
-    """One record."""
+    """One spike record's bytes.
+
+    Parameters
+    ----------
+    name : str
+        The channel name (ASCII; its first 5 characters kept).
+    timestamp : int
+        The spike's time, in samples.
+    spike_id : int
+        The record's spike id.
+    """
     return SPIKE_RECORD.pack(SPIKE_MAGIC, name.encode("ascii")[:5], timestamp, spike_id)
 
 
@@ -214,7 +240,21 @@ class RhxDriver:
         return rest.strip().split(" ", 1)[-1]
 
     def set(self, name: str, value) -> None:
-        """``set name value``, confirmed by a ``get`` (an ``Error`` or a mismatch raises)."""
+        """``set name value``, confirmed by a ``get``.
+
+        Parameters
+        ----------
+        name : str
+            The parameter (``runmode``, ``a-010.stimenabled``).
+        value : object
+            Written with ``str`` (a bool as ``true``/``false``); read back equal, ignoring
+            case (numbers: to 1e-6 relative).
+
+        Raises
+        ------
+        RhxError
+            The instrument answered ``Error``, did not answer, or holds another value.
+        """
         self.set_many([(name, value)])
 
     def set_many(self, items: list[tuple[str, object]]) -> None:
@@ -360,6 +400,9 @@ class RhxDriver:
         self.set("runmode", "stop")
 
     def close(self) -> None:
+        """Make the instrument safe (:meth:`finish`) and let it go: sockets closed, the
+        spike reader ended, the stop guard released. A command port that failed is left to
+        the stop guard, which writes its stop there. Called again, nothing."""
         if self._closed:
             return
         if self._cmd is not None and self._cmd_failed is None:

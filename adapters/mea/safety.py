@@ -56,7 +56,22 @@ class PulseLimits:
 
     @classmethod
     def from_params(cls, params: dict, key: str = "culture.params.safety") -> PulseLimits:
-        """Read ``[culture.params.safety]``; ConfigError names the key."""
+        """Read ``[culture.params.safety]``.
+
+        Parameters
+        ----------
+        params : dict
+            The table: the limits' keys (absent ones take the defaults), and ``shape`` and
+            ``mode``, which may only say ``"biphasic"`` and ``"current"``.
+        key : str
+            The table's dotted key, for the messages.
+
+        Raises
+        ------
+        ConfigError
+            Naming ``<key>.<name>``: an unknown key, a limit that is not a number > 0,
+            another shape, mode or polarity, ``min_phase_us`` over ``max_phase_us``.
+        """
         params = dict(params)
         for name, only in (("shape", "biphasic"), ("mode", "current")):
             value = params.pop(name, only)
@@ -96,8 +111,12 @@ class BiphasicPulse:
 class SafetyGate:
     """Checks pulses against :class:`PulseLimits`, counting refusals by reason.
 
-    ``n_channels``: the layout's electrodes (channels ``0..n_channels-1``); a pulse on any
-    other is refused (``channel``). None: not checked.
+    Parameters
+    ----------
+    limits : PulseLimits
+    n_channels : int, optional
+        The layout's electrodes (channels ``0..n_channels-1``); a pulse on any other is
+        refused (``channel``). None: not checked.
     """
 
     def __init__(self, limits: PulseLimits, n_channels: int | None = None):
@@ -109,7 +128,28 @@ class SafetyGate:
         self._all: deque[float] = deque()
 
     def admit(self, channel: int, amplitude_ua: float, width_ms: float, t_s: float):
-        """The biphasic pulse for a hub pulse at time ``t_s`` (s), or why it is refused (str)."""
+        """The biphasic pulse for a hub pulse, or why it is refused.
+
+        An admitted pulse counts towards the rates of the next second; a refused one does
+        not. Not thread-safe: one caller at a time.
+
+        Parameters
+        ----------
+        channel : int
+            The electrode's channel id.
+        amplitude_ua : float
+            The pulse's amplitude, µA (each phase's).
+        width_ms : float
+            The hub pulse's width, ms: the two phases together.
+        t_s : float
+            Its onset, s (run time), for the rate limits.
+
+        Returns
+        -------
+        BiphasicPulse or str
+            The pulse to deliver, or ``"<reason>: <detail>"`` (the reason as counted in
+            :attr:`refused`).
+        """
         lim = self.limits
         phase_us = width_ms * 1e3 / 2
         charge_nc = amplitude_ua * phase_us * 1e-3
