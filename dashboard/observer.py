@@ -73,12 +73,26 @@ COMMANDS = tuple(c for c in CONTROL_COMMANDS if c != "config")
 
 
 class BusObserver:
-    """The dashboard's live source on ``bus`` (the experiment's ``[bus]`` section: the
-    session, and where the hub listens or ``bus.connect``). ``config`` (a plain config
-    dict, the dashboard's own experiment file) stands in for the hub's when the hub does
-    not give it. ``find_hub`` (given when no address was): where the session's hub on this
-    machine listens now, or None; asked while no hub is there, so that the dashboard
-    follows ``neuvision run`` from run to run (each run's hub on a port of its own)."""
+    """The dashboard's live source: watches the hub on the bus and feeds a `FrameState`.
+
+    Nothing is joined before `start`; a thread of its own then tries, and tries again, to
+    reach the hub.
+
+    Parameters
+    ----------
+    bus : BusSection
+        The experiment's ``[bus]`` section: the session, and where the hub listens or
+        ``bus.connect``.
+    state : FrameState
+        What the page shows; fed under its lock.
+    config : dict or None
+        A plain config dict (the dashboard's own experiment file), standing in for the
+        hub's when the hub does not give it.
+    find_hub : callable or None
+        Given when no address was: where the session's hub on this machine listens now
+        (its locators), or None. Asked while no hub is there, so that the dashboard
+        follows ``neuvision run`` from run to run (each run's hub on a port of its own).
+    """
 
     def __init__(
         self,
@@ -134,12 +148,14 @@ class BusObserver:
     # ------------------------------------------------------------------ life
 
     def start(self) -> None:
+        """Start the watch thread, which joins the bus and asks the hub (returns at once)."""
         self._thread.start()
 
     def page_opened(self) -> None:
         """A page connected (nothing to do: the bus goes on regardless)."""
 
     def close(self) -> None:
+        """Stop the watch thread (waiting up to 5 s) and leave the bus."""
         self._closed.set()
         self._thread.join(timeout=5)
         if self.session is not None:

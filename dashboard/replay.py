@@ -37,12 +37,21 @@ class ReplayError(ValueError):
 
 
 class ReplaySource:
-    """Plays the run in ``run_dir`` into ``state`` at ``speed`` × real time.
+    """Plays a recorded run into a `FrameState`, paused until the first page opens.
+
+    Parameters
+    ----------
+    run_dir : str or Path
+        The run folder, read whole on construction.
+    state : FrameState
+        What the page shows.
+    speed : float
+        × real time, ``MIN_SPEED`` to ``MAX_SPEED``.
 
     Raises
     ------
     ReplayError
-        The folder holds no body readings to replay.
+        The speed is out of range, or the folder holds no body readings to replay.
     """
 
     def __init__(self, run_dir: str | Path, state: FrameState, speed: float = 1.0):
@@ -108,13 +117,14 @@ class ReplaySource:
     # ------------------------------------------------------------------ life
 
     def start(self) -> None:
+        """Give the state the run's scene and the replay's time 0."""
         with self.state.lock:
             self.state.set_scene(self.scene)
             self._jump(0.0)
         self._wall = time.monotonic()
 
     def close(self) -> None:
-        pass
+        """Nothing to release: the run was read whole."""
 
     def page_opened(self) -> None:
         """A page connected: the first one starts the replay (nobody misses its start)."""

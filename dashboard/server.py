@@ -48,18 +48,32 @@ class Source(Protocol):
     """What feeds the state: :class:`~dashboard.observer.BusObserver` or
     :class:`~dashboard.replay.ReplaySource`."""
 
-    def start(self) -> None: ...
-    def page_opened(self) -> None: ...
-    def tick(self) -> None: ...
-    def command(self, message: dict) -> dict: ...
-    def close(self) -> None: ...
+    def start(self) -> None:
+        """Begin feeding (called once, in a worker thread, as the server starts)."""
+
+    def page_opened(self) -> None:
+        """A page connected (called in a worker thread)."""
+
+    def tick(self) -> None:
+        """Feed the state what came since the last tick (the caller holds its lock)."""
+
+    def command(self, message: dict) -> dict:
+        """A page's control (``{"cmd": ...}``); the reply as ``{ok, state, reason}``."""
+
+    def close(self) -> None:
+        """Stop feeding and release what `start` took (as the server ends)."""
 
 
 class ServeError(RuntimeError):
     """The page cannot be served (the port is taken); the message says where.
 
-    ``bad_address`` is true when the address itself is wrong (a host that is not this
-    machine's or has no address), not the machine's state (a port taken).
+    Parameters
+    ----------
+    message : str
+        What failed, and where.
+    bad_address : bool
+        True when the address itself is wrong (a host that is not this machine's or has
+        no address), not the machine's state (a port taken); kept as ``bad_address``.
     """
 
     def __init__(self, message: str, *, bad_address: bool = False):
@@ -79,12 +93,23 @@ class Page:
     lock: asyncio.Lock = field(default_factory=asyncio.Lock)
 
     async def send(self, text: str) -> None:
+        """Send one message, after any other send to this page has ended."""
         async with self.lock:
             await self.ws.send_text(text)
 
 
 class Dashboard:
-    """The app: ``source`` feeds ``state``; frames go to every page ``fps`` times a second."""
+    """The app: a source feeds the state; frames go to every page ``fps`` times a second.
+
+    Parameters
+    ----------
+    source : Source
+        Started and closed with the app; ticked before each round of frames.
+    state : FrameState
+        What the pages are shown.
+    fps : float
+        Frames a second, > 0.
+    """
 
     def __init__(self, source: Source, state: FrameState, fps: float = 30.0):
         self.source = source
@@ -107,6 +132,8 @@ class Dashboard:
 
     @contextlib.asynccontextmanager
     async def lifespan(self, app):
+        """Starlette's lifespan: start the source and the pump, and at the end stop both
+        and log the process's CPU use."""
         await asyncio.to_thread(self.source.start)
         pump = asyncio.create_task(self.pump())
         started = (time.monotonic(), time.process_time())
@@ -132,6 +159,7 @@ class Dashboard:
     # ------------------------------------------------------------------ http
 
     async def index(self, request):
+        """The page (``/``), never cached."""
         return FileResponse(str(STATIC / "index.html"), headers={"Cache-Control": "no-store"})
 
     async def frame_json(self, request):
@@ -140,6 +168,8 @@ class Dashboard:
         return JSONResponse(json.loads(built[0][1][-1]))
 
     async def websocket(self, ws: WebSocket) -> None:
+        """One page's websocket (``/ws``): frames go out through the pump; controls come in
+        here, go to the source, and its reply goes back (``{"type": "reply", ...}``)."""
         await ws.accept()
         page = Page(ws)
         self.pages.add(page)
@@ -244,7 +274,14 @@ def page_json(message: dict) -> str:
 
 
 def bind(host: str, port: int) -> socket.socket:
-    """A listening TCP socket on ``host:port`` (0: a free port).
+    """A listening TCP socket on ``host:port``, inheritable by a child process.
+
+    Parameters
+    ----------
+    host : str
+        An address of this machine's, or a name for one (IPv6 when it holds a ``:``).
+    port : int
+        0: a free port.
 
     Raises
     ------
@@ -276,6 +313,7 @@ def bind(host: str, port: int) -> socket.socket:
 
 
 def url_of(sock: socket.socket) -> str:
+    """The page's address for a socket from `bind` (a wildcard host shown as 127.0.0.1)."""
     host, port = sock.getsockname()[:2]
     shown = "127.0.0.1" if host in ("0.0.0.0", "::") else host
     return f"http://{shown}:{port}/"
@@ -290,10 +328,28 @@ def serve(
     fps: float = 30.0,
     on_ready: Callable[[str], None] = lambda url: None,
 ) -> None:
-    """Serve the dashboard until SIGINT/SIGTERM; ``on_ready(url)`` once it listens.
+    """Serve the dashboard until SIGINT/SIGTERM (blocks).
+
+    Called from the main thread, the signal ends it quietly, so the command's status is 0.
+
+    Parameters
+    ----------
+    source : Source
+        What feeds ``state``.
+    state : FrameState
+    host : str
+        Address to listen on.
+    port : int
+        0: a free port.
+    fps : float
+        Frames a second to each page, > 0.
+    on_ready : callable
+        Called with the page's URL once the socket listens, before serving.
 
     Raises
     ------
+    ValueError
+        ``fps`` is not a finite number > 0.
     ServeError
         The address cannot be bound.
     """

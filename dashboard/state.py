@@ -52,7 +52,16 @@ COUNT_MATRIX_MAX = 1 << 18
 
 class Tape:
     """Items stamped with run time, each with a sequence number; a reader asks for what
-    came after its cursor. Items older than ``keep_s`` behind the newest time are let go."""
+    came after its cursor.
+
+    Parameters
+    ----------
+    keep_s : float
+        Items older than this (s of run time) behind the time `trim` is given are let go
+        (``math.inf``: none).
+    max_items : int or None
+        At most this many kept, the oldest let go first (None: no limit).
+    """
 
     def __init__(self, keep_s: float, max_items: int | None = None):
         self.keep_s = keep_s
@@ -60,10 +69,20 @@ class Tape:
         self.seq = 0  # the last item's number
 
     def add(self, t_s: float, item) -> None:
+        """Append ``item``, stamped with run time ``t_s`` (s), as the next number.
+
+        Parameters
+        ----------
+        t_s : float
+            Run time (s); items are expected in time order.
+        item : object
+            Anything; `since` hands it back as it is.
+        """
         self.seq += 1
         self._items.append((self.seq, t_s, item))
 
     def trim(self, now_s: float) -> None:
+        """Let go of the items stamped more than ``keep_s`` before ``now_s`` (s)."""
         items, oldest = self._items, now_s - self.keep_s
         while items and items[0][1] < oldest:
             items.popleft()
@@ -181,7 +200,24 @@ class FrameState:
         self, step: int, t_s: float, pose, ranges, contact: bool, trail: bool = True
     ) -> None:
         """A body's reading: the newest pose (by step) and, with ``trail``, a point of the
-        trail."""
+        trail.
+
+        Parameters
+        ----------
+        step : int
+            The reading's step; an older one than the newest seen adds only to the trail.
+        t_s : float
+            Its run time (s).
+        pose : sequence of float
+            ``(x_m, y_m, heading_rad)``.
+        ranges : sequence of float
+            The range finders' readings (m).
+        contact : bool
+            Whether the body touches an obstacle or the wall.
+        trail : bool
+            Whether the pose is also a point of the trail (False when the trail comes
+            apart, as in a hub's view).
+        """
         if trail:
             self.add_trail([pose[:2]], t_s)
         if step >= self.step:
@@ -192,8 +228,15 @@ class FrameState:
         self._advance(t_s * 1e3)
 
     def add_trail(self, points, t_s: float | None = None) -> None:
-        """Positions ``[[x, y], ...]`` of the body in step order (one point kept every
-        TRAIL_STEP_M of travel)."""
+        """Positions of the body in step order (one point kept every TRAIL_STEP_M of travel).
+
+        Parameters
+        ----------
+        points : array_like, float[k, 2]
+            ``[[x_m, y_m], ...]``.
+        t_s : float, optional
+            Their run time (s); default the newest seen.
+        """
         t_s = self.t_ms / 1e3 if t_s is None else t_s
         tape, last = self.tapes["trail"], self._last_trail
         for x, y in np.asarray(points, np.float64).tolist():
@@ -203,11 +246,30 @@ class FrameState:
         self._last_trail = last
 
     def add_motor(self, step: int, left_mps: float, right_mps: float) -> None:
+        """The newest motor command (the last one given is shown).
+
+        Parameters
+        ----------
+        step : int
+            The command's step; not used.
+        left_mps, right_mps : float
+            Wheel speeds (m/s).
+        """
         self.motor = [float(left_mps), float(right_mps)]
 
     def add_spikes(self, channel, t_ms, from_ms: float, until_ms: float) -> None:
-        """Every spike (channel ids, run times in ms, in time order) of the run time
-        ``[from_ms, until_ms)``."""
+        """Every spike of the run time ``[from_ms, until_ms)``: the raster, the culture
+        map's activity, and the rates and Center of Activity of the bins it covers.
+
+        Parameters
+        ----------
+        channel : array_like of int
+            Channel ids; those the scene's culture does not list are ignored.
+        t_ms : array_like of float
+            Run times (ms), in time order.
+        from_ms, until_ms : float
+            The stretch of run time the spikes cover (ms); none when empty.
+        """
         if not self.n_channels or not until_ms > from_ms:
             return
         idx = self._index(channel)
@@ -230,7 +292,15 @@ class FrameState:
         self._advance(until_ms)
 
     def add_pulses(self, channel, t_ms) -> None:
-        """Stimulation pulses delivered at run times ``t_ms`` on channel ids ``channel``."""
+        """Stimulation pulses, for the raster and the culture map.
+
+        Parameters
+        ----------
+        channel : array_like of int
+            Channel ids; those the scene's culture does not list are ignored.
+        t_ms : array_like of float
+            Run times of delivery (ms).
+        """
         if not self.n_channels:
             return
         idx = self._index(channel)
@@ -255,9 +325,12 @@ class FrameState:
             self._burst_starts = {b[3] for b in self.tapes["bursts"].since(0)}
 
     def set_status(self, status: dict) -> None:
+        """The hub's newest status (``HubStatus.to_dict()``, or a replay's stand-in)."""
         self.status = status
 
     def set_endpoints(self, endpoints: dict) -> None:
+        """What each endpoint said of itself, by role (``id``, ``alive``, ``kind``,
+        ``counters``)."""
         self.endpoints = endpoints
 
     # ------------------------------------------------------------------ internals

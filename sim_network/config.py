@@ -241,9 +241,16 @@ MAX_NEURONS = 1_000_000
 
 
 def whole_multiple(value: float, step: float) -> bool:
-    """Whether ``value`` is a whole multiple (>= 1) of ``step``, to float precision: a
-    period that is off by even 1e-8 of a step drifts from the culture's clock, step after
-    step, until the two disagree by a time step."""
+    """Whether ``value`` is a whole multiple (>= 1) of ``step``, to float precision.
+
+    Tight on purpose: a period that is off by even 1e-8 of a step drifts from the culture's
+    clock, step after step, until the two disagree by a time step.
+
+    Parameters
+    ----------
+    value, step : float
+        Same unit (ms: a hub period and the culture's ``dt_ms``); ``step`` > 0.
+    """
     ratio = value / step
     return round(ratio) >= 1 and abs(ratio - round(ratio)) <= 1e-9 * ratio
 
@@ -390,7 +397,17 @@ def _range_ok(pair: tuple[float, float], key: str, sign: int) -> None:
 def config_from_dict(data: dict, prefix: str = "") -> NetworkConfig:
     """Build a validated `NetworkConfig` from nested plain values (as read from TOML).
 
-    Absent keys keep the defaults; errors name ``<prefix><dotted key>``.
+    Parameters
+    ----------
+    data : dict
+        Nested plain values; absent keys keep the defaults.
+    prefix : str
+        Put before the dotted key in error messages (``"culture.params."``).
+
+    Raises
+    ------
+    ConfigError
+        An unknown key, a wrong type or a value out of range, naming ``<prefix><dotted key>``.
     """
     return settings.build(NetworkConfig, data, prefix)
 

@@ -70,6 +70,14 @@ class NetworkEndpoint(Endpoint):
         ``config`` is a culture file or a culture table (as resolved params hold it); any
         other culture key (``noise``, ``layout``, ...) overrides the culture's.
 
+        Parameters
+        ----------
+        section : EndpointSection
+            The ``[culture]`` section; its ``params`` are checked.
+        cfg : ExperimentConfig
+            The whole experiment: the default seed, and the loop period, which must be a
+            whole multiple of the culture's ``dt_ms``.
+
         Returns
         -------
         dict
@@ -80,7 +88,8 @@ class NetworkEndpoint(Endpoint):
         Raises
         ------
         ConfigError
-            Naming ``culture.params.<key>`` (``culture.params.noise.sd must be >= 0``).
+            Naming ``culture.params.<key>`` (``culture.params.noise.sd must be >= 0``), or
+            ``loop.period_ms`` when it is not a whole multiple of ``dt_ms``.
         """
         params = dict(section.params)
         settings.check_known(

@@ -245,6 +245,12 @@ def set_each(nodes, values: list[dict]) -> None:
     PyNEST's ``NodeCollection.set`` first asks every node whether it is local, at ~6 µs a
     node (8x the setting itself); NEST's low-level setter does not (a node of another MPI
     rank is skipped there as well). Falls back to ``set`` if PyNEST lacks it.
+
+    Parameters
+    ----------
+    nodes : nest.NodeCollection
+    values : list of dict
+        One dict of parameter names to values per node, in the collection's order.
     """
     try:
         from nest.nestkernel_api import llapi_set_nc_status

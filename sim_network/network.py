@@ -30,8 +30,18 @@ _NEVER = -(2**40)  # "last spike" of a neuron that has not fired yet (depression
 
 
 def steps_of(duration_ms: float, dt_ms: float) -> int:
-    """The steps of ``dt_ms`` in ``duration_ms`` (ValueError: not a whole number of them, or
-    not a finite duration >= 0)."""
+    """The number of steps of ``dt_ms`` in ``duration_ms``.
+
+    Parameters
+    ----------
+    duration_ms, dt_ms : float
+        The duration and the step, in ms.
+
+    Raises
+    ------
+    ValueError
+        The duration is not finite and >= 0, or not a whole number of steps.
+    """
     duration_ms = float(duration_ms)
     if not math.isfinite(duration_ms) or duration_ms < 0:
         raise ValueError(f"duration_ms must be finite and >= 0, got {duration_ms}")
@@ -42,7 +52,26 @@ def steps_of(duration_ms: float, dt_ms: float) -> int:
 
 
 def on_electrodes(mea: Mea, neuron: np.ndarray, t_ms: np.ndarray) -> Spikes:
-    """Neurons' spikes as the electrodes that record them see them (one per electrode)."""
+    """Neurons' spikes as the electrodes that record them see them.
+
+    A spike becomes one spike on each electrode that records its neuron (none when no
+    electrode does), in the order of the input.
+
+    Parameters
+    ----------
+    mea : Mea
+        The array; its ``rec_indptr``/``rec_electrode`` CSR say which electrodes record
+        which neuron.
+    neuron : ndarray of int
+        The spiking neuron of each spike.
+    t_ms : ndarray of float64
+        The time of each spike, in ms (same length as ``neuron``).
+
+    Returns
+    -------
+    Spikes
+        Channels are electrode indices.
+    """
     counts = np.diff(mea.rec_indptr)[neuron]
     if counts.sum() == 0:
         return Spikes(np.zeros(0, np.uint32), np.zeros(0, np.float64))

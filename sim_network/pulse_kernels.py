@@ -22,7 +22,13 @@ _U4, _F4, _I8, _F8 = (_any(t) for t in (types.uint32, types.float32, types.int64
 
 @njit([(_F4, _F4, _F4)], cache=True)
 def values_ok(amplitude_ua, width_ms, onset_ms):
-    """True if every amplitude is finite and every width and onset finite and >= 0."""
+    """True if every amplitude is finite and every width and onset finite and >= 0.
+
+    Parameters
+    ----------
+    amplitude_ua, width_ms, onset_ms : float32[n]
+        The pulses' amplitudes (µA), widths and onsets (ms); same length.
+    """
     for i in range(amplitude_ua.size):
         if not np.isfinite(amplitude_ua[i]):
             return False
@@ -54,15 +60,40 @@ def scheduled(
     p_neuron, p_current, p_start, p_end, channel, amplitude_ua, width_ms, onset_ms,
     step, dt, current_per_ua, n_channels, stim_indptr, stim_neuron, mea,
 ):  # fmt: skip
-    """The pending pulses with these added, stably sorted by start step, as
-    ``(top, (neuron, current, start, end))``.
+    """The pending pulses with these added, stably sorted by start step.
 
     A pulse with onset ``o`` and width ``w`` (ms) is on over steps ``[step + rint(o / dt),
     that + rint(w / dt))`` with current ``amplitude * current_per_ua``; with ``mea`` its
     channel is an electrode, and the pulse goes to each neuron the electrode stimulates
     (``stim_neuron[stim_indptr[c]:stim_indptr[c + 1]]``), else to neuron ``channel``.
-    Among equal starts the pending pulses come first. ``top`` is -1, or the first
-    channel not below ``n_channels`` (and no pulses).
+    Among equal starts the pending pulses come first. Nothing is changed in place.
+
+    Parameters
+    ----------
+    p_neuron, p_current, p_start, p_end : int64[m], float64[m], int64[m], int64[m]
+        The pending pulses: target neuron, current (model units), first step and the step
+        after the last, sorted by first step.
+    channel, amplitude_ua, width_ms, onset_ms : uint32[n], float32[n], float32[n], float32[n]
+        The new pulses: channel, amplitude (µA), width and onset (ms, from ``step``).
+    step : int64
+        The step the onsets count from.
+    dt : float64
+        The time step, in ms.
+    current_per_ua : float64
+        Model current per µA of amplitude.
+    n_channels : int64
+        Channels there are (neurons, or electrodes with ``mea``).
+    stim_indptr, stim_neuron : int64[n_channels + 1], int64
+        CSR of the neurons each electrode stimulates; read only with ``mea``.
+    mea : bool
+        Whether channels are electrodes.
+
+    Returns
+    -------
+    top : int64
+        -1, or the first channel not below ``n_channels`` (and then no pulses at all).
+    pulses : tuple of ndarray
+        ``(neuron, current, start, end)``, as the pending ones.
     """
     n = channel.size
     for i in range(n):
@@ -97,8 +128,23 @@ def scheduled(
 
 @njit([(_I8, _F8, _I8, _I8, types.int64)], cache=True)
 def alive_after(p_neuron, p_current, p_start, p_end, k):
-    """``(changed, pulses)``: the pending pulses that end after step ``k``, in order (none
-    when none ended: ``changed`` is then False)."""
+    """The pending pulses that end after step ``k``, in order.
+
+    Parameters
+    ----------
+    p_neuron, p_current, p_start, p_end : int64[m], float64[m], int64[m], int64[m]
+        The pending pulses, as `scheduled` returns them (``p_end``: the step after the last).
+    k : int64
+        The step; a pulse with ``p_end <= k`` is dropped.
+
+    Returns
+    -------
+    changed : bool
+        Whether any pulse was dropped.
+    pulses : tuple of ndarray
+        ``(neuron, current, start, end)`` kept; empty arrays when ``changed`` is False (the
+        input then stands).
+    """
     kept = 0
     for i in range(p_end.size):
         if p_end[i] > k:

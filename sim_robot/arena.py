@@ -127,6 +127,7 @@ class Arena:
 
     @property
     def body(self) -> Body:
+        """The robot's body (the world's): size, wheels and sensors."""
         return self._body
 
     @property

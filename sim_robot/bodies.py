@@ -69,6 +69,7 @@ class Body:
 
     @property
     def n_sensors(self) -> int:
+        """Number of range sensors (one per entry of ``sensor_angles_rad``)."""
         return int(self.sensor_angles_rad.shape[0])
 
     def __post_init__(self) -> None:

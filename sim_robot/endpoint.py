@@ -47,6 +47,13 @@ class ArenaEndpoint(Endpoint):
         ``world`` is a world file or a world table (as resolved params hold it); any other
         world key (``arena``, ``obstacles``, ...) overrides the world's.
 
+        Parameters
+        ----------
+        section : EndpointSection
+            The ``[body]`` section; its ``params`` are checked.
+        cfg : ExperimentConfig
+            The whole experiment: the default seed.
+
         Returns
         -------
         dict

@@ -59,6 +59,7 @@ class Geometry:
 
     @property
     def n_obstacles(self) -> int:
+        """Number of obstacles (circles and polygons)."""
         return int(self.obs_kind.shape[0])
 
 
@@ -327,8 +328,25 @@ def disc_update(
 ):
     """One robot position: update ``overlap[j]`` in place (same rule as :func:`disc_state`).
 
-    Returns ``(new_entries, any_overlap, outside, wall_touch)`` where ``new_entries`` counts
-    obstacles overlapped now but not in the previous ``overlap``.
+    Parameters
+    ----------
+    px, py : float
+        The disc's centre (m).
+    radius : float
+        The disc (m).
+    obs_kind, obs_circle, poly_vertex, obs_start, wall_kind, wall_param : arrays
+        The world's flattened geometry (``World.geometry``).
+    overlap : bool[n_obstacles]
+        Read: the previous contacts; written: whether the disc touches or overlaps
+        obstacle j now.
+
+    Returns
+    -------
+    new_entries : int
+        Obstacles overlapped now but not in the previous ``overlap``.
+    any_overlap, outside, wall_touch : bool
+        The disc overlaps some obstacle; its centre is outside the arena; it touches or
+        crosses the wall.
     """
     entries = 0
     any_overlap = False

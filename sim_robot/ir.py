@@ -43,8 +43,20 @@ def ir_value(range_m: np.ndarray, model: str = "khepera2") -> np.ndarray:
 
 
 def table_value(range_m: np.ndarray, table: np.ndarray) -> np.ndarray:
-    """Map ranges (m) to IR values through a (distance_m, value) table, nearest first:
-    linear in distance between points, 0 beyond the last (float32, the shape of
-    ``range_m``)."""
+    """Map ranges (m) to IR values through a calibration table.
+
+    Parameters
+    ----------
+    range_m : array_like
+        Distances from the sensor, metres (any shape).
+    table : float64[n, 2]
+        ``(distance_m, value)`` points, nearest first.
+
+    Returns
+    -------
+    float32 array
+        Of the shape of ``range_m``: linear in distance between points, the first value
+        nearer than the first point, 0 beyond the last.
+    """
     r = np.asarray(range_m, dtype=np.float64)
     return np.interp(r, table[:, 0], table[:, 1], right=0.0).astype(np.float32)

@@ -65,7 +65,15 @@ def build_space(world: World) -> pymunk.Space:
 
 
 class SolidResolver:
-    """Pushes the robot's disc out of solid obstacles (pymunk) and walls (closed form)."""
+    """Pushes the robot's disc out of solid obstacles (pymunk) and walls (closed form).
+
+    Parameters
+    ----------
+    world : World
+        Which of walls and obstacles are solid, the arena and the robot's radius.
+    space : pymunk.Space
+        From `build_space` of ``world``.
+    """
 
     def __init__(self, world: World, space: pymunk.Space):
         self.world = world
@@ -83,6 +91,18 @@ class SolidResolver:
         Pushes out along the deepest contact, keeps the disc inside solid walls, and repeats.
         If the pushes do not settle within ``MAX_PUSHES`` (a notch narrower than the robot),
         the disc stays at its previous position ``(prev_x_m, prev_y_m)``, which was valid.
+
+        Parameters
+        ----------
+        x_m, y_m : float
+            Where the step moved the disc's centre (m).
+        prev_x_m, prev_y_m : float
+            Its centre before the step (m), a valid position.
+
+        Returns
+        -------
+        (x_m, y_m) : tuple of float
+            The resolved centre (m).
         """
         for attempt in range(MAX_PUSHES + 1):
             if self.walls_solid:

@@ -137,9 +137,23 @@ def trajectory_figure(world: World, t_s, poses, title: str | None = None) -> Fig
 
 
 def path_points(xy_m, step_m: float) -> np.ndarray:
-    """Indices of the points of a path ``xy_m`` (float[N, 2], m) to draw it through: the
-    first, then the first point of each further ``step_m`` of distance travelled, and the
-    last (at least two points when N > 1)."""
+    """Indices of the points of a path to draw it through, thinning a long path.
+
+    The first point, then the first point of each further ``step_m`` of distance travelled,
+    and the last (at least two points when N > 1).
+
+    Parameters
+    ----------
+    xy_m : array_like, float[N, 2]
+        The path's points (m), in order.
+    step_m : float
+        Distance travelled between kept points (m), > 0.
+
+    Returns
+    -------
+    int ndarray
+        Increasing indices into ``xy_m``.
+    """
     xy = np.asarray(xy_m, dtype=np.float64)
     if len(xy) < 2:
         return np.arange(len(xy))

@@ -78,6 +78,7 @@ class Obstacle:
 
     @property
     def is_circle(self) -> bool:
+        """Whether this is a circle (``center_m``, ``radius_m``) rather than a polygon."""
         return self.shape == "circle"
 
 
@@ -123,10 +124,25 @@ class World:
 def disc_flags(
     world: World, x_m: np.ndarray, y_m: np.ndarray, radius_m: float | None = None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Where a robot disc at each ``(x_m, y_m)`` is: overlapping each obstacle
-    (bool[n, n_obstacles]), outside the arena (bool[n]), touching a wall (bool[n]).
+    """Where a robot disc at each of n positions is, relative to obstacles and walls.
 
-    ``radius_m`` defaults to the world's robot."""
+    Parameters
+    ----------
+    world : World
+    x_m, y_m : array_like
+        The disc's centres (m); flattened, same size n.
+    radius_m : float, optional
+        The disc (m); default the world's robot.
+
+    Returns
+    -------
+    overlap : bool[n, n_obstacles]
+        The disc touches or overlaps obstacle j.
+    outside : bool[n]
+        The centre is outside the arena.
+    touch : bool[n]
+        The disc touches or crosses the wall.
+    """
     g = world.geometry
     x = np.ascontiguousarray(x_m, dtype=np.float64).reshape(-1)
     y = np.ascontiguousarray(y_m, dtype=np.float64).reshape(-1)
@@ -254,8 +270,20 @@ def _inside_arena(where: str, pts: np.ndarray, a: ArenaShape) -> None:
 def load_world(path: str | Path, overrides: Sequence[str] = ()) -> World:
     """Read and validate a TOML world file (see ``docs/sim_robot.md``).
 
-    ``overrides`` are ``dotted.key=value`` items applied after the file
-    (``arena.radius_m=0.8``)."""
+    Parameters
+    ----------
+    path : str or Path
+        The world file.
+    overrides : sequence of str
+        ``dotted.key=value`` items applied after the file (``arena.radius_m=0.8``).
+
+    Raises
+    ------
+    WorldError
+        The file or the world is invalid (the message names the key).
+    ConfigError
+        An override is malformed.
+    """
     data = settings.apply_overrides(read_world_data(path), overrides)
     return world_from_dict(data, source=str(path))
 
@@ -277,7 +305,20 @@ def read_world_data(path: str | Path) -> dict:
 
 
 def world_from_dict(data: dict, source: str = "<dict>") -> World:
-    """Build a :class:`World` from the world-file structure (a nested dict)."""
+    """Build a :class:`World` from the world-file structure (a nested dict).
+
+    Parameters
+    ----------
+    data : dict
+        A world file's contents (an ``extends`` key is ignored).
+    source : str
+        Where ``data`` came from: named in errors; its stem is the default world name.
+
+    Raises
+    ------
+    WorldError
+        The world is invalid (the message names the key).
+    """
     data = dict(data)
     data.pop("extends", None)
     _known("", data, WORLD_KEYS)
