@@ -221,14 +221,16 @@ def plot_stimulation_sites(rec: RunRecord, series: LoopSeries, out: str | Path) 
     culture = rec.descriptions().get("culture")
     if culture is None or culture.x_um is None or series.pulse_channel.size == 0:
         return []
-    fig = Figure(figsize=(6.5, 5.5), layout="constrained")
-    ax = fig.subplots()
-    x, y = np.asarray(culture.x_um), np.asarray(culture.y_um)
-    ax.scatter(x, y, s=4, color="0.8", label="electrodes")
     ids, counts = np.unique(series.pulse_channel, return_counts=True)
     where = {int(c): i for i, c in enumerate(np.asarray(culture.channel))}
     sel = np.array([where[int(c)] for c in ids if int(c) in where], dtype=np.int64)
     counts = np.array([n for c, n in zip(ids, counts, strict=True) if int(c) in where])
+    if sel.size == 0:  # no pulse on a channel the culture described: no site to show
+        return []
+    fig = Figure(figsize=(6.5, 5.5), layout="constrained")
+    ax = fig.subplots()
+    x, y = np.asarray(culture.x_um), np.asarray(culture.y_um)
+    ax.scatter(x, y, s=4, color="0.8", label="electrodes")
     sc = ax.scatter(x[sel], y[sel], s=20 + 80 * counts / counts.max(), c=counts, cmap="plasma")
     fig.colorbar(sc, ax=ax, label="pulses received")
     ax.set_aspect("equal")

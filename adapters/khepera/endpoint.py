@@ -167,7 +167,7 @@ class KheperaEndpoint(Endpoint):
         baud = check_value("body.params.baud", int, out["baud"])
         if baud not in BAUDS:
             raise ConfigError(f"body.params.baud must be one of {BAUDS}, got {baud}")
-        if out["stop_bits"] not in (1, 2):
+        if isinstance(out["stop_bits"], bool) or out["stop_bits"] not in (1, 2):
             raise ConfigError(f"body.params.stop_bits must be 1 or 2, got {out['stop_bits']!r}")
         for key in ("timeout_s", "silent_s", "watchdog_s"):
             out[key] = check_value(f"body.params.{key}", float, out[key], gt=0)

@@ -60,7 +60,9 @@ class ElectrodeLayout:
         ----------
         path : path
             The file: the header, then one row per electrode in channel order (the
-            instrument's channel name, its position in µm); blank lines are skipped.
+            instrument's channel name, its position in µm); blank lines are skipped. Names
+            are taken in lower case, as the driver matches the instrument's (``A-010`` is
+            ``a-010``).
         key : str
             The setting that named the file, for the message.
 
@@ -80,7 +82,7 @@ class ElectrodeLayout:
                 parts = [p.strip() for p in line.split(",")]
                 if len(parts) != 3:
                     raise ValueError(f"line {n}: expected name,x_um,y_um")
-                names.append(parts[0])
+                names.append(parts[0].lower())  # the instrument's names ignore case
                 xs.append(float(parts[1]))
                 ys.append(float(parts[2]))
             return cls(tuple(names), np.array(xs, np.float32), np.array(ys, np.float32))

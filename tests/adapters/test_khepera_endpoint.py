@@ -73,6 +73,7 @@ def test_a_lockstep_run_with_a_khepera_is_refused_before_it_starts():
     [
         ("body.params.baud=9601", "body.params.baud must be one of"),
         ("body.params.stop_bits=3", "body.params.stop_bits"),
+        ("body.params.stop_bits=true", "body.params.stop_bits must be 1 or 2, got True"),
         ("body.params.watchdog_s=0", "body.params.watchdog_s"),
         # under two of the loop's 50 ms periods: stopped between steps, and its input
         # timeout (the same) made safe at nearly every step

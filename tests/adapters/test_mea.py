@@ -89,8 +89,12 @@ def test_a_labs_layout_file_and_a_bad_one(tmp_path):
     good = tmp_path / "l.csv"
     good.write_text("name,x_um,y_um\nc-000,0,0\nc-001,100,0\n")
     assert ElectrodeLayout.from_file(good).names == ("c-000", "c-001")
+    # written as RHX shows them: the driver matches the instrument's names in lower case
+    upper = tmp_path / "upper.csv"
+    upper.write_text("name,x_um,y_um\nA-010,0,0\nA-011,100,0\n")
+    assert ElectrodeLayout.from_file(upper).index() == {"a-010": 0, "a-011": 1}
     bad = tmp_path / "bad.csv"
-    bad.write_text("name,x_um,y_um\nc-000,0,0\nc-000,1,1\n")
+    bad.write_text("name,x_um,y_um\nc-000,0,0\nC-000,1,1\n")  # one electrode twice
     with pytest.raises(ConfigError, match="culture.params.layout_file.*unique"):
         ElectrodeLayout.from_file(bad)
 
