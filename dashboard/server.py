@@ -316,6 +316,8 @@ def url_of(sock: socket.socket) -> str:
     """The page's address for a socket from `bind` (a wildcard host shown as 127.0.0.1)."""
     host, port = sock.getsockname()[:2]
     shown = "127.0.0.1" if host in ("0.0.0.0", "::") else host
+    if ":" in shown:  # an IPv6 address, bracketed in a URL
+        shown = f"[{shown}]"
     return f"http://{shown}:{port}/"
 
 

@@ -101,3 +101,12 @@ def test_a_host_that_is_not_this_machines_is_said_so():
     ) as e:
         bind("192.0.2.1", 0)
     assert e.value.bad_address
+
+
+@pytest.mark.parametrize("host, shown", [("127.0.0.1", "127.0.0.1"), ("::1", "[::1]")])
+def test_the_pages_address_is_one_a_browser_opens(host, shown):
+    sock = bind(host, 0)
+    try:
+        assert url_of(sock) == f"http://{shown}:{sock.getsockname()[1]}/"
+    finally:
+        sock.close()
