@@ -195,7 +195,10 @@ class ReplaySource:
         m = int(np.searchsorted(self.motor_t, t1, side="right"))
         if m:
             state.add_motor(*self.motor[m - 1])
-        a, b = np.searchsorted(self.pulse_t_ms, [max(t1 - RASTER_S, 0) * 1e3, t1 * 1e3])
+        # (t1 - RASTER_S, t1], as _feed's (t0, t1]: a pulse at the jump's own time is shown
+        a, b = np.searchsorted(
+            self.pulse_t_ms, [max(t1 - RASTER_S, 0) * 1e3, t1 * 1e3], side="right"
+        )
         if b > a:
             state.add_pulses(self.pulse_channel[a:b], self.pulse_t_ms[a:b])
         self._spikes(t0, t1)

@@ -75,6 +75,22 @@ def test_a_jump_gives_the_state_the_history_a_page_shows_then(run_dir):
     assert frame["endpoints"]["body"]["counters"]["steps"] == N_STEPS
 
 
+def _pulse_times_ms(frame) -> np.ndarray:
+    pulses = frame["pulses"]
+    return np.frombuffer(base64.b64decode(pulses["t"]), "<f4") + pulses["t0"]
+
+
+def test_a_pulse_at_the_time_jumped_to_is_shown_once(run_dir):
+    source, state = _replay(run_dir)
+    reader = Reader()
+    state.frame(reader)
+    assert source.command({"cmd": "seek", "t_s": 1.0})["ok"]  # step 100's pulse: 1000 ms
+    shown = list(_pulse_times_ms(state.frame(reader)))
+    _advance(source, 0.05)
+    shown += list(_pulse_times_ms(state.frame(reader)))
+    assert shown.count(1000.0) == 1 and 1050.0 in shown
+
+
 def test_a_network_burst_shows_once_its_core_ended_though_its_extent_lasts_to_the_end(tmp_path):
     """In a closed loop a stimulated channel's burst may hold a network burst's extent open
     to the end of the run: the replay shows it when its core has ended, as the run's
