@@ -32,7 +32,9 @@ everything up to a truncated or damaged tail without error.
 
 from __future__ import annotations
 
+import contextlib
 import datetime as _dt
+import errno
 import hashlib
 import json
 import os
@@ -59,6 +61,8 @@ from hub.protocol import (
 
 RECORD_FILE = "record.nvrec"
 MANIFEST_FILE = "manifest.json"
+#: room kept in a run folder, while the run goes on, for the manifest that ends it
+RESERVE_FILE, RESERVE_BYTES = ".room-for-the-manifest", 1 << 20
 FORMAT = "neuvision-record"
 FORMAT_VERSION = 2
 READABLE_VERSIONS = (1, 2)
@@ -230,6 +234,11 @@ def write_manifest(run_dir: Path, manifest: dict[str, Any]) -> None:
     """Write ``manifest.json`` atomically (a reader never sees half a file; a write that
     fails, on a full disk, leaves the manifest as it was and no temporary file).
 
+    While the run goes on (outcome ``"running"``) a file of :data:`RESERVE_BYTES` is kept
+    beside it (:data:`RESERVE_FILE`): a disk that fills during the run still takes the
+    manifest that says how it ended (the reserve given up for it), not a manifest left
+    "running" with the cause nowhere in the folder. A final manifest written removes it.
+
     Parameters
     ----------
     run_dir : Path
@@ -237,7 +246,22 @@ def write_manifest(run_dir: Path, manifest: dict[str, Any]) -> None:
     manifest : dict
         The manifest; numpy scalars and arrays in it are written as plain JSON.
     """
-    write_whole(run_dir / MANIFEST_FILE, json.dumps(manifest, indent=2, default=_json_default))
+    text = json.dumps(manifest, indent=2, default=_json_default)
+    reserve = run_dir / RESERVE_FILE
+    running = manifest.get("outcome") == "running"
+    if running and not reserve.exists():
+        with contextlib.suppress(OSError):  # no room even for it: the run says so soon
+            write_whole(reserve, bytes(RESERVE_BYTES))
+    try:
+        write_whole(run_dir / MANIFEST_FILE, text)
+    except OSError as exc:
+        if exc.errno != errno.ENOSPC or running or not reserve.exists():
+            raise
+        reserve.unlink()
+        write_whole(run_dir / MANIFEST_FILE, text)
+    if not running:
+        with contextlib.suppress(OSError):
+            reserve.unlink(missing_ok=True)
 
 
 def _json_default(obj):

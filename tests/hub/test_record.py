@@ -16,6 +16,8 @@ from hub.protocol import SensorReading, SpikeBatch
 from hub.record import (
     DROP_HEAD_BYTES,
     RECORD_FILE,
+    RESERVE_BYTES,
+    RESERVE_FILE,
     Dropped,
     Recorder,
     host,
@@ -94,6 +96,23 @@ def test_run_folders_are_unique_and_manifests_atomic(tmp_path):
     write_manifest(a, {"outcome": "running", "x": np.float32(1.5)})
     assert json.loads((a / "manifest.json").read_text()) == {"outcome": "running", "x": 1.5}
     assert read_run(b).frames == [] and read_run(b).manifest == {}
+
+
+def test_a_disk_filled_during_the_run_still_takes_the_manifest_that_ends_it(tmp_path, monkeypatch):
+    write_manifest(tmp_path, {"outcome": "running"})
+    reserve = tmp_path / RESERVE_FILE
+    assert reserve.stat().st_size == RESERVE_BYTES
+    write_bytes = Path.write_bytes
+
+    def full_while_reserved(path, data):
+        if reserve.exists():  # the record took the rest of the disk
+            raise OSError(errno.ENOSPC, "No space left on device")
+        write_bytes(path, data)
+
+    monkeypatch.setattr(Path, "write_bytes", full_while_reserved)
+    write_manifest(tmp_path, {"outcome": "fault", "reason": "No space left on device"})
+    assert json.loads((tmp_path / "manifest.json").read_text())["outcome"] == "fault"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["manifest.json"]
 
 
 def test_a_manifest_write_that_fails_leaves_the_manifest_as_it_was_and_no_stray_file(
