@@ -30,9 +30,13 @@ class CertsError(ValueError):
     """A certificate folder that cannot be used as asked (the message says why)."""
 
 
+#: where the hub is always reached: the processes it starts itself (the burst observer)
+LOOPBACK_HOSTS = ["127.0.0.1", "localhost"]
+
+
 def default_hub_hosts() -> list[str]:
     """Names the hub is reached by on one machine: loopback and this host's name."""
-    return ["127.0.0.1", "localhost", socket.gethostname()]
+    return [*LOOPBACK_HOSTS, socket.gethostname()]
 
 
 def make_certificates(
@@ -54,10 +58,12 @@ def make_certificates(
     roles : list of str
         Participants (:data:`hub.security.PARTICIPANTS`) to make a certificate for.
     hub_hosts : list of str, optional
-        Host names and IP addresses the hub is reached by, named in every certificate
-        (default: :func:`default_hub_hosts`).
+        Host names and IP addresses other machines reach the hub by, named in every
+        certificate with :data:`LOOPBACK_HOSTS` (the hub's own burst observer reaches it
+        there); default: :func:`default_hub_hosts`.
     days : int
-        How long the certificates (and a new CA) stay valid, from now.
+        How long the certificates (and a new CA) stay valid, from now; no longer than an
+        existing CA's own certificate, which a certificate cannot outlive.
 
     Returns
     -------
@@ -81,9 +87,10 @@ def make_certificates(
     unknown = [r for r in roles if r not in PARTICIPANTS]
     if unknown or not roles:
         raise ValueError(f"roles must be some of {', '.join(PARTICIPANTS)}; got {roles}")
-    hosts = hub_hosts if hub_hosts is not None else default_hub_hosts()
+    hosts = default_hub_hosts() if hub_hosts is None else hub_hosts
     if any(not h.strip() for h in hosts):
         raise ValueError(f"an empty hub host name in {hosts}")
+    hosts = list(dict.fromkeys([*LOOPBACK_HOSTS, *hosts]))
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     now = datetime.datetime.now(datetime.UTC)
@@ -117,6 +124,7 @@ def make_certificates(
     if ca_path.exists():
         ca = x509.load_pem_x509_certificate(ca_path.read_bytes())
         ca_key = serialization.load_pem_private_key(ca_key_path.read_bytes(), password=None)
+        valid_to = min(valid_to, ca.not_valid_after_utc)
     else:
         ca_key = ec.generate_private_key(ec.SECP256R1())
         name = x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, CA_NAME)])

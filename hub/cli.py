@@ -324,8 +324,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--hub-hosts",
-        help="comma-separated names and addresses the hub is reached by (default: "
-        "127.0.0.1, localhost and this machine's name)",
+        help="comma-separated names and addresses other machines reach the hub by "
+        "(127.0.0.1 and localhost always added, for what the hub starts itself; default: "
+        "those and this machine's name)",
     )
     p.add_argument("--days", type=int, default=365, help="validity (default 365)")
     p.add_argument(

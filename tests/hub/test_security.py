@@ -79,7 +79,8 @@ def test_certs_makes_a_ca_and_one_certificate_per_role_named_by_its_role(tmp_pat
     hub = x509.load_pem_x509_certificate((tmp_path / "hub.pem").read_bytes())
     assert hub.subject.get_attributes_for_oid(NameOID.COMMON_NAME)[0].value == "hub"
     names = hub.extensions.get_extension_for_class(x509.SubjectAlternativeName).value
-    assert [str(n.value) for n in names] == ["10.0.0.1", "hub"]
+    # loopback always: the hub's own burst observer reaches it there
+    assert [str(n.value) for n in names] == ["127.0.0.1", "localhost", "10.0.0.1", "hub"]
     assert (tmp_path / "body.key").stat().st_mode & 0o077 == 0  # keys: owner only
     # A participant added later is signed by the same CA.
     ca_before = (tmp_path / "ca.pem").read_bytes()
