@@ -150,7 +150,9 @@ def open_session(
     """Open a Zenoh session for one participant (caller must close it).
 
     An endpoint (``listener`` False) whose hub is not up yet keeps trying for
-    ``bus.connect_timeout_s``.
+    ``bus.connect_timeout_s``. With ``bus.security`` on, a certificate refused (its own by
+    the hub, or the hub's by it: found by a TLS handshake of its own) is said at once:
+    waiting would not change it.
 
     Parameters
     ----------
@@ -186,20 +188,26 @@ def open_session(
         try:
             return zenoh.open(zenoh_config(try_bus, listener=False, role=role))
         except zenoh.ZError as exc:
-            if time.monotonic() - start >= bus.connect_timeout_s:
-                proof = {"mtls": "certificate", "password": "password"}.get(bus.security)
+            proof = {"mtls": "certificate", "password": "password"}.get(bus.security)
+            seen = None
+            if proof:  # Zenoh says only "Timeout!": look at the TLS link ourselves
+                seen = security.diagnose(
+                    (bus.connect or bus.listen)[0], bus.certs_dir, role, bus.security
+                )
+            # A certificate refused (ours or the hub's) will be refused again: said now,
+            # not after bus.connect_timeout_s of "waiting for the hub"
+            refused_now = seen is not None and not seen.startswith(security.NOTHING_LISTENS)
+            if refused_now or time.monotonic() - start >= bus.connect_timeout_s:
                 refused = (
                     f" (bus.security = {bus.security!r}: its TLS link goes through, so the "
                     f"hub most likely refused the {role}'s {proof})"
                     if proof
                     else ""
                 )
-                if proof:  # Zenoh says only "Timeout!": look at the TLS link ourselves
-                    seen = security.diagnose(
-                        (bus.connect or bus.listen)[0], bus.certs_dir, role, bus.security
-                    )
-                    if seen:
-                        refused = f" (bus.security = {bus.security!r}: {seen})"
+                if seen:
+                    refused = f" (bus.security = {bus.security!r}: {seen})"
+                if refused_now:
+                    raise BusError(f"cannot join the hub at {where}{refused}") from None
                 raise BusError(
                     f"cannot reach the hub at {where} within {bus.connect_timeout_s:g} s "
                     f"({timeout_name}){refused}: {_first_line(exc)}"

@@ -265,6 +265,10 @@ def _rule(name: str, flows: list[str], messages: list[str], key_exprs: list[str]
     }
 
 
+#: how :func:`diagnose` begins when no hub is there (yet): worth waiting for
+NOTHING_LISTENS = "nothing listens at"
+
+
 def diagnose(locator: str, certs_dir: str | Path, role: str | None, mode: str) -> str | None:
     """Why a participant could not join the TLS hub at ``locator``, found by a TLS handshake
     of its own (Zenoh says only "Timeout!"): nothing listening there, the hub's certificate
@@ -308,7 +312,7 @@ def diagnose(locator: str, certs_dir: str | Path, role: str | None, mode: str) -
                     tls.recv(1)
                 return None
     except ConnectionRefusedError:
-        return f"nothing listens at {host}:{port} (is the hub started, on that port?)"
+        return f"{NOTHING_LISTENS} {host}:{port} (is the hub started, on that port?)"
     except ssl.SSLCertVerificationError as exc:
         why = exc.verify_message or str(exc)
         if "mismatch" in why or "not valid for" in why:
