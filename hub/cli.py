@@ -668,6 +668,7 @@ def record_summary(rec) -> dict:
             if "local_endpoint_exits" in m
             else {}
         ),
+        **({"rejoins": m["rejoins"]} if m.get("rejoins") else {}),
         "start_utc": m.get("start_utc"),
         "end_utc": m.get("end_utc"),
         "steps": m.get("steps"),

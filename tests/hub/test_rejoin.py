@@ -10,6 +10,7 @@ import signal
 
 import pytest
 
+from hub.cli import record_summary
 from hub.config import load_config
 from hub.launch import start_local_endpoints
 from hub.protocol import MotorCommand, SensorReading
@@ -62,6 +63,7 @@ def test_a_body_killed_and_restarted_within_rejoin_s_rejoins_the_run(tmp_path, b
     assert 0 < rejoin["gap_s"] < 20
     events = [e.key for e in h.record.events if e.key in ("dead", "rejoined")]
     assert events == ["dead", "rejoined"]
+    assert record_summary(h.record)["rejoins"] == [rejoin]  # record-info shows it
     sensors, motors = h.received(SensorReading), h.sent(MotorCommand)
     if mode == "lockstep":
         # The loop waited for it: no step is missing, and every reading is the body's
