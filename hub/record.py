@@ -58,6 +58,7 @@ from hub.protocol import (
     SpikeBatch,
     Stimulation,
 )
+from hub.wire import MAX_MESSAGE_BYTES
 
 RECORD_FILE = "record.nvrec"
 MANIFEST_FILE = "manifest.json"
@@ -457,10 +458,82 @@ def _dropped(payload) -> Dropped | None:
     return None
 
 
-def iter_frames(path: str | Path) -> Iterator[Frame]:
-    """Frames of a record file, in order, stopping quietly at a truncated or damaged tail."""
+def _is_frame(item) -> bool:
+    return (
+        isinstance(item, list)
+        and len(item) == 4
+        and isinstance(item[0], int)
+        and item[1] in DIRECTIONS
+        and isinstance(item[2], str)
+    )
+
+
+# A frame starts as a msgpack array of four whose first item, a time in ns, is a uint64.
+_FRAME_START = b"\x94\xcf"
+
+
+def _unpacker(fh) -> msgpack.Unpacker:
+    return msgpack.Unpacker(
+        fh, raw=False, strict_map_key=False, max_buffer_size=MAX_MESSAGE_BYTES + (1 << 20)
+    )
+
+
+def _resync(fh, size: int, after: int) -> int | None:
+    """The first place past ``after`` where whole frames start again (two in a row, or one
+    that ends the file); None if there is none (a tail cut short)."""
+    at = after
+    while True:
+        found, chunk_at = -1, at + 1
+        while found < 0 and chunk_at < size:  # search in chunks (a record may be GBs)
+            fh.seek(chunk_at)
+            chunk = fh.read(1 << 20)
+            if not chunk:
+                return None
+            hit = chunk.find(_FRAME_START)
+            found = chunk_at + hit if hit >= 0 else -1
+            chunk_at += max(len(chunk) - 1, 1)
+        if found < 0:
+            return None
+        fh.seek(found)
+        candidate, items = _unpacker(fh), []
+        try:
+            for _ in range(2):
+                item = next(candidate)
+                if not _is_frame(item):
+                    break
+                items.append(item)
+        except StopIteration:
+            pass  # the file ends after it
+        except (ValueError, msgpack.UnpackException):
+            items = []
+        ends_file = len(items) == 1 and found + candidate.tell() == size
+        if len(items) == 2 or ends_file:
+            return found
+        at = found
+
+
+def iter_frames(path: str | Path, skipped: list | None = None) -> Iterator[Frame]:
+    """Frames of a record file, in order.
+
+    A tail cut short (a run still going, a hub killed mid-write) ends the frames quietly.
+    A damaged stretch with whole frames after it (a flipped byte in a frame's header) is
+    skipped: reading goes on at the next place where whole frames start again.
+
+    Parameters
+    ----------
+    path : str or Path
+        The record file.
+    skipped : list, optional
+        Given, each stretch skipped is appended to it as ``(offset, n_bytes)``.
+
+    Raises
+    ------
+    RunReadError
+        Not a NeuVision record, or a format version not readable.
+    """
+    size = os.path.getsize(path)
     with open(path, "rb") as fh:
-        unpacker = msgpack.Unpacker(fh, raw=False, strict_map_key=False)
+        unpacker = _unpacker(fh)
         try:
             header = next(unpacker)
         except (StopIteration, ValueError, msgpack.UnpackException):
@@ -469,24 +542,30 @@ def iter_frames(path: str | Path) -> Iterator[Frame]:
             raise RunReadError(f"{path} is not a NeuVision record")
         if header.get("v") not in READABLE_VERSIONS:
             raise RunReadError(f"{path}: record format version {header.get('v')!r} not readable")
+        base, good = 0, unpacker.tell()  # the unpacker's start in the file; the last frame's end
         while True:
             try:
                 item = next(unpacker)
+                whole = _is_frame(item)
             except StopIteration:
-                return
+                whole = False  # the end, or a length that runs past it
             except (ValueError, msgpack.UnpackException):
-                return  # damaged tail
-            if not (
-                isinstance(item, list)
-                and len(item) == 4
-                and isinstance(item[0], int)
-                and item[1] in DIRECTIONS
-                and isinstance(item[2], str)
-            ):
+                whole = False
+            if whole:
+                good = base + unpacker.tell()
+                if item[1] == "drop":
+                    item[3] = _dropped(item[3]) or item[3]
+                yield Frame(*item)
+                continue
+            if good >= size:
                 return
-            if item[1] == "drop":
-                item[3] = _dropped(item[3]) or item[3]
-            yield Frame(*item)
+            at = _resync(fh, size, good)
+            if at is None:
+                return  # a tail cut short
+            if skipped is not None:
+                skipped.append((good, at - good))
+            fh.seek(at)
+            base, unpacker = at, _unpacker(fh)
 
 
 @dataclass
@@ -496,6 +575,8 @@ class RunRecord:
     run_dir: Path
     manifest: dict[str, Any]
     frames: list[Frame] = field(repr=False)
+    #: stretches of the record file that could not be read and were skipped: (offset, bytes)
+    skipped: list[tuple[int, int]] = field(default_factory=list)
     # each loop message kind decoded once: (direction, message) of the frames that decode,
     # and how many of its frames did not
     _decoded: dict[type, tuple[list, int]] = field(default_factory=dict, repr=False)
@@ -587,16 +668,21 @@ class RunRecord:
 
     def damage_note(self) -> str:
         """What of the record is damaged and left out of what is read (empty: nothing)."""
-        damaged = self.damaged()
-        if not damaged:
-            return ""
-        kinds = ", ".join(f"{n} {name}" for name, n in damaged.items())
-        n = sum(damaged.values())
-        what = "1 recorded message is" if n == 1 else f"{n} recorded messages are"
-        return (
-            f"{what} damaged ({kinds}): no longer decoding, left out of what is read from "
-            "the record"
-        )
+        notes = []
+        if damaged := self.damaged():
+            kinds = ", ".join(f"{n} {name}" for name, n in damaged.items())
+            n = sum(damaged.values())
+            what = "1 recorded message is" if n == 1 else f"{n} recorded messages are"
+            notes.append(f"{what} damaged ({kinds}): no longer decoding, left out of what is read")
+        if self.skipped:
+            n_bytes = sum(n for _, n in self.skipped)
+            where = ", ".join(f"{n} at byte {at}" for at, n in self.skipped[:3])
+            more = f" and {len(self.skipped) - 3} more" if len(self.skipped) > 3 else ""
+            notes.append(
+                f"{n_bytes} bytes of the record file could not be read ({where}{more}) and "
+                "were skipped: the frames in them are lost, those after them are read"
+            )
+        return "; ".join(notes)
 
     def descriptions(self) -> dict[str, Description]:
         """The endpoints' descriptions the hub received, by role (the last of each role)."""
@@ -682,5 +768,6 @@ def read_run(run_dir: str | Path) -> RunRecord:
     run_dir = Path(run_dir)
     manifest = read_manifest(run_dir)
     record_path = run_dir / RECORD_FILE
-    frames = list(iter_frames(record_path)) if record_path.exists() else []
-    return RunRecord(run_dir, manifest, frames)
+    skipped: list[tuple[int, int]] = []
+    frames = list(iter_frames(record_path, skipped)) if record_path.exists() else []
+    return RunRecord(run_dir, manifest, frames, skipped)

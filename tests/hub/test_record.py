@@ -67,6 +67,35 @@ def test_a_truncated_or_damaged_tail_reads_up_to_the_last_whole_frame(tmp_path):
     assert len(list(iter_frames(path))) == 10
 
 
+@pytest.mark.parametrize(
+    "damage",
+    [
+        lambda frame: b"\xc1" + frame[1:],  # a byte never valid in msgpack, at its start
+        # the payload's length (after the time, the direction and the 19-byte key) made
+        # one that runs past the end of the file
+        lambda frame: (
+            frame[:33] + b"\xc6\x7f\xff\xff\xff" + frame[33 + {0xC4: 2, 0xC5: 3}[frame[33]] :]
+        ),
+    ],
+    ids=["unreadable", "length past the end"],
+)
+def test_a_damaged_frame_is_skipped_and_the_frames_after_it_read(tmp_path, damage):
+    rec = Recorder(tmp_path)
+    for k in range(10):
+        rec.message("rx", "nv/s/body/0/sensors", _reading(k).encode())
+    rec.close()
+    path = tmp_path / RECORD_FILE
+    whole = path.read_bytes()
+    starts = [i for i in range(len(whole)) if whole.startswith(b"\x94\xcf", i)]
+    assert len(starts) == 10
+    fifth = damage(whole[starts[4] : starts[5]])
+    path.write_bytes(whole[: starts[4]] + fifth + whole[starts[5] :])
+    run = read_run(tmp_path)
+    assert [r.step for r in run.decoded(SensorReading)] == [0, 1, 2, 3, 5, 6, 7, 8, 9]
+    assert run.skipped == [(starts[4], len(fifth))]
+    assert f"{len(fifth)} bytes of the record file could not be read" in run.damage_note()
+
+
 def test_the_writer_flushes_at_the_first_tick_its_period_after_the_last_flush(tmp_path):
     rec = Recorder(tmp_path, flush_s=0.0)  # flush at every tick
     rec.message("tx", "nv/s/body/0/motor", b"x")
