@@ -25,14 +25,14 @@ No NWB extension is needed: everything is a core type.
 
 from __future__ import annotations
 
-import contextlib
 import datetime as dt
+import io
 import json
-import os
 from pathlib import Path
 
 import numpy as np
 
+from hub.analysis.output import write_whole
 from lab.experiment import Run
 
 CULTURE_LOCATION = "in vitro culture (simulated or on a multi-electrode array)"
@@ -53,7 +53,8 @@ def export_nwb(run_dir: str | Path | Run, path: str | Path) -> Path:
     run_dir : path or Run
         A run folder, or a :class:`Run` opened on one.
     path : path
-        The NWB file; one already there is replaced, once the new one is whole.
+        The NWB file; one already there is replaced, once the new one is whole (it is
+        built in memory first: about the file's size).
 
     Raises
     ------
@@ -63,6 +64,7 @@ def export_nwb(run_dir: str | Path | Run, path: str | Path) -> Path:
         system refuses it).
     """
     try:
+        import h5py
         from pynwb import NWBHDF5IO, NWBFile, TimeSeries
         from pynwb.behavior import CompassDirection, Position
         from pynwb.epoch import TimeIntervals
@@ -124,19 +126,17 @@ def export_nwb(run_dir: str | Path | Run, path: str | Path) -> Path:
     out = Path(path)
     if out.exists() and not out.is_file():  # a folder, a device: never replaced by the file
         raise ExportError(f"{out} is there and is not a file: give the NWB file to write")
-    # Written beside it under another name, renamed when whole: a failure leaves no file.
-    part = out.with_name(f".{out.stem}.part{out.suffix}")
+    # Built in memory, then written whole (beside it, renamed when whole): a full disk
+    # fails the write, not HDF5 in the middle of its file (which crashed the interpreter at
+    # exit, after the error), and leaves no file.
+    buffer = io.BytesIO()
+    with h5py.File(buffer, "w") as h5, NWBHDF5IO(file=h5, mode="w") as nwb_io:
+        nwb_io.write(nwb)
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
-        with NWBHDF5IO(str(part), "w") as io:
-            io.write(nwb)
-        os.replace(part, out)
-    except OSError as exc:  # h5py's carry errno but a long message of their own
-        why = os.strerror(exc.errno) if exc.errno else str(exc)
-        raise ExportError(f"cannot write {out}: {why}") from None
-    finally:
-        with contextlib.suppress(OSError):  # (a name too long for the part file, too)
-            part.unlink(missing_ok=True)
+        write_whole(out, buffer.getbuffer())
+    except OSError as exc:
+        raise ExportError(f"cannot write {out}: {exc.strerror or exc}") from None
     return out
 
 

@@ -26,7 +26,7 @@ from hub.protocol import (
 )
 from hub.shelf import Shelf
 from tests.harness import harness, wait_for
-from tests.hub.test_live import CHANNELS, PLANTED, _batches
+from tests.hub.test_live_bursts import CHANNELS, PLANTED, _batches
 from tests.windows import RUN
 
 

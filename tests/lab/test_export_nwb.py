@@ -180,3 +180,23 @@ def test_a_file_the_file_system_refuses_is_one_line_and_leaves_nothing(tmp_path)
     assert done.returncode == 3 and done.stderr.count("\n") == 1, done.stderr
     assert "cannot write" in done.stderr and "Traceback" not in done.stderr
     assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]
+
+
+def test_a_full_disk_is_one_error_and_leaves_no_file(tmp_path, monkeypatch):
+    """HDF5 writing into a full disk crashed the interpreter at its exit, after the error;
+    the file is now built in memory and written whole."""
+    import errno
+
+    from lab.export_nwb import ExportError, export_nwb
+
+    run_dir = _run_without_steps(tmp_path / "run", steps=3)
+    write_bytes = Path.write_bytes
+
+    def full_disk(path, data):
+        write_bytes(path, bytes(data)[:10])  # some of it, then no room
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(Path, "write_bytes", full_disk)
+    with pytest.raises(ExportError, match="cannot write .*run.nwb: No space left on device"):
+        export_nwb(run_dir, tmp_path / "run.nwb")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]
