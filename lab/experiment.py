@@ -185,7 +185,7 @@ def run_experiment(
             exits[role] = {"status": code, "last_line": said.removeprefix(": ")}
     if exits:  # in the run's record too, beside the hub's reason ("body/0 died at step 61")
         _note_in_manifest(result.run_dir, "local_endpoint_exits", exits)
-    if result.outcome != "fault":
+    if result.outcome != "fault" or result.steps > 0:  # a fault after steps: what it recorded
         try:
             summary = after_run(result, cfg)
         except Exception as exc:  # the run is recorded whatever its summary does
@@ -423,7 +423,8 @@ class Run:
 
     @property
     def summary(self) -> dict:
-        """``summary.json`` (empty if the run has none: a run that faulted)."""
+        """``summary.json`` (empty if the run has none: a run that faulted before its first
+        step)."""
         path = self.run_dir / "summary.json"
         return json.loads(path.read_text()) if path.is_file() else {}
 

@@ -166,6 +166,9 @@ def test_an_endpoint_that_fails_mid_run_is_named_with_its_own_last_word(tmp_path
     (run_dir,) = [p for p in tmp_path.iterdir() if p.is_dir()]
     manifest = json.loads((run_dir / "manifest.json").read_text())
     assert re.search(r"body/0 died at step (19|20) ", manifest["reason"])
+    # what it recorded is summarised, as for any run
+    summary = json.loads((run_dir / "summary.json").read_text())
+    assert summary["outcome"] == "fault" and summary["steps"] in (19, 20)
     (exit_,) = manifest["local_endpoint_exits"].values()
     assert exit_["status"] == 2 and "the test device's line failed at step 20" in exit_["last_line"]
 
