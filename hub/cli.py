@@ -781,7 +781,13 @@ def cmd_analyze(args) -> int:
     else:
         out = make_output_folder(run_dir / ANALYSIS_DIR, "the run folder (--out writes elsewhere)")
     manifest = read_manifest(run_dir)  # its outcome as read back
-    if manifest.get("outcome") == UNFINISHED:
+    if not manifest:
+        print(
+            f"neuvision: note: {run_dir} has no manifest.json: its settings are unknown, so "
+            "the paper's analysis parameters are used and the run's outcome is not known",
+            file=sys.stderr,
+        )
+    elif manifest.get("outcome") == UNFINISHED:
         print(f"neuvision: note: {run_dir} is unfinished: {manifest['reason']}", file=sys.stderr)
     elif manifest.get("outcome") == "running":
         print(

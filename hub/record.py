@@ -605,6 +605,11 @@ class RunRecord:
         held = self.steps_recorded()
         if not isinstance(steps, int) or held >= steps:
             return ""
+        if not self.frames and not (self.run_dir / RECORD_FILE).exists():
+            return (
+                f"the run folder holds no {RECORD_FILE} (removed, or the run was made with "
+                f"record.enabled = false): none of the run's {steps} steps is recorded"
+            )
         return (
             f"the record holds {held} of the run's {steps} steps: it was cut short or is "
             "damaged past that point, and what is read from it covers those steps only"

@@ -291,3 +291,6 @@ def test_a_record_says_how_many_of_its_runs_steps_it_holds(tmp_path):
     cut = _steps(tmp_path / "cut", inputs=7, replies=6, manifest_steps=10)  # hub killed, say
     assert cut.steps_recorded() == 7
     assert cut.short_note().startswith("the record holds 7 of the run's 10 steps")
+    (tmp_path / "cut" / RECORD_FILE).unlink()  # removed: not "cut short or damaged"
+    gone = read_run(tmp_path / "cut")
+    assert gone.short_note().startswith("the run folder holds no record.nvrec")
