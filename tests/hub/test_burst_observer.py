@@ -12,11 +12,12 @@ import pytest
 
 from hub import wire
 from hub.burst_observer import NAME, REPORT_GAP_S, BurstObserver, OnlineTally
-from hub.bus import open_session
+from hub.bus import open_session, payload_bytes
 from hub.config import load_config
 from hub.launch import start_burst_observer
 from hub.protocol import (
     BurstReport,
+    HubStatus,
     ObservedSpikes,
     ObserverEnd,
     ObserverStart,
@@ -25,7 +26,7 @@ from hub.protocol import (
     StepWindow,
 )
 from hub.shelf import Shelf
-from tests.harness import harness, wait_for
+from tests.harness import harness, subscribed, wait_for
 from tests.hub.test_live_bursts import CHANNELS, PLANTED, _batches
 from tests.windows import RUN
 
@@ -204,7 +205,7 @@ def test_the_loop_goes_on_when_the_observer_dies_and_the_manifest_says_so(
     overrides = ["online.enabled=true", 'loop.mode="realtime"', "experiment.duration_s=3"]
     with harness(tmp_path, bus_overrides, *overrides) as h:
 
-        def kill(observer):
+        def kill(observer, statuses):
             observer.popen.send_signal(signal.SIGKILL)
 
         result = _run_doing_to_the_observer(h, monkeypatch, kill)
@@ -216,9 +217,10 @@ def test_the_loop_goes_on_when_the_observer_dies_and_the_manifest_says_so(
 
 
 def _run_doing_to_the_observer(h, monkeypatch, act):
-    """Run ``h``, doing ``act`` to the burst observer the hub starts (a
-    :class:`~hub.launch.LocalProcess`) once the run has made 50 steps."""
-    started = []
+    """Run ``h``, doing ``act(observer, statuses)`` to the burst observer the hub starts (a
+    :class:`~hub.launch.LocalProcess`) once the hub's status says the run made 50 steps
+    (``statuses``: the hub's statuses so far, as published on ``hub/status``)."""
+    started, statuses = [], []
 
     def start(*args):  # the hub's own start of its observer, kept for ``act``
         started.append(start_burst_observer(*args))
@@ -227,24 +229,34 @@ def _run_doing_to_the_observer(h, monkeypatch, act):
     monkeypatch.setattr("hub.online.start_burst_observer", start)
 
     def act_when_running():
-        wait_for(lambda: h.hub is not None and h.hub.k > 50, timeout_s=60)
-        act(started[0])
+        wait_for(lambda: any(s.step > 50 for s in statuses), timeout_s=60)
+        act(started[0], statuses)
 
     actor = threading.Thread(target=act_when_running, daemon=True)
     actor.start()
-    result = h.run()
+    keys = h.cfg.bus.keys
+    with subscribed(h.cfg.bus, keys.hub_status, lambda s: statuses.append(_status(s))):
+        result = h.run()
     actor.join(35)
     return result
 
 
-def _run_freezing_the_observer(h, monkeypatch):
-    """Run ``h``, freezing the burst observer (``SIGSTOP``) until the hub saw it vanish
-    (its lease lapsed), then letting it go on."""
+def _status(sample) -> HubStatus:
+    return HubStatus.decode(payload_bytes(sample))
 
-    def freeze_until_vanished(observer):
+
+def _run_freezing_the_observer(h, monkeypatch):
+    """Run ``h``, freezing the burst observer (``SIGSTOP``) until the hub's status says it
+    is gone from the bus (its lease lapsed), then letting it go on."""
+
+    def freeze_until_vanished(observer, statuses):
         observer.popen.send_signal(signal.SIGSTOP)
+        seen = len(statuses)
         try:
-            wait_for(lambda: h.hub.online.tally.lost, timeout_s=30)
+            wait_for(
+                lambda: any(f"observer/{NAME}" not in s.alive for s in statuses[seen:]),
+                timeout_s=30,
+            )
         finally:
             observer.popen.send_signal(signal.SIGCONT)
 

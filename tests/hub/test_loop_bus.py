@@ -72,26 +72,21 @@ def test_replies_are_taken_in_step_order_however_the_hubs_thread_is_held_up(
     tmp_path, bus_overrides, monkeypatch
 ):
     """On a busy machine the hub's thread may be preempted right after the first inputs go
-    out, and again before it takes its next event: both are played here by holding it up
-    (0.2 s, some hundred round trips). The culture's first reply, come meanwhile, is still
-    taken before its second, which the body's first reply lets out: the record and the
-    burst observer see the steps in order. (A CI run saw step 1 taken first, and the
-    observer count step 0 missing.)"""
-    send, wait_event = Hub.send, Hub.wait_event
+    out: played here by holding it up in the put of the culture's first input (0.2 s, some
+    hundred round trips). The culture's first reply, come meanwhile, is still taken before
+    its second, which the body's first reply lets out: the record and the burst observer see
+    the steps in order. (A CI run saw step 1 taken first, and the observer count step 0
+    missing.)"""
+    from hub.link import HubLink
 
-    def sending(hub, role, message, raw=None):
-        send(hub, role, message, raw)
-        if role == "culture" and message.step == 0:
+    put = HubLink.send
+
+    def put_held_at_the_first_stimulation(self, role, raw):
+        put(self, role, raw)
+        if role == "culture" and Stimulation.decode(raw).step == 0:
             time.sleep(0.2)
 
-    def waiting(hub, until):
-        item = wait_event(hub, until)
-        if item is not None and item[:2] == ("rx", "culture"):
-            time.sleep(0.2)
-        return item
-
-    monkeypatch.setattr(Hub, "send", sending)
-    monkeypatch.setattr(Hub, "wait_event", waiting)
+    monkeypatch.setattr(HubLink, "send", put_held_at_the_first_stimulation)
     with harness(tmp_path, bus_overrides, "experiment.duration_s=0.2", "online.enabled=true") as h:
         result = h.run()
     assert result.outcome == "completed" and result.steps == 20
