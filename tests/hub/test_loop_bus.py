@@ -17,7 +17,6 @@ import zenoh
 
 from hub import wire
 from hub.bus import open_session, payload_bytes
-from hub.loop import Hub
 from hub.protocol import (
     SCHEMA_VERSION,
     ControlReply,
@@ -161,39 +160,6 @@ def test_realtime_mode_holds_its_period(tmp_path, bus_overrides):
     else:
         assert "refused" in hub_sched["reason"]
         assert all("refused" in e["scheduling"]["reason"] for e in ends.values())
-
-
-def test_realtime_chores_wait_for_the_slack_after_a_step_never_its_start(
-    tmp_path, bus_overrides, monkeypatch
-):
-    """The status, the record's flushes and the observer's spikes (``Hub.tick``) are done
-    after each step and while waiting for the next, but never once that one is due: begun
-    then, they would make it start late."""
-    waiting = []  # (when, the step due next, when it is due): ticks between two steps
-    tick, stepped = Hub.tick, set()
-
-    def timed_tick(hub):
-        scheduler = hub.scheduler
-        k = scheduler.k_done  # the next step, once the one under way (k) is done
-        if k in stepped and scheduler.k < k:  # the first tick after a step ends it
-            waiting.append((time.monotonic(), k, scheduler.start_of(k)))
-        stepped.add(k)
-        tick(hub)
-
-    monkeypatch.setattr(Hub, "tick", timed_tick)
-    with harness(
-        tmp_path,
-        bus_overrides,
-        "loop.mode=realtime",
-        "loop.period_ms=20",
-        "loop.status_hz=50",  # a status due within most periods
-        "experiment.duration_s=1",
-    ) as h:
-        result = h.run()
-    assert result.outcome == "completed" and result.counts["missing"] == {}
-    waiting = [(t, k, due) for t, k, due in waiting if 0 < k < result.steps]
-    assert len(waiting) >= result.steps // 4  # a status falls due in many waits
-    assert [(k, t - due) for t, k, due in waiting if t >= due] == []
 
 
 def test_a_late_reply_is_counted_and_the_policy_stands_in(tmp_path, bus_overrides):
