@@ -95,7 +95,9 @@ class Hub:
     Parameters
     ----------
     cfg : ExperimentConfig
-        The validated experiment.
+        The validated experiment. The run keeps, and its manifest records, the config as
+        each endpoint's kind resolves it (``cfg.resolved()``: the culture's and the world's
+        contents in place), whoever made the hub.
     run_dir : Path or None
         Where to write the record and manifest (None: neither; with ``record.enabled``
         false, the manifest only).
@@ -104,6 +106,11 @@ class Hub:
     wait_for_view_s : float
         Hold the first step until a live display watches ``hub/view``, at most this long
         (``neuvision run --dashboard``); 0: start at once.
+
+    Raises
+    ------
+    ConfigError
+        An endpoint's kind or params do not resolve.
     """
 
     def __init__(
@@ -113,7 +120,8 @@ class Hub:
         progress: Callable[[Progress], None] | None = None,
         wait_for_view_s: float = 0.0,
     ):
-        self.cfg = cfg
+        # Resolving is idempotent, and a config resolved already resolves in milliseconds.
+        self.cfg = cfg = cfg.resolved()
         self.run_dir = Path(run_dir) if run_dir else None
         self.wait_for_view_s = wait_for_view_s
         self.run_id = uuid.uuid4().hex  # in every message of the run

@@ -16,7 +16,9 @@ import pytest
 import zenoh
 
 from hub import wire
-from hub.bus import open_session, payload_bytes
+from hub.bus import BusError, open_session, payload_bytes
+from hub.config import load_config
+from hub.loop import Hub
 from hub.protocol import (
     SCHEMA_VERSION,
     ControlReply,
@@ -29,6 +31,7 @@ from hub.protocol import (
     StepWindow,
     Stimulation,
 )
+from hub.record import read_manifest
 from hub.scheduling import PM_QOS_DEVICE
 from tests.harness import harness, subscribed, wait_for
 
@@ -633,3 +636,22 @@ def test_a_realtime_step_that_starts_late_is_recorded_as_such(tmp_path, bus_over
     assert [e["step"] for e in late_starts][:1] == [6]
     assert late_starts[0]["by_ms"] > 2.5  # more than a quarter period
     assert h.record.manifest["timing"]["late_steps"] >= len(late_starts)
+
+
+def test_a_hub_made_from_a_config_not_resolved_records_it_resolved(tmp_path, bus_overrides):
+    """Whoever makes the hub, its manifest holds the config as each endpoint's kind
+    resolves it (the culture's and the world's contents, not their files): a recorded run
+    is self-contained. Here the hub's address is taken, so the run ends as soon as it
+    begins, its manifest written."""
+    cfg = load_config(None, [*bus_overrides, "culture.params.noise.sd=2.0"])
+    assert not isinstance(cfg.culture.params.get("config"), dict)  # not resolved yet
+    taken = open_session(cfg.bus, listener=True)
+    try:
+        with pytest.raises(BusError):
+            Hub(cfg, run_dir=tmp_path).run()
+    finally:
+        taken.close()
+    manifest = read_manifest(tmp_path)
+    assert manifest["outcome"] == "fault" and "cannot listen" in manifest["reason"]
+    assert manifest["config"] == cfg.resolved().to_dict()
+    assert manifest["config"]["culture"]["params"]["config"]["noise"]["sd"] == 2.0
