@@ -33,7 +33,15 @@ VIEW_STALL_S = 0.1
 
 
 class Lockstep(Scheduler):
-    """Steps a run as fast as its endpoints answer (parameters: :class:`~hub.steps.Scheduler`).
+    """Steps a run as fast as its endpoints answer.
+
+    Parameters
+    ----------
+    port : LoopPort
+        The hub's services.
+    *parts
+        The rest of :class:`~hub.steps.Scheduler`'s parameters (standing, ledger, times,
+        loop, n_steps).
 
     Attributes
     ----------

@@ -86,6 +86,8 @@ class RunResult:
 
     @property
     def ok(self) -> bool:
+        """Whether the run ended as asked (completed, or stopped or interrupted by its
+        user), not by a fault."""
         return self.outcome in ("completed", "stopped", "interrupted")
 
 
@@ -322,7 +324,15 @@ class Hub:
 
     def share(self, now: float, *, view: bool = True) -> None:
         """After a step: the culture's spikes for the burst observer and, with ``view``, a
-        view for live displays, each if due at ``now`` (monotonic)."""
+        view for live displays, each if due.
+
+        Parameters
+        ----------
+        now : float
+            The time (monotonic, s) they are due by.
+        view : bool
+            Whether a view may be built now (realtime: not when the next step is near).
+        """
         online = self.online
         if online is not None and online.pending and now - online.forwarded_at >= online.forward_s:
             online.forward()

@@ -79,7 +79,16 @@ class RunManifest:
 
     def close(self, recorder: Recorder | None, outcome: str, reason: str, **results) -> str:
         """The run's end in its record (an ``end`` event; the record closed) and its
-        manifest (``outcome``, ``reason`` and ``results``), whatever ended it.
+        manifest, whatever ended it.
+
+        Parameters
+        ----------
+        recorder : Recorder or None
+            The run's record (None: not recorded).
+        outcome, reason : str
+            How the run ended, and why.
+        **results
+            The rest of the manifest's end (timing, counts, rejoins, ...).
 
         Returns
         -------

@@ -72,7 +72,14 @@ class Presence:
         self._stall: tuple[float, float] = (-float("inf"), 0.0)
 
     def seen(self, key: str, present: bool) -> None:
-        """A liveliness token came (``present``) or went on ``key``.
+        """A liveliness token came or went.
+
+        Parameters
+        ----------
+        key : str
+            The token's key (an endpoint's or the burst observer's).
+        present : bool
+            It came (True) or went.
 
         Raises
         ------

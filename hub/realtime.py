@@ -35,7 +35,16 @@ VIEW_GUARD_S = 1e-3
 
 
 class Realtime(Scheduler):
-    """Steps a run on a wall-clock schedule (parameters: :class:`~hub.steps.Scheduler`)."""
+    """Steps a run on a wall-clock schedule.
+
+    Parameters
+    ----------
+    port : LoopPort
+        The hub's services.
+    *parts
+        The rest of :class:`~hub.steps.Scheduler`'s parameters (standing, ledger, times,
+        loop, n_steps).
+    """
 
     def __init__(self, port: LoopPort, *parts) -> None:
         super().__init__(port, *parts)

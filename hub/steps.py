@@ -139,7 +139,17 @@ class LoopPort(Protocol):
     view_due_at: float
 
     def send(self, role: str, message: Message, raw: bytes | None = None) -> None:
-        """Put an input to ``role`` (``raw``: ``message`` encoded already), recorded."""
+        """Put an input to an endpoint, and record it.
+
+        Parameters
+        ----------
+        role : str
+            ``"body"`` or ``"culture"``.
+        message : Message
+            The input.
+        raw : bytes, optional
+            ``message`` encoded already.
+        """
 
     def resend_unanswered(self, role: str) -> None:
         """Put again the inputs ``role`` has not answered (it came back)."""
@@ -164,7 +174,15 @@ class LoopPort(Protocol):
 
     def share(self, now: float, *, view: bool = True) -> None:
         """After a step: the culture's spikes left for the burst observer and, with
-        ``view``, a view for live displays, each if due at ``now`` (monotonic)."""
+        ``view``, a view for live displays, each if due.
+
+        Parameters
+        ----------
+        now : float
+            The time (monotonic, s) they are due by.
+        view : bool
+            Whether a view may be built now (realtime: not when the next step is near).
+        """
 
     def record_event(self, name: str, **details) -> None:
         """Record something the scheduler noticed (an ``ev`` frame)."""
@@ -220,7 +238,15 @@ class Scheduler:
 
     def run(self, inputs: InputPolicy, descriptions: dict[str, Description]) -> None:
         """Step to the end of the run, or until a stop; the steps' timing starts and ends
-        here. ``inputs`` gives each step's inputs; ``descriptions`` are the endpoints'."""
+        here.
+
+        Parameters
+        ----------
+        inputs : InputPolicy
+            Gives each step's inputs (coded from the replies, or stood in for).
+        descriptions : dict of str to Description
+            The endpoints' descriptions, by role.
+        """
         raise NotImplementedError
 
     def rejoined(self, role: str) -> None:

@@ -136,8 +136,15 @@ class Telemetry:
         )
 
     def publish_status(self, now: float, *, progress: bool = True) -> None:
-        """Publish the status (and, with ``progress``, give it to the progress callback);
-        the next falls due ``1 / loop.status_hz`` after ``now``."""
+        """Publish the status, and the next falls due ``1 / loop.status_hz`` later.
+
+        Parameters
+        ----------
+        now : float
+            The time (monotonic, s).
+        progress : bool
+            Also give it to the progress callback (the terminal's line).
+        """
         self.status_due_at = now + 1.0 / self.cfg.loop.status_hz
         status = self.status()
         if self.link is not None:

@@ -93,7 +93,17 @@ class Traffic:
         self._keep_unanswered = cfg.policy.rejoin_s > 0
 
     def send(self, role: str, message: Message, raw: bytes | None = None) -> None:
-        """Put an input to ``role`` (``raw``: ``message`` encoded already) and record it."""
+        """Put an input to an endpoint and record it.
+
+        Parameters
+        ----------
+        role : str
+            ``"body"`` or ``"culture"``.
+        message : Message
+            The input.
+        raw : bytes, optional
+            ``message`` encoded already.
+        """
         raw = raw or message.encode()
         # Stamped before the put: a reply can come (and be stamped) before the put returns.
         t_wall_ns = time.time_ns() if self.recorder else None
@@ -121,9 +131,20 @@ class Traffic:
                 self.link.send(role, self.unanswered[role][step])
 
     def take(self, role: str, raw: bytes, t_wall_ns: int, t_arrival: float) -> None:
-        """Check one reply, judge it by its arrival (``t_arrival``, monotonic), record it
-        with that verdict (``t_wall_ns``: when it came); show it and, the culture's, leave
-        it for the burst observer."""
+        """Check one reply, judge it by its arrival, record it with that verdict; show it
+        and, the culture's, leave it for the burst observer.
+
+        Parameters
+        ----------
+        role : str
+            Whose reply.
+        raw : bytes
+            The reply, unsealed and reassembled.
+        t_wall_ns : int
+            When it came (wall clock, ns), as the record keeps it.
+        t_arrival : float
+            When it came (monotonic, s), what it is judged by (late, stale).
+        """
         ledger = self.ledger
         running = self.standing.state != "waiting"
         try:
@@ -189,8 +210,20 @@ class Traffic:
             )
 
     def refused(self, role: str, raw: bytes, kind: str, detail: str, t_wall_ns: int) -> None:
-        """A payload on ``role``'s reply key that did not unseal or reassemble: not the
-        endpoint's; counted as dropped and recorded capped."""
+        """A payload on an endpoint's reply key that did not unseal or reassemble: not the
+        endpoint's; counted as dropped and recorded capped.
+
+        Parameters
+        ----------
+        role : str
+            Whose reply key it came on.
+        raw : bytes
+            The payload.
+        kind, detail : str
+            The drop's kind (``foreign``, ``frame``) and what was wrong.
+        t_wall_ns : int
+            When it came (wall clock, ns).
+        """
         self.ledger.drop(role, kind, detail)
         if self.recorder and raw:
             self.recorder.message("drop", self.output_key[role], raw, t_wall_ns)
