@@ -421,32 +421,60 @@ class Hub:
     def _close_up(self, manifest: RunManifest, outcome: str, reason: str) -> RunResult:
         """Whatever ended the run: the robot stopped, the endpoints told and asked for their
         counters, the burst observer's final report, the last view and status, the record
-        and manifest closed (a record not closed makes the run a fault)."""
+        and manifest closed (a record not closed makes the run a fault).
+
+        Each part is tried on its own: one that fails (a bug) is logged with its traceback
+        and makes the run a fault that names it, and the rest is still done -- the manifest
+        always closed, never left saying "running".
+        """
+        failed: list[str] = []
+
+        def attempt(what: str, part: Callable, *args, **kwargs):
+            try:
+                return part(*args, **kwargs)
+            except Exception as exc:
+                log.exception("closing the run: %s failed", what)
+                failed.append(f"{what} failed ({type(exc).__name__}: {exc})")
+                return None
+
         if self.link is not None and self.descriptions.get("body"):
             # sent whether or not the body looks alive: a frozen body gets it if it comes
             # back in time (it also stops itself: its input timeout, the hub's liveliness)
-            self.traffic.stop_body(self._next_event)
-        endpoints = self.participants.manifest_entries()  # those alive, whatever the outcome
-        self.participants.end(outcome)
+            attempt("the body's final stop", self.traffic.stop_body, self._next_event)
+        # those alive, whatever the outcome
+        endpoints = attempt("the endpoints' counters", self.participants.manifest_entries)
+        attempt("telling the endpoints the run ended", self.participants.end, outcome)
         if self.online is not None:
+            end_observer = self.online.end
             there = OBSERVER in self.standing.alive
-            self.online.end(self.scheduler.k_done, there=there, take_waiting=self._take_reports)
-        self.telemetry.publish_view(time.monotonic())  # the last steps, for displays
+            attempt("the burst observer's final report", end_observer, self.scheduler.k_done,
+                    there=there, take_waiting=self._take_reports)  # fmt: skip
+        attempt("the last view", self.telemetry.publish_view, time.monotonic())
+        steps, ledger, tally = self.scheduler.k_done, self.ledger, self.telemetry.tally
+        timing = attempt(
+            "the run's timing", self.times.report, steps, self.scheduler.scheduling,
+            self.cpus_awake,
+        )  # fmt: skip
+        counts = attempt(
+            "the run's counts", run_counts, tally, ledger.late, ledger.missed, ledger.dropped
+        )
+        if failed:
+            why = "; ".join(failed)
+            outcome, reason = "fault", f"{reason}; {why}" if outcome == "fault" else why
         self.standing.state = "stopped"
         self.standing.ended = (outcome, reason)  # said in the final status, for observers
-        self.telemetry.publish_status(time.monotonic(), progress=False)
-        steps, ledger, tally = self.scheduler.k_done, self.ledger, self.telemetry.tally
-        timing = self.times.report(steps, self.scheduler.scheduling, self.cpus_awake)
-        counts = run_counts(tally, ledger.late, ledger.missed, ledger.dropped)
+        attempt("the final status", self.telemetry.publish_status, time.monotonic(), progress=False)
         unrecorded = manifest.close(
-            self.recorder, outcome, reason, steps=steps, timing=timing, counts=counts,
-            rejoins=self.presence.rejoins, endpoints=endpoints,
+            self.recorder, outcome, reason, steps=steps, timing=timing or {},
+            counts=counts or {}, rejoins=self.presence.rejoins, endpoints=endpoints or {},
         )  # fmt: skip
         if unrecorded and outcome != "fault":  # the record is not whole: a fault
             outcome, reason = "fault", unrecorded
         if self.link is not None and self.link.view_observed():
             self.link.views.wait_had(LAST_VIEW_WAIT_S)  # a live display's last view
-        return RunResult(outcome, reason, steps, timing, counts, self.run_dir, self.descriptions)
+        return RunResult(
+            outcome, reason, steps, timing or {}, counts or {}, self.run_dir, self.descriptions
+        )
 
     def _take_reports(self) -> None:
         """After the steps: handle the burst observer's reports waiting; nothing else

@@ -99,3 +99,22 @@ def test_a_record_that_cannot_be_written_during_the_steps_stops_the_run_as_a_fau
     assert manifest["steps"] == result.steps
     # the endpoints were told the run ended, and made themselves safe
     assert h.exit_codes == {"body": 0, "culture": 0}
+
+
+def test_a_part_of_the_close_up_that_fails_still_leaves_the_run_closed_as_a_fault(
+    tmp_path, bus_overrides, monkeypatch
+):
+    """A bug raised in the body's final stop (as a half-updated module once did) left the
+    manifest saying "running": the rest of the close-up never ran."""
+
+    def broken(self, next_event):
+        raise NameError("name '_bounds_s' is not defined")
+
+    monkeypatch.setattr("hub.traffic.Traffic.stop_body", broken)
+    with harness(tmp_path, bus_overrides, "experiment.duration_s=0.2") as h:
+        result = Hub(h.cfg, run_dir=h.run_dir).run()
+    assert result.outcome == "fault" and result.steps == 20
+    assert "the body's final stop failed (NameError: name '_bounds_s'" in result.reason
+    manifest = json.loads((h.run_dir / "manifest.json").read_text())
+    assert (manifest["outcome"], manifest["reason"]) == ("fault", result.reason)
+    assert h.exit_codes == {"body": 0, "culture": 0}  # told the run ended all the same
