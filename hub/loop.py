@@ -398,6 +398,7 @@ class Hub:
         """Run the steps (ARCHITECTURE.md, "The loop"), timed by the scheduler."""
         self.standing.state = "running"
         with ready_for_steps(self.cfg.loop.keep_cpus_awake) as self.cpus_awake:
+            self.presence.steps_start()
             self.scheduler.run(self.inputs, self.descriptions)
 
     def _ended_by(self, exc: BaseException) -> tuple[str, str]:

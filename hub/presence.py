@@ -6,7 +6,8 @@ come and go. During the steps an endpoint whose token vanishes is dead
 ``policy.rejoin_s`` lets it come back within that long: a restarted process, a dropped
 link (docs/remote.md). The burst observer may vanish and come back at any time: the loop
 goes on without it (:mod:`hub.online`). A death seen just after the hub itself did not run
-for a while (frozen, starved of CPU) is the hub's doing, and said so.
+for a while (frozen, starved of CPU) is the hub's doing, and said so: the run's fault, or,
+with ``policy.rejoin_s``, in the log while the endpoint is awaited back.
 """
 
 from __future__ import annotations
@@ -70,6 +71,7 @@ class Presence:
         # itself did not run (frozen, starved): (when it ended, how long it was).
         self._last_wake = time.monotonic()
         self._stall: tuple[float, float] = (-float("inf"), 0.0)
+        self._stepping = False  # gaps count once the steps started (steps_start)
 
     def seen(self, key: str, present: bool) -> None:
         """A liveliness token came or went.
@@ -110,18 +112,19 @@ class Presence:
         if present or not required or not stepping:
             return
         stalled_s = self._hub_stalled_s()
-        if stalled_s:
-            raise HubError(
-                f"the hub itself stopped running for {stalled_s:.1f} s (frozen or starved "
-                f"of CPU) at step {k}: {role}/{parsed[1]}'s lease lapsed meanwhile"
-            )
-        if policy.rejoin_s > 0:
+        stall = (
+            f"the hub itself stopped running for {stalled_s:.1f} s (frozen or starved of CPU) "
+            f"at step {k}: {role}/{parsed[1]}'s lease lapsed meanwhile"
+        )
+        if policy.rejoin_s > 0:  # whatever the cause, it may come back
             log.warning(
-                "%s/%s vanished at step %d: it may rejoin within %g s (policy.rejoin_s)",
-                *parsed, k, policy.rejoin_s,
+                "%s/%s vanished at step %d%s: it may rejoin within %g s (policy.rejoin_s)",
+                *parsed, k, f" ({stall})" if stalled_s else "", policy.rejoin_s,
             )  # fmt: skip
             standing.awaited[role] = (time.monotonic(), k)
             return
+        if stalled_s:
+            raise HubError(stall)
         self._dead(role)
 
     def check_deadlines(self) -> None:
@@ -141,18 +144,25 @@ class Presence:
 
     def note_wake(self) -> None:
         """The loop's thread woke: keep the last gap in its running longer than its longest
-        wait (``record.flush_s``) and a quarter lease, less than a lease lapsing takes."""
+        wait (``record.flush_s``) and a quarter lease, less than a lease lapsing takes.
+        Only gaps once the steps started count (:meth:`steps_start`): before them the
+        thread works between its waits (the endpoints described, the run announced)."""
         now = time.monotonic()
         gap_s = now - self._last_wake
         self._last_wake = now
-        if gap_s > self.cfg.record.flush_s + self.cfg.bus.lease_ms / 4e3:
+        if self._stepping and gap_s > self.cfg.record.flush_s + self.cfg.bus.lease_ms / 4e3:
             self._stall = (now, gap_s)
 
+    def steps_start(self) -> None:
+        """The steps start now: gaps in the loop's running count from here."""
+        self._last_wake, self._stepping = time.monotonic(), True
+
     def _hub_stalled_s(self) -> float:
-        """How long the hub's loop did not run, if that ended within the last few leases
-        (an endpoint's death seen then is the hub's doing); 0.0 otherwise."""
+        """How long the hub's loop did not run, if that ended within the last two leases
+        (an endpoint's lease that lapsed then lapsed while the hub was not running: seen
+        at most a lease after it ran again); 0.0 otherwise."""
         ended, gap_s = self._stall
-        return gap_s if time.monotonic() - ended < 5 * self.cfg.bus.lease_ms / 1e3 else 0.0
+        return gap_s if time.monotonic() - ended < 2 * self.cfg.bus.lease_ms / 1e3 else 0.0
 
     def _dead(self, role: str) -> None:
         """An endpoint is gone for good: ``policy.endpoint_death`` applies."""

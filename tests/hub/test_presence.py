@@ -1,0 +1,101 @@
+"""What an endpoint's token coming and going means during a run (hub/presence.py): a death,
+a rejoin awaited, or the hub's own stall named as the cause."""
+
+from __future__ import annotations
+
+import pytest
+
+from hub.config import load_config
+from hub.errors import EndpointDied, HubError
+from hub.presence import Presence
+from hub.steps import Standing
+
+LEASE_S = 1.0  # bus.lease_ms's default, 1000 ms
+
+
+class Steps:
+    """The scheduler as Presence sees it: the step under way, told of a return."""
+
+    k = 7
+
+    def rejoined(self, role):
+        self.back = role
+
+
+class Clock:
+    def __init__(self):
+        self.now = 100.0
+
+    def __call__(self):
+        return self.now
+
+
+@pytest.fixture
+def clock(monkeypatch):
+    clock = Clock()
+    monkeypatch.setattr("hub.presence.time.monotonic", clock)
+    return clock
+
+
+def presence(*overrides) -> tuple[Presence, Standing, str]:
+    cfg = load_config(None, list(overrides))
+    standing = Standing()
+    events = []
+    p = Presence(cfg, standing, Steps(), None, lambda role: None,
+                 lambda name, **d: events.append(name))  # fmt: skip
+    body = cfg.bus.keys.alive("body", cfg.body.id)
+    p.seen(body, True)
+    return p, standing, body
+
+
+def stepping(p: Presence, standing: Standing) -> None:
+    standing.state = "running"
+    p.steps_start()
+
+
+def test_a_vanished_endpoint_is_dead_and_named(clock):
+    p, standing, body = presence()
+    stepping(p, standing)
+    with pytest.raises(EndpointDied, match="body/0 died at step 7"):
+        p.seen(body, False)
+
+
+def test_a_vanishing_just_after_the_hub_stalled_is_the_hubs_doing(clock):
+    p, standing, body = presence()
+    stepping(p, standing)
+    clock.now += 0.9  # the hub frozen: no wake for 0.9 s (> flush 0.5 s + lease / 4)
+    p.note_wake()
+    clock.now += 0.5
+    with pytest.raises(HubError, match=r"the hub itself stopped running for 0.9 s"):
+        p.seen(body, False)
+
+
+def test_a_stall_long_before_the_vanishing_is_not_blamed(clock):
+    p, standing, body = presence()
+    stepping(p, standing)
+    clock.now += 0.9
+    p.note_wake()
+    clock.now += 2 * LEASE_S + 0.1  # the loop ran on since: its leases were kept
+    with pytest.raises(EndpointDied):
+        p.seen(body, False)
+
+
+def test_the_time_before_the_steps_is_no_stall(clock):
+    p, standing, body = presence()
+    clock.now += 1.2  # the endpoints described, the run announced: the thread at work
+    stepping(p, standing)
+    p.note_wake()
+    with pytest.raises(EndpointDied):
+        p.seen(body, False)
+
+
+def test_with_rejoin_s_an_endpoint_is_awaited_back_even_after_a_stall(clock):
+    p, standing, body = presence("policy.rejoin_s=5")
+    stepping(p, standing)
+    clock.now += 0.9
+    p.note_wake()
+    p.seen(body, False)  # not a fault: it may come back
+    assert standing.awaited == {"body": (clock.now, 7)}
+    clock.now += 1.0
+    p.seen(body, True)
+    assert p.rejoins[0]["gap_s"] == 1.0 and p.steps.back == "body"
