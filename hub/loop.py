@@ -446,10 +446,9 @@ class Hub:
         endpoints = attempt("the endpoints' counters", self.participants.manifest_entries)
         attempt("telling the endpoints the run ended", self.participants.end, outcome)
         if self.online is not None:
-            end_observer = self.online.end
-            there = OBSERVER in self.standing.alive
+            end_observer, alive = self.online.end, self.standing.alive
             attempt("the burst observer's final report", end_observer, self.scheduler.k_done,
-                    there=there, take_waiting=self._take_reports)  # fmt: skip
+                    there=lambda: OBSERVER in alive, take_waiting=self._take_reports)  # fmt: skip
         attempt("the last view", self.telemetry.publish_view, time.monotonic())
         steps, ledger, tally = self.scheduler.k_done, self.ledger, self.telemetry.tally
         timing = attempt(
@@ -478,11 +477,14 @@ class Hub:
         )
 
     def _take_reports(self) -> None:
-        """After the steps: handle the burst observer's reports waiting; nothing else
-        waiting matters to the run any more (an endpoint's end, a late reply)."""
+        """After the steps: handle the burst observer's reports waiting, and its going or
+        return (whether it is there to be asked for its final report; recorded); nothing
+        else waiting matters to the run any more (an endpoint's end, a late reply)."""
         while not self.inbox.empty():  # this thread alone takes from the queue
             item = self.inbox.get_nowait()
-            if item[0] in ("report", "report_refused"):
+            if item[0] in ("report", "report_refused") or (
+                item[0] == "alive" and self.cfg.bus.keys.parse_alive(item[1]) == OBSERVER
+            ):
                 self.handle(item)
 
     def _release(self, observer: LocalProcess | None) -> None:

@@ -47,6 +47,9 @@ OBSERVER_KEEP_S = 10.0
 # The longest the hub waits for the burst observer's final report (one that fell behind
 # catches up first; it answers within seconds of its last spikes coming otherwise).
 OBSERVER_END_TIMEOUT_S = 60.0
+# At the run's end, the hub's own observer unanswered is asked again this often, and waited
+# for while away (its lease lapsed: back within milliseconds of running again) this long.
+END_ASK_AGAIN_S, END_ABSENT_S = 0.05, 3.0
 # The observer's participant name on the bus (its liveliness token: ``observer/<NAME>``)
 PARTICIPANT = ("observer", NAME)
 
@@ -216,19 +219,33 @@ class OnlineAnalysis:
         )  # fmt: skip
         return entry
 
-    def end(self, steps_done: int, *, there: bool, take_waiting: Callable[[], None]) -> None:
+    def end(
+        self,
+        steps_done: int,
+        *,
+        there: Callable[[], bool],
+        take_waiting: Callable[[], None],
+    ) -> None:
         """After the steps: ask the observer for its final report (every step's spikes
         analysed, every burst still open completed), and count it; waits up to
         :data:`OBSERVER_END_TIMEOUT_S`. Without it, ``tally.lost`` says why.
+
+        An observer the hub started whose process still runs is asked again until it
+        answers: one whose lease lapsed at the run's end (frozen or starved before or
+        while it was asked: no answer, or its question ended empty as the lease lapsed) is
+        back within milliseconds of running again, its run kept, and its final report
+        counts the steps it missed. One that stays away longer than
+        :data:`END_ABSENT_S` is not waited for.
 
         Parameters
         ----------
         steps_done : int
             The steps the run made (those the observer should have had).
-        there : bool
-            Whether the observer's token is on the bus (False: it is not asked).
+        there : callable
+            ``there()``: whether the observer's token is on the bus now.
         take_waiting : callable
-            Handles the reports that came before the question (called with no argument).
+            Handles what came before the question (the observer's reports, its going and
+            its return; called with no argument).
         """
         tally = self.tally
         if tally.final:
@@ -236,17 +253,36 @@ class OnlineAnalysis:
         if not tally.announced:
             tally.lost = "the run ended before the burst observer had it"
             return
-        if not there:
-            tally.lost = tally.lost or "the burst observer was not there at the run's end"
-            return
         self.forward()  # the last steps'
         take_waiting()
         end = ObserverEnd(run=self.run_id, steps=steps_done).encode()
         link = self._link
-        for raw in link.query(link.keys.observer_run(NAME), end, timeout_s=OBSERVER_END_TIMEOUT_S):
-            try:
-                self.take_report(BurstReport.decode(raw))
-            except ProtocolError:
-                continue
+        now = time.monotonic()
+        deadline, absent_since, asked = now + OBSERVER_END_TIMEOUT_S, None, False
+        while True:
+            if there():
+                asked, absent_since = True, None
+                left_s = max(deadline - time.monotonic(), END_ASK_AGAIN_S)
+                for raw in link.query(link.keys.observer_run(NAME), end, timeout_s=left_s):
+                    try:
+                        self.take_report(BurstReport.decode(raw))
+                    except ProtocolError:
+                        continue
+            elif absent_since is None:
+                absent_since = time.monotonic()
+            now = time.monotonic()
+            away_too_long = absent_since is not None and now - absent_since > END_ABSENT_S
+            if tally.final or not self._may_answer() or now >= deadline or away_too_long:
+                break
+            time.sleep(END_ASK_AGAIN_S)
+            take_waiting()
         if not tally.final:
-            tally.lost = tally.lost or "the burst observer did not answer at the run's end"
+            why = "did not answer" if asked else "was not there"
+            tally.lost = tally.lost or f"the burst observer {why} at the run's end"
+
+    def _may_answer(self) -> bool:
+        """Whether the observer may still answer after a question that got no final report:
+        one the hub started whose process still runs (one run elsewhere cannot be told
+        from one gone for good)."""
+        proc = self.process
+        return proc is not None and proc.popen.poll() is None
