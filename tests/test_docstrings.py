@@ -166,7 +166,7 @@ def test_an_override_inherits_its_base_methods_documentation(tmp_path, method_do
     path.write_text(
         '"""A module."""\n\n'
         'class Base:\n    """A base."""\n\n'
-        f'    def step(self, a, b):\n        {method_doc or "pass"}\n\n'
+        f"    def step(self, a, b):\n        {method_doc or 'pass'}\n\n"
         'class Child(Base):\n    """A child."""\n\n    def step(self, a, b):\n        return a\n'
     )
     found = problems(path, Classes([path]), tmp_path)
