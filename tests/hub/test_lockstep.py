@@ -14,7 +14,6 @@ import math
 import queue
 import threading
 import time
-from dataclasses import dataclass
 
 from hub.config import load_config
 from hub.ledger import Ledger
@@ -22,34 +21,7 @@ from hub.lockstep import VIEW_STALL_S, Lockstep
 from hub.report import LoopTimes
 from hub.steps import Standing
 from tests.harness import wait_for
-
-
-@dataclass(frozen=True)
-class Input:
-    """An input as the test's policy makes it: coded from the reply of step ``source``
-    (None: the reply was missing, or step 0)."""
-
-    role: str
-    step: int
-    source: int | None
-
-    def encode(self) -> bytes:
-        return b""
-
-
-class Inputs:
-    """The policy's two questions (hub.policy.InputPolicy), answered with :class:`Input`."""
-
-    def motor_for(self, k, spikes):
-        return Input("body", k, None if spikes is None else spikes.step)
-
-    def stim_for(self, k, sensors):
-        return Input("culture", k, None if sensors is None else sensors.step)
-
-
-@dataclass(frozen=True)
-class Reply:
-    step: int
+from tests.hub.scheduler_parts import Input, Inputs, Reply
 
 
 def rx(role: str, step: int) -> tuple:

@@ -13,7 +13,6 @@ from __future__ import annotations
 import heapq
 import itertools
 import math
-from dataclasses import dataclass
 from types import SimpleNamespace
 
 import pytest
@@ -23,6 +22,7 @@ from hub.ledger import Ledger
 from hub.realtime import LATE_START_SHARE, VIEW_GUARD_S, Realtime
 from hub.report import LoopTimes
 from hub.steps import Standing
+from tests.hub.scheduler_parts import Inputs, Reply
 
 PERIOD_S = 0.01
 
@@ -40,34 +40,6 @@ class Clock:
 
     def process_time(self) -> float:
         return 0.0
-
-
-@dataclass(frozen=True)
-class Input:
-    """An input as the test's policy makes it: coded from the reply of step ``source``
-    (None: the reply was missing, or step 0)."""
-
-    role: str
-    step: int
-    source: int | None
-
-    def encode(self) -> bytes:
-        return b""
-
-
-class Inputs:
-    """The policy's two questions (hub.policy.InputPolicy), answered with :class:`Input`."""
-
-    def motor_for(self, k, spikes):
-        return Input("body", k, None if spikes is None else spikes.step)
-
-    def stim_for(self, k, sensors):
-        return Input("culture", k, None if sensors is None else sensors.step)
-
-
-@dataclass(frozen=True)
-class Reply:
-    step: int
 
 
 class Port:
