@@ -521,7 +521,7 @@ def cmd_endpoint(args) -> int:
     ``serve`` returns, or 2 on a device fault."""
     from hub.bus import check_security_files
     from hub.endpoint import DeviceFault
-    from hub.launch import make_endpoint, settings_digest
+    from hub.launch import make_endpoint, settings_digest, settings_digests
 
     cfg = load_config(args.config, _overrides(args))
     check_security_files(cfg.bus, [args.role])  # before its model is built
@@ -531,6 +531,7 @@ def cmd_endpoint(args) -> int:
         endpoint = make_endpoint(cfg, args.role)
         # its hub refuses it if it serves other settings than the hub's experiment
         endpoint.settings_digest = settings_digest(cfg, args.role)
+        endpoint.settings_digests = settings_digests(cfg, args.role)
         return endpoint.serve(
             cfg.bus,
             realtime_priority=priority,

@@ -131,9 +131,11 @@ class Endpoint(abc.ABC):
 
     role: str = ""  # "body" or "culture", set by subclasses
     kind: str = ""  # e.g. "sim_robot", "sim_network", "khepera"
-    # hub.launch.settings_digest of the experiment it was built from (set by `neuvision
-    # endpoint`), in its description's counters; None: not known, not compared
+    # hub.launch.settings_digest (and settings_digests: each setting's) of the experiment it
+    # was built from (set by `neuvision endpoint`), in its description's counters; None: not
+    # known, not compared
     settings_digest: str | None = None
+    settings_digests: dict[str, str] | None = None
 
     def __init__(self, id: str = "0", *, input_timeout_s: float = 1.0):
         if self.role not in INPUT_TYPE:
@@ -287,6 +289,8 @@ class Endpoint(abc.ABC):
         counters["host"] = _HOST  # where it runs: the manifest names every participant
         if self.settings_digest is not None:  # what it serves: the hub compares its own
             counters["settings_digest"] = self.settings_digest
+        if self.settings_digests is not None:  # and names the settings that differ
+            counters["settings_digests"] = self.settings_digests
         counters["unix_time_s"] = time.time()  # the hub estimates the clock offset
         return dataclasses.replace(self._description(), counters=counters)
 

@@ -152,6 +152,22 @@ def resolve_endpoints(cfg: ExperimentConfig, local_only: bool = False) -> Experi
     return dataclasses.replace(cfg, **sections)
 
 
+def _served(cfg: ExperimentConfig, role: str) -> dict | None:
+    """``role``'s kind and params as its kind resolves them; None when the kind does not
+    load here or its params do not check."""
+    section = cfg.endpoint(role)
+    try:
+        params = check_endpoint(endpoint_class(role, section.kind), section, cfg)
+    except ConfigError:
+        return None
+    return {"kind": section.kind, "params": params}
+
+
+def _digest(value) -> str:
+    text = json.dumps(value, sort_keys=True, separators=(",", ":"), default=repr)
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
 def settings_digest(cfg: ExperimentConfig, role: str) -> str | None:
     """SHA-256 (hex) of ``role``'s kind and params as its kind resolves them: what an
     endpoint serves, compared by the hub with its own (an endpoint started with another
@@ -166,18 +182,36 @@ def settings_digest(cfg: ExperimentConfig, role: str) -> str | None:
     role : str
         ``"body"`` or ``"culture"``.
     """
-    section = cfg.endpoint(role)
-    try:
-        params = check_endpoint(endpoint_class(role, section.kind), section, cfg)
-    except ConfigError:
+    served = _served(cfg, role)
+    return None if served is None else _digest(served)
+
+
+def settings_digests(cfg: ExperimentConfig, role: str) -> dict[str, str] | None:
+    """A short digest of each setting ``role`` serves, by dotted key (``culture.kind``,
+    ``culture.params.config.noise.sd``, ...): when :func:`settings_digest` differs, the hub
+    names the settings that do, without the values crossing the bus.
+
+    Parameters
+    ----------
+    cfg : ExperimentConfig
+        The experiment, resolved or not.
+    role : str
+        ``"body"`` or ``"culture"``.
+    """
+    served = _served(cfg, role)
+    if served is None:
         return None
-    text = json.dumps(
-        {"kind": section.kind, "params": params},
-        sort_keys=True,
-        separators=(",", ":"),
-        default=repr,
-    )
-    return hashlib.sha256(text.encode()).hexdigest()
+    leaves: dict[str, str] = {}
+
+    def walk(prefix: str, value) -> None:
+        if isinstance(value, dict) and value:
+            for key, item in value.items():
+                walk(f"{prefix}.{key}", item)
+        else:
+            leaves[prefix] = _digest(value)[:12]
+
+    walk(role, served)
+    return leaves
 
 
 def make_endpoint(cfg: ExperimentConfig, role: str) -> Endpoint:

@@ -17,7 +17,7 @@ import zenoh
 
 from hub.config import ExperimentConfig, LoopSection
 from hub.errors import HubError
-from hub.launch import settings_digest
+from hub.launch import settings_digest, settings_digests
 from hub.link import HubLink
 from hub.protocol import Description, ProtocolError, RunEnd, RunHold, RunReply, RunStart
 from hub.record import Recorder
@@ -95,11 +95,10 @@ class Roster:
         counters = desc.counters or {}
         theirs, ours = counters.get("settings_digest"), self._settings_digest(role)
         if isinstance(theirs, str) and ours is not None and theirs != ours:
+            which = differing_settings(counters.get("settings_digests"), self.cfg, role)
             raise HubError(
-                f"{role}/{i} serves other settings than this hub's experiment ({role}.kind and "
-                f"{role}.params as resolved, the seed included, differ: its {theirs[:12]}, "
-                f"the hub's {ours[:12]}): start it with the hub's experiment file and the "
-                f"same --set items"
+                f"{role}/{i} serves other settings than this hub's experiment ({which}): "
+                f"start it with the hub's experiment file and the same --set items"
             )
         their_time = counters.get("unix_time_s")
         where = {
@@ -274,6 +273,35 @@ class Roster:
         if role not in self._digests:
             self._digests[role] = settings_digest(self.cfg, role)
         return self._digests[role]
+
+
+#: the most settings a refusal names
+MAX_NAMED_SETTINGS = 5
+
+
+def differing_settings(theirs, cfg: ExperimentConfig, role: str) -> str:
+    """Which of ``role``'s settings an endpoint serves otherwise than this hub, from its
+    per-setting digests (:func:`hub.launch.settings_digests`), said for a refusal.
+
+    Parameters
+    ----------
+    theirs : dict or None
+        The endpoint's digests by dotted key (None: an endpoint that sends none).
+    cfg : ExperimentConfig
+        This hub's experiment.
+    role : str
+        ``"body"`` or ``"culture"``.
+    """
+    ours = settings_digests(cfg, role)
+    if not isinstance(theirs, dict) or ours is None:
+        return f"{role}.kind and {role}.params as resolved, the seed included, differ"
+    keys = sorted(set(ours) | set(theirs))
+    differ = [k for k in keys if ours.get(k) != theirs.get(k)]
+    named = ", ".join(differ[:MAX_NAMED_SETTINGS])
+    more = (
+        f" and {len(differ) - MAX_NAMED_SETTINGS} more" if len(differ) > MAX_NAMED_SETTINGS else ""
+    )
+    return f"{'it differs in' if differ else 'they differ'} {named}{more}".rstrip()
 
 
 def run_replies(link: HubLink, key: str, request, timeout_s: float) -> list[RunReply]:
