@@ -797,7 +797,9 @@ def cmd_analyze(args) -> int:
             file=sys.stderr,
         )
     try:
-        metrics = analyze_run(run_dir, args.out)
+        # stages said at a terminal: a long record takes a while (its errors stay one line)
+        interactive = sys.stderr.isatty()
+        metrics = analyze_run(run_dir, args.out, progress=_stage_printer() if interactive else None)
     except AnalysisInputError as exc:
         raise InputError(f"cannot analyse {run_dir}: {exc}") from None
     except OSError as exc:  # a full disk: what was written before is whole (write_whole)
@@ -807,6 +809,16 @@ def cmd_analyze(args) -> int:
             print(f"neuvision: note: {metrics['metrics'][note]}", file=sys.stderr)
     _emit(json.dumps(metrics, indent=2, default=str))
     return EXIT_OK
+
+
+def _stage_printer():
+    """``say(stage)``: the stage and the seconds since the first, on stderr."""
+    start = time.monotonic()
+
+    def say(stage: str) -> None:
+        print(f"neuvision: {stage} ({time.monotonic() - start:.1f} s)", file=sys.stderr)
+
+    return say
 
 
 def cmd_reproduce(args) -> int:

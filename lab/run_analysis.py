@@ -24,6 +24,7 @@ It reads the record with ``hub.record.read_run`` and uses, from it:
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -160,7 +161,12 @@ def _trajectory(rec, config: dict, out: Path, title: str, metrics: dict) -> list
     return [save_figure(figure, out / f"trajectory.{fmt}", **TRAJECTORY_SAVE) for fmt in FORMATS]
 
 
-def analyze_run(run_dir, out_dir=None, params: AnalysisParams | None = None) -> dict:
+def analyze_run(
+    run_dir,
+    out_dir=None,
+    params: AnalysisParams | None = None,
+    progress: Callable[[str], None] | None = None,
+) -> dict:
     """Analyse a recorded run; write ``metrics.json``, figures and ``report.html``.
 
     Parameters
@@ -169,6 +175,9 @@ def analyze_run(run_dir, out_dir=None, params: AnalysisParams | None = None) -> 
     out_dir : where to write; default ``RUN_DIR/analysis``. Created if needed.
     params : analysis parameters; default ``AnalysisParams.from_dict(config["analysis"])`` when
         the run's config has an ``analysis`` table, else the paper's defaults.
+    progress : callable, optional
+        ``progress(stage)`` as each stage starts (reading, analysing, figures, report): a
+        long record takes a while.
 
     Returns
     -------
@@ -178,6 +187,8 @@ def analyze_run(run_dir, out_dir=None, params: AnalysisParams | None = None) -> 
     run_dir = Path(run_dir)
     if not run_dir.is_dir():
         raise AnalysisInputError(f"run_dir {run_dir} is not a folder")
+    say = progress or (lambda stage: None)
+    say("reading the record")
     rec = read_run(run_dir)
     manifest = rec.manifest
     short = rec.short_note()  # a record cut short: analysed, and said
@@ -214,6 +225,7 @@ def analyze_run(run_dir, out_dir=None, params: AnalysisParams | None = None) -> 
     if psth_note:  # stimuli closer than the PSTH's window: responses overlap, no PSTH
         stim_ms = None
 
+    say(f"analysing {t_ms.size:,} spikes on {n_channels:,} channels")
     result = analyze(
         index, t_ms, n_channels, t_start_ms, t_stop_ms, cell_type, x_um, y_um, stim_ms, params
     )
@@ -236,6 +248,7 @@ def analyze_run(run_dir, out_dir=None, params: AnalysisParams | None = None) -> 
     stim_channels = None
     if stim_ids is not None and culture is not None and culture.channel is not None:
         stim_channels = np.flatnonzero(np.isin(culture.channel, stim_ids))
+    say("drawing the figures")
     figures = plot_all(
         out, index, t_ms, result, t_start_ms, t_stop_ms, cell_type, x_um, y_um, stim_channels
     )
@@ -260,6 +273,7 @@ def analyze_run(run_dir, out_dir=None, params: AnalysisParams | None = None) -> 
             timing[key] = manifest[key]
     if short:
         timing["record"] = short
+    say("writing the report")
     report_path = write_report(
         out / REPORT_FILE, metrics, config, figures, title=f"NeuVision run {name}", timing=timing
     )

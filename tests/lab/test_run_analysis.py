@@ -275,3 +275,11 @@ def test_network_bursts_stretched_by_a_channel_bursting_throughout_are_said_so()
     assert extents_note(plain) == ""
     note = extents_note(stretched)
     assert note.startswith("network-burst extents span") and "Read the cores" in note
+
+
+def test_a_long_analysis_says_each_stage_as_it_starts(tmp_path):
+    _silent_run(tmp_path, recorded_steps=100, manifest_steps=100)
+    stages: list[str] = []
+    analyze_run(tmp_path, progress=stages.append)
+    assert [s.split()[0] for s in stages] == ["reading", "analysing", "drawing", "writing"]
+    assert stages[1].startswith("analysing 0 spikes on ")
