@@ -35,7 +35,7 @@ import numpy as np
 from hub import stopping
 from hub.config import ConfigError, ExperimentConfig, load_config
 from hub.protocol import MotorCommand, SensorReading, Stimulation
-from hub.record import MANIFEST_FILE, RunRecord, read_run, write_manifest
+from hub.record import MANIFEST_FILE, RunRecord, read_manifest, read_run, write_manifest
 from settings.overrides import format_value
 
 log = logging.getLogger(__name__)
@@ -390,6 +390,7 @@ class Run:
         if not (self.run_dir / MANIFEST_FILE).is_file():
             raise FileNotFoundError(f"{self.run_dir} is not a run folder (no {MANIFEST_FILE})")
         self._record: RunRecord | None = None
+        self._manifest: dict | None = None
 
     @classmethod
     def open(cls, run_dir: str | Path) -> Run:
@@ -408,8 +409,13 @@ class Run:
 
     @property
     def manifest(self) -> dict:
-        """``manifest.json``: the run's config, seed, hosts, start, end, outcome, timing."""
-        return self.record.manifest
+        """``manifest.json``: the run's config, seed, hosts, start, end, outcome, timing
+        (read on its own: the record, which may be GBs, is read only when asked for)."""
+        if self._record is not None:
+            return self._record.manifest
+        if self._manifest is None:
+            self._manifest = read_manifest(self.run_dir)
+        return self._manifest
 
     @property
     def outcome(self) -> str:

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from hub.protocol import MotorCommand, SensorReading, SpikeBatch, Stimulation
+from hub.record import RunReadError
 from neuvision import ConfigError, Experiment, Run
 
 CONFIG = "configs/closed_loop.toml"
@@ -52,6 +53,16 @@ def test_a_bad_file_or_key_fails_when_the_experiment_is_made(tmp_path):
 def test_a_folder_that_is_not_a_run_is_named(tmp_path):
     with pytest.raises(FileNotFoundError, match="not a run folder"):
         Run.open(tmp_path)
+
+
+def test_a_runs_manifest_is_read_without_its_record(tmp_path):
+    (tmp_path / "manifest.json").write_text('{"outcome": "completed", "steps": 3}')
+    (tmp_path / "record.nvrec").write_bytes(b"not a record")  # a reader would refuse it
+    run = Run.open(tmp_path)
+    assert (run.outcome, run.steps) == ("completed", 3)
+    assert repr(run) == f"Run({str(tmp_path)!r}, outcome='completed', steps=3)"
+    with pytest.raises(RunReadError):  # the record is read when asked for, not before
+        _ = run.record
 
 
 @pytest.mark.slow  # a whole run
