@@ -45,6 +45,10 @@ class BusError(RuntimeError):
     """The bus could not be joined; the message says where and why."""
 
 
+#: how soon an endpoint tries again to open a link to its hub that failed or dropped
+RETRY_MS = {"period_init_ms": 100, "period_max_ms": 500, "period_increase_factor": 2}
+
+
 def zenoh_config(bus: BusSection, *, listener: bool, role: str | None = None) -> zenoh.Config:
     """Build the Zenoh configuration of one participant.
 
@@ -93,6 +97,11 @@ def zenoh_config(bus: BusSection, *, listener: bool, role: str | None = None) ->
         put("connect/endpoints", list(bus.connect or bus.listen))
         # Wait for the hub to come up (endpoints are often started first).
         put("connect/timeout_ms", int(bus.connect_timeout_s * 1000))
+        # A link to the hub that dropped (a lease lapsed while this process was frozen or
+        # starved) is opened again at once; refused (the hub not done with the old one),
+        # tried again within RETRY_MS, not Zenoh's 1-4 s backoff, which would stretch a
+        # rejoin, or an observer's final report, by seconds.
+        put("connect/retry", RETRY_MS)
     if bus.security != "none":
         who = "hub" if listener else role
         try:

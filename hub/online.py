@@ -260,16 +260,21 @@ class OnlineAnalysis:
         now = time.monotonic()
         deadline, absent_since, asked = now + OBSERVER_END_TIMEOUT_S, None, False
         while True:
-            if there():
+            present = there()
+            if present:
                 asked, absent_since = True, None
+            elif absent_since is None:
+                absent_since = time.monotonic()
+            # Its token's going may be seen after its return (the old link's close): one
+            # the hub started, its process alive, is asked whatever its token says (a
+            # question that nothing answers ends at once).
+            if present or self._may_answer():
                 left_s = max(deadline - time.monotonic(), END_ASK_AGAIN_S)
                 for raw in link.query(link.keys.observer_run(NAME), end, timeout_s=left_s):
                     try:
                         self.take_report(BurstReport.decode(raw))
                     except ProtocolError:
                         continue
-            elif absent_since is None:
-                absent_since = time.monotonic()
             now = time.monotonic()
             away_too_long = absent_since is not None and now - absent_since > END_ABSENT_S
             if tally.final or not self._may_answer() or now >= deadline or away_too_long:
