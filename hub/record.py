@@ -356,7 +356,7 @@ class Recorder:
         if direction == "drop":
             self._drop(key, payload, t_wall_ns)
             return
-        self._write([t_wall_ns or time.time_ns(), direction, key, payload])
+        self._write([time.time_ns() if t_wall_ns is None else t_wall_ns, direction, key, payload])
 
     def _drop(self, key: str, payload: bytes, t_wall_ns: int | None) -> None:
         head = payload[:DROP_HEAD_BYTES]
@@ -368,7 +368,7 @@ class Recorder:
         self.drop_bytes_stored += cost
         digest = hashlib.blake2b(payload, digest_size=DROP_DIGEST_BYTES).digest()
         capped = {"head": bytes(head), "n_bytes": len(payload), "blake2b": digest}
-        self._write([t_wall_ns or time.time_ns(), "drop", key, capped])
+        self._write([time.time_ns() if t_wall_ns is None else t_wall_ns, "drop", key, capped])
 
     def event(self, name: str, **details) -> None:
         """Record something the hub noticed or did (a death, a policy, a command)."""

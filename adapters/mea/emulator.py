@@ -158,7 +158,8 @@ class IntanEmulator:
         """Samples since run mode began (0 when stopped)."""
         if self._run_t0 is None:
             return 0
-        return int(((now or time.monotonic()) - self._run_t0) * SAMPLE_RATE_HZ)
+        now = time.monotonic() if now is None else now
+        return int((now - self._run_t0) * SAMPLE_RATE_HZ)
 
     # ------------------------------------------------------------ command port
 
