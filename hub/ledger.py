@@ -162,6 +162,12 @@ class Ledger:
             return self.drop(role, "stale", f"a part of step {step} awaiting step {expected}")
         return self.drop(role, "future", f"a part of step {step} awaiting step {expected}")
 
+    def owed(self, n_steps: int) -> list[str]:
+        """The roles that owe a reply now: the input of the step they owe went out (an
+        input that waits on another reply is not owed yet), and the run has that step."""
+        expect, last_sent = self.expect, self.last_sent
+        return [r for r in ROLES if last_sent.get(r, -1) >= expect[r] < n_steps]
+
     def miss(self, role: str, step: int) -> None:
         """A reply is missing: the policy stands in for it (its parts, recorded already,
         are stranded: no reply will take them).

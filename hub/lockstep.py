@@ -18,12 +18,11 @@ import threading
 import time
 from typing import TYPE_CHECKING
 
-from hub.protocol import ROLES, Message
 from hub.steps import Scheduler
 
 if TYPE_CHECKING:
     from hub.policy import InputPolicy
-    from hub.protocol import Description
+    from hub.protocol import Description, Message
     from hub.steps import LoopPort
 
 # The loop's thread sends a view only once the steps stood still this long past its time
@@ -55,7 +54,7 @@ class Lockstep(Scheduler):
         self._lock = threading.Lock()  # held by whatever touches the loop's state
         self._handle, self._post = port.handle, port.post
         self._failure: BaseException | None = None  # raised in a reply's thread
-        self._last_progress = 0.0  # when the last step completed
+        self._pipe: Pipeline | None = None  # the run's, once it runs
 
     def deliver(self, item: tuple) -> None:
         """An event from the bus, on its thread: a reply during the steps is taken here and
@@ -68,7 +67,7 @@ class Lockstep(Scheduler):
                 return self._post(item)
             try:
                 self._handle(item)
-                self._advance()
+                self._stepped(self._pipe.advance())
             except BaseException as exc:  # the loop's thread raises it
                 self.direct, self._failure = False, exc
                 self._post(("wake",))
@@ -78,36 +77,33 @@ class Lockstep(Scheduler):
         """Step to the end of the run (or a stop)."""
         port, standing, lock = self._port, self._standing, self._lock
         timeout_s = self._loop.reply_timeout_s
-        self._send, self._share = port.send, port.share
-        self._motor_for, self._stim_for = inputs.motor_for, inputs.stim_for
+        self._pipe = pipe = Pipeline(
+            port.send, inputs, standing, self._ledger, self._times, self._n
+        )
         self._times.start()
         try:
             with lock:
-                self._ledger.expect.update(body=0, culture=0)
-                self._last_progress = time.monotonic()
                 # Direct before the first inputs go out: a reply that comes while this thread
                 # is held up after them then waits for the lock, instead of being queued here
                 # while later replies are taken directly (step 1 taken before step 0).
                 self.direct = True
-                self._send("body", self._motor_for(0, None))
-                self._send("culture", self._stim_for(0, None))
+                pipe.start()
             while True:
                 with lock:
                     if self._failure is not None:
                         raise self._failure
                     if standing.stop_reason or self.k_done >= self._n:
                         return
-                    now = time.monotonic()
                     if standing.state == "paused" or standing.awaited:
-                        self._last_progress = now  # the reply timeout waits with the steps
-                    elif now - self._last_progress >= timeout_s:
-                        self._stand_in()
+                        pipe.last_progress = time.monotonic()  # the reply timeout waits too
+                    elif time.monotonic() - pipe.last_progress >= timeout_s:
+                        self._stepped(pipe.stand_in())
                     view_at = port.view_due_at + VIEW_STALL_S
-                item = port.wait_event(min(self._last_progress + timeout_s, view_at))
+                item = port.wait_event(min(pipe.last_progress + timeout_s, view_at))
                 with lock:
                     if item is not None:
                         port.handle(item)
-                    self._advance()
+                    self._stepped(pipe.advance())
                     port.tick()
                     if (now := time.monotonic()) >= port.view_due_at + VIEW_STALL_S:
                         port.share(now)
@@ -119,50 +115,92 @@ class Lockstep(Scheduler):
     def rejoined(self, role: str) -> None:
         """``role`` is back: the inputs it owes replies to go again; the loop waited."""
         self._port.resend_unanswered(role)
-        self._last_progress = time.monotonic()
+        self._pipe.last_progress = time.monotonic()
 
-    def _advance(self) -> None:
-        """Send every input whose reply is in (unless paused or stopping), and note the
-        steps completed."""
+    def _stepped(self, done: int) -> None:
+        """The steps completed are now ``done``: the run's end is woken to, and live
+        displays are shared what is new."""
+        if done > self.k_done:
+            self.k_done = self.k = done
+            if done >= self._n:
+                self._post(("wake",))
+            self._port.share(self._pipe.last_progress)
+
+
+class Pipeline:
+    """Lockstep's order of inputs, pipelined: each input of step k+1 goes as soon as the
+    reply it depends on is in; the steps completed, and how long each took.
+
+    Parameters
+    ----------
+    send : callable
+        ``send(role, message)``: an input to an endpoint.
+    inputs : InputPolicy
+        Makes each input from the reply it depends on (None: the policy stands in).
+    standing : Standing
+        Where the run stands: no input goes while paused or stopping.
+    ledger : Ledger
+        The replies in (``pending``), the step each role owes (``expect``).
+    times : LoopTimes
+        Where each step's wall time goes.
+    n_steps : int
+        The run's steps.
+
+    Attributes
+    ----------
+    k_done : int
+        The steps completed (both replies taken or stood in for).
+    last_progress : float
+        When (monotonic) the last step completed; the reply timeout counts from it.
+    """
+
+    def __init__(self, send, inputs: InputPolicy, standing, ledger, times, n_steps: int):
+        self._send, self._standing, self._ledger = send, standing, ledger
+        self._times, self._n = times, n_steps
+        # the input each role's reply lets out: the culture's spikes, the body's motor
+        # command; the body's sensors, the culture's stimulation
+        self._next = {"culture": ("body", inputs.motor_for), "body": ("culture", inputs.stim_for)}
+        self.k_done, self.last_progress = 0, 0.0
+
+    def start(self) -> None:
+        """Step 0's inputs go (the body's first)."""
+        self._ledger.expect.update(body=0, culture=0)
+        self.last_progress = time.monotonic()
+        for role, code in self._next.values():
+            self._send(role, code(0, None))
+
+    def advance(self) -> int:
+        """Send every input whose reply is in (unless paused or stopping); the steps
+        completed."""
         standing, ledger = self._standing, self._ledger
         if standing.state != "running" or standing.stop_reason:
-            return
+            return self.k_done
         expect = ledger.expect
         for role in ("culture", "body"):
             pending = ledger.pending[role]
             while pending and expect[role] in pending:
-                self._pipeline(role, pending.pop(expect[role]))
+                self._take(role, pending.pop(expect[role]))
         done, k_done = min(expect["culture"], expect["body"]), self.k_done
         if done > k_done:
             now = time.monotonic()
-            if done == k_done + 1:  # a numpy scalar store, not a slice's
-                self._times.step_wall_s[k_done] = now - self._last_progress
-            else:
-                self._times.step_wall_s[k_done:done] = (now - self._last_progress) / (done - k_done)
-            self._last_progress = now
-            self.k_done = self.k = done
-            if done >= self._n:
-                self._post(("wake",))
-            self._share(now)
+            self._times.steps_took(k_done, done, now - self.last_progress)
+            self.last_progress, self.k_done = now, done
+        return done
 
-    def _stand_in(self) -> None:
-        """No reply for ``reply_timeout_s``: the policy stands in for each reply owed (an
-        input that waits on another reply is not owed yet)."""
+    def stand_in(self) -> int:
+        """No reply for the timeout: the policy stands in for each reply owed (an input
+        that waits on another reply is not owed yet); the steps completed."""
         ledger = self._ledger
-        expect = ledger.expect
-        for role in [r for r in ROLES if ledger.last_sent.get(r, -1) >= expect[r] < self._n]:
-            ledger.miss(role, expect[role])
-            self._pipeline(role, None)
-        self._last_progress = time.monotonic()
-        self._advance()
+        for role in ledger.owed(self._n):
+            ledger.miss(role, ledger.expect[role])
+            self._take(role, None)
+        self.last_progress = time.monotonic()
+        return self.advance()
 
-    def _pipeline(self, role: str, reply: Message | None) -> None:
+    def _take(self, role: str, reply: Message | None) -> None:
         """Take the reply of ``role`` for its expected step k; send the other side step k+1."""
         expect = self._ledger.expect
-        k = expect[role]
-        expect[role] = k + 1
-        if k + 1 < self._n and not self._standing.stop_reason:
-            if role == "culture":
-                self._send("body", self._motor_for(k + 1, reply))
-            else:
-                self._send("culture", self._stim_for(k + 1, reply))
+        k = expect[role] = expect[role] + 1  # the step whose input the reply lets out
+        if k < self._n and not self._standing.stop_reason:
+            other, code = self._next[role]
+            self._send(other, code(k, reply))

@@ -76,9 +76,8 @@ class Realtime(Scheduler):
 
     def _steps(self, inputs: InputPolicy, lag: int) -> None:
         port, ledger, times, n = self._port, self._ledger, self._times, self._n
-        send = port.send
         # Each step's inputs are coded and encoded in the slack of the step before.
-        sent = _encoded(inputs.motor_for(0, None), inputs.stim_for(0, None))
+        sent = _encoded(inputs, 0, None, None)
         for k in range(n):
             if not self._await_start(k):
                 return
@@ -87,16 +86,14 @@ class Realtime(Scheduler):
             ledger.expect.update({role: max(step, 0) for role, step in steps.items()})
             t0 = time.monotonic()
             for role in ROLES:
-                send(role, *sent[role])
+                port.send(role, *sent[role])
             late = self._collect(steps)
             if k == 0:  # every thread that carries replies has started by now
                 self.scheduling.include_new_threads()
             prev = {role: ledger.pending[role].pop(step, None) for role, step in steps.items()}
             times.step_wall_s[k] = time.monotonic() - t0
             if k + 1 < n:
-                sent = _encoded(
-                    inputs.motor_for(k + 1, prev["culture"]), inputs.stim_for(k + 1, prev["body"])
-                )
+                sent = _encoded(inputs, k + 1, prev["culture"], prev["body"])
             late_start = times.lateness_s[k] > LATE_START_SHARE * self._period_s
             if late_start:  # in the record, as a reply past its deadline is (``late``)
                 port.record_event("late_start", step=k, by_ms=times.lateness_s[k] * 1e3)
@@ -156,6 +153,10 @@ class Realtime(Scheduler):
         self._port.share(now, view=not running or self.start_of(self.k_done) - now >= VIEW_GUARD_S)
 
 
-def _encoded(motor: Message, stim: Message) -> dict[str, tuple[Message, bytes]]:
-    """Each role's input of a step with its encoding, ready to go at the step's start."""
+def _encoded(
+    inputs: InputPolicy, k: int, culture_reply: Message | None, body_reply: Message | None
+) -> dict[str, tuple[Message, bytes]]:
+    """Each role's input of step ``k`` with its encoding, ready to go at the step's start
+    (made from the replies of the step before; None: stood in for)."""
+    motor, stim = inputs.motor_for(k, culture_reply), inputs.stim_for(k, body_reply)
     return {"body": (motor, motor.encode()), "culture": (stim, stim.encode())}

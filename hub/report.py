@@ -92,6 +92,21 @@ class LoopTimes:
                 }
         return out
 
+    def steps_took(self, first: int, end: int, wall_s: float) -> None:
+        """Steps ``first`` to ``end - 1`` took ``wall_s`` together (shared evenly).
+
+        Parameters
+        ----------
+        first, end : int
+            The steps completed: ``first`` to ``end - 1``.
+        wall_s : float
+            The wall time they took together (lockstep: since the step before completed).
+        """
+        if end == first + 1:  # a numpy scalar store, not a slice's
+            self.step_wall_s[first] = wall_s
+        else:
+            self.step_wall_s[first:end] = wall_s / (end - first)
+
     def start(self) -> None:
         """The steps begin now."""
         self.t_start = time.monotonic()

@@ -15,9 +15,11 @@ import queue
 import threading
 import time
 
+import numpy as np
+
 from hub.config import load_config
 from hub.ledger import Ledger
-from hub.lockstep import VIEW_STALL_S, Lockstep
+from hub.lockstep import VIEW_STALL_S, Lockstep, Pipeline
 from hub.report import LoopTimes
 from hub.steps import Standing
 from tests.harness import wait_for
@@ -264,3 +266,65 @@ def test_views_go_after_each_step_and_from_the_loops_thread_only_once_the_steps_
         assert run.port.shared == ["MainThread"]
         wait_for(lambda: "loop" in run.port.shared, timeout_s=2)
         assert time.monotonic() >= due + VIEW_STALL_S
+
+
+# ------------------------------------------------------------------ the pipeline alone
+
+
+def pipeline(n_steps: int = 3) -> tuple[Pipeline, list[Input], Ledger, LoopTimes, Standing]:
+    """A pipeline with nothing between it and the test: no thread, no lock, no port."""
+    sent: list[Input] = []
+    ledger, standing = Ledger(), Standing(state="running")
+    times = LoopTimes.for_run("lockstep", 10.0, n_steps)
+
+    def send(role, message):
+        ledger.sent(role, message.step)
+        sent.append(message)
+
+    return Pipeline(send, Inputs(), standing, ledger, times, n_steps), sent, ledger, times, standing
+
+
+def reply_in(ledger: Ledger, role: str, step: int) -> None:
+    ledger.pending[role][step] = Reply(step)
+
+
+def test_the_pipeline_sends_each_input_once_the_reply_it_is_coded_from_is_in():
+    pipe, sent, ledger, times, _ = pipeline()
+    pipe.start()
+    assert sent == [Input("body", 0, None), Input("culture", 0, None)]
+    reply_in(ledger, "culture", 0)
+    assert pipe.advance() == 0  # the body's reply of step 0 is still owed
+    assert sent[2:] == [Input("body", 1, 0)]  # the motor command, from the culture's spikes
+    reply_in(ledger, "body", 0)
+    assert pipe.advance() == 1 and pipe.k_done == 1
+    assert sent[3:] == [Input("culture", 1, 0)]
+    assert times.step_wall_s[0] >= 0 and np.isnan(times.step_wall_s[1])
+
+
+def test_the_pipeline_sends_nothing_while_paused_or_stopping():
+    for stand in (dict(state="paused"), dict(stop_reason="stopped by control")):
+        pipe, sent, ledger, _, standing = pipeline()
+        pipe.start()
+        for name, value in stand.items():
+            setattr(standing, name, value)
+        reply_in(ledger, "culture", 0)
+        reply_in(ledger, "body", 0)
+        assert pipe.advance() == 0 and len(sent) == 2
+
+
+def test_the_pipeline_stands_in_only_for_replies_whose_input_went_out():
+    pipe, sent, ledger, _, _ = pipeline()
+    pipe.start()
+    reply_in(ledger, "culture", 0)
+    pipe.advance()  # the body's step 1 went; the culture's step 1 waits on the body's reply
+    assert pipe.stand_in() == 1
+    assert dict(ledger.missed) == {"body": {0}}  # the culture owed nothing: not missed
+    assert sent[-1] == Input("culture", 1, None)  # coded with the policy's stand-in
+
+
+def test_the_pipeline_sends_no_input_past_the_runs_last_step():
+    pipe, sent, ledger, _, _ = pipeline(n_steps=1)
+    pipe.start()
+    reply_in(ledger, "culture", 0)
+    reply_in(ledger, "body", 0)
+    assert pipe.advance() == 1 and len(sent) == 2
