@@ -221,14 +221,15 @@ class BusObserver:
 
     def _new_run(self, run: str | None) -> None:
         """A message of ``run``: a run other than the last one seen starts the page afresh
-        with its own scene. The first run seen keeps the scene read while its hub waited
-        (read again, it would empty the histories of the steps shown meanwhile)."""
+        with its own scene. The first run seen keeps the scene read, or being read, since
+        its hub came (read again, it would empty the histories of the steps shown
+        meanwhile: a status that came while the scene was read lost the run's first
+        spikes)."""
         if run and run != self.run:
             first, self.run = self.run is None, run
-            if first and self.state.scene is not None:
+            if first:
                 return
-            if not first:
-                self.state.reset()
+            self.state.reset()
             self._need_scene.set()
 
     # ------------------------------------------------------------------ controls

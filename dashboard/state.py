@@ -177,6 +177,7 @@ class FrameState:
         self.ranges: list | None = None
         self.contact = False
         self.motor: list | None = None
+        self._motor_step = -1  # the step of the motor command shown
         self.tapes = {
             "trail": Tape(math.inf, TRAIL_POINTS),
             "spikes": Tape(RASTER_S),
@@ -246,16 +247,18 @@ class FrameState:
         self._last_trail = last
 
     def add_motor(self, step: int, left_mps: float, right_mps: float) -> None:
-        """The newest motor command (the last one given is shown).
+        """A motor command: the newest by step is shown.
 
         Parameters
         ----------
         step : int
-            The command's step; not used.
+            The command's step; one older than the newest seen is not shown.
         left_mps, right_mps : float
             Wheel speeds (m/s).
         """
-        self.motor = [float(left_mps), float(right_mps)]
+        if step >= self._motor_step:
+            self._motor_step = int(step)
+            self.motor = [float(left_mps), float(right_mps)]
 
     def add_spikes(self, channel, t_ms, from_ms: float, until_ms: float) -> None:
         """Every spike of the run time ``[from_ms, until_ms)``: the raster, the culture

@@ -13,7 +13,8 @@ import pytest
 from dashboard.observer import BusObserver
 from dashboard.state import FrameState, Reader
 from hub.cli import main
-from hub.protocol import SpikeBatch
+from hub.config import load_config
+from hub.protocol import HubStatus, SpikeBatch
 from tests.harness import harness, wait_for
 
 pytestmark = pytest.mark.bus
@@ -322,8 +323,6 @@ def test_a_link_to_a_live_hub_that_goes_silent_is_joined_again(bus_overrides, ca
     up, dropping all the hub sent on it: docs/dashboard.md, "A page that froze"): the
     observer leaves and joins again, and takes the hub's statuses once they come."""
     from hub.bus import open_session
-    from hub.config import load_config
-    from hub.protocol import HubStatus
 
     cfg = load_config(None, bus_overrides)
     keys = cfg.bus.keys
@@ -439,3 +438,26 @@ def test_an_endpoint_that_stops_answering_keeps_what_was_known_of_it(monkeypatch
         "kind": "sim_robot",
         "counters": {"steps": 57},
     }
+
+
+def _status_of(run: str) -> bytes:
+    return HubStatus(
+        step=3, t_s=0.03, mode="realtime", state="running", late={}, missing={},
+        dropped={}, alive=[], extra={"run": run},
+    ).encode()  # fmt: skip
+
+
+def test_the_first_run_seen_keeps_the_scene_read_since_its_hub_came_and_a_next_run_reads_its_own():
+    """A status of the first run that came while its scene was being read asked for the
+    scene again, and reading it emptied what the page had of the run's first steps."""
+    state = FrameState()
+    observer = BusObserver(load_config(None, []).bus, state)  # not started: no bus
+    observer._need_scene.clear()  # as the watch thread does while it reads the scene
+    observer._handle("status", _status_of("a1" * 16))
+    assert not observer._need_scene.is_set()  # not read twice
+    state.set_scene({"name": "t", "culture": {"channel": [0], "x_um": [0.0], "y_um": [0.0]}})
+    state.add_spikes([0], [25.0], 0.0, 30.0)
+    observer._handle("status", _status_of("a1" * 16))
+    assert state.tapes["spikes"].since(0)  # the page keeps its spikes
+    observer._handle("status", _status_of("b2" * 16))  # another run: its own scene
+    assert observer._need_scene.is_set() and not state.tapes["spikes"].since(0)

@@ -192,6 +192,18 @@ def test_the_newest_reading_wins_and_the_trail_keeps_a_point_per_few_millimetres
     assert xs == pytest.approx([0.0, 0.002, 0.004, 0.006, 0.008])
 
 
+def test_the_newest_motor_command_by_step_is_shown_whatever_the_order_it_came_in():
+    state = _state()
+    state.add_motor(7, 0.05, 0.04)
+    state.add_motor(6, -0.1, -0.1)  # a command of an earlier step, come late
+    assert state.frame(Reader())["motor"] == [0.05, 0.04]
+    state.add_motor(8, 0.0, 0.0)
+    assert state.frame(Reader())["motor"] == [0.0, 0.0]
+    state.reset()  # a jump back in a replay: the step order starts again
+    state.add_motor(2, 0.01, 0.02)
+    assert state.frame(Reader())["motor"] == [0.01, 0.02]
+
+
 def test_sites_stay_lit_for_a_while_after_their_pulse():
     state = _state()
     state.add_pulses([11, 13, 77], [100.0, 100.0, 100.0])
