@@ -202,6 +202,10 @@ class PolicySection:
     # process, a link that dropped) and rejoin the run; the gap is recorded. Beyond it,
     # `endpoint_death` applies. 0: a vanished endpoint is dead at once.
     rejoin_s: float = field(default=0.0, metadata=bounds(ge=0))
+    # An endpoint that stays on the bus but answers none of its inputs, each stood in for
+    # by the policy one after another for this long, is taken for dead (`endpoint_death`
+    # applies): hung, or another process took its name on the bus. 0: never.
+    silent_s: float = field(default=30.0, metadata=bounds(ge=0))
 
 
 _IP_SCHEMES = ("tcp", "tls", "udp", "quic")

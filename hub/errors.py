@@ -18,8 +18,10 @@ class EndpointDied(HubError):
         The endpoint that died (also kept as attributes).
     step : int
         The step during which its token vanished.
+    why : str
+        How its death was seen.
     """
 
-    def __init__(self, role: str, id: str, step: int):
-        super().__init__(f"{role}/{id} died at step {step} (its liveliness token vanished)")
+    def __init__(self, role: str, id: str, step: int, why: str = "its liveliness token vanished"):
+        super().__init__(f"{role}/{id} died at step {step} ({why})")
         self.role, self.id, self.step = role, id, step

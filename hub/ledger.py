@@ -14,6 +14,7 @@ the counts are the run's (``late``, ``missing``, ``dropped``).
 from __future__ import annotations
 
 import logging
+import time
 from collections import Counter, defaultdict
 from collections.abc import Callable
 
@@ -49,6 +50,9 @@ class Ledger:
         Role → Counter of dropped messages by kind.
     final_step : int
         The step of the body's final stop once sent (its answer is kept apart), else -1.
+    silent_since : dict
+        Role → when (monotonic) the first of its replies stood in for one after another
+        was missed; a role is gone from it once it answers (``policy.silent_s``).
     """
 
     def __init__(self, on_event: Callable[..., None] = lambda name, **details: None):
@@ -62,6 +66,9 @@ class Ledger:
         self.late: Counter[str] = Counter()
         self.dropped: dict[str, Counter[str]] = defaultdict(Counter)
         self.final_step = -1
+        # role -> when (monotonic) the first of its replies stood in for one after another
+        # was missed; gone once it answers (policy.silent_s)
+        self.silent_since: dict[str, float] = {}
         # realtime: the step each role's reply is awaited for now, and by when (monotonic)
         self._owed: dict[str, int] = {}
         self._deadlines: dict[str, float] = {}
@@ -119,8 +126,11 @@ class Ledger:
             if parts:  # streamed before this reply (contract v4)
                 message = merge_parts(parts.pop(step, []), message)
             self.pending[role][step] = message
+            if self.silent_since:
+                self.silent_since.pop(role, None)
             return "rx"
         if step in missed:
+            self.silent_since.pop(role, None)
             self.late[role] += 1
             missed.discard(step)
             self.on_event("late", role=role, step=step, at_step=expected)
@@ -181,7 +191,21 @@ class Ledger:
         """
         self.stranded.extend(self.parts[role].pop(step, ()))
         self.missed[role].add(step)
+        self.silent_since.setdefault(role, time.monotonic())
         self.on_event("missed", role=role, step=step)
+
+    def silent(self, now: float, silent_s: float) -> list[str]:
+        """The roles whose replies were all stood in for, one after another, for longer
+        than ``silent_s`` up to ``now``.
+
+        Parameters
+        ----------
+        now : float
+            The time to judge at (monotonic, s).
+        silent_s : float
+            How long a role's replies may all be stood in for (``policy.silent_s``).
+        """
+        return [role for role, since in self.silent_since.items() if now - since > silent_s]
 
     def drop(self, role: str, kind: str, detail: str) -> str:
         """Count (and log once per kind and role) a dropped message.

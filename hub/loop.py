@@ -162,8 +162,8 @@ class Hub:
             self.traffic, self.online.tally if self.online else None, progress,
         )  # fmt: skip
         self.presence = Presence(
-            cfg, self.standing, self.scheduler, self.online, self.participants.readmit,
-            self.record_event,
+            cfg, self.standing, self.ledger, self.scheduler, self.online,
+            self.participants.readmit, self.record_event,
         )  # fmt: skip
         self.control = Control(
             self.standing, self.times, self.ledger, self.telemetry.status, cfg.to_dict,
@@ -312,10 +312,12 @@ class Hub:
         # "wake": nothing to do but look at the state
 
     def tick(self) -> None:
-        """The loop's chores that are due: the deadline of an endpoint awaited back, the
-        status (and progress), the record's flush."""
+        """The loop's chores that are due: the deadline of an endpoint awaited back, an
+        endpoint silent too long, the status (and progress), the record's flush."""
         if self.standing.awaited:
             self.presence.check_deadlines()
+        if self.ledger.silent_since:
+            self.presence.check_silent()
         now = time.monotonic()
         if now >= self.telemetry.status_due_at:
             self.telemetry.publish_status(now)

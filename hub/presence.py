@@ -23,6 +23,7 @@ from hub.protocol import ROLES
 
 if TYPE_CHECKING:
     from hub.config import ExperimentConfig
+    from hub.ledger import Ledger
     from hub.online import OnlineAnalysis
     from hub.steps import Scheduler, Standing
 
@@ -38,6 +39,8 @@ class Presence:
         The run's experiment (``policy``, ``bus.lease_ms``, ``record.flush_s``).
     standing : Standing
         Where the run stands; its ``alive`` and ``awaited`` are kept here.
+    ledger : Ledger
+        The run's replies: whose were stood in for, one after another, since when.
     steps : Scheduler
         The run's scheduler: the step under way (``k``), told of an endpoint's return.
     online : OnlineAnalysis or None
@@ -57,12 +60,15 @@ class Presence:
         self,
         cfg: ExperimentConfig,
         standing: Standing,
+        ledger: Ledger,
         steps: Scheduler,
         online: OnlineAnalysis | None,
         readmit: Callable[[str], None],
         record_event: Callable[..., None],
     ):
         self.cfg, self.standing, self.steps, self.online = cfg, standing, steps, online
+        self.ledger = ledger
+        self._silenced: set[str] = set()  # roles taken for dead for their silence
         self.ids = {role: cfg.endpoint(role).id for role in ROLES}
         self._keys = cfg.bus.keys
         self._readmit, self._record_event = readmit, record_event
@@ -142,6 +148,30 @@ class Presence:
                 self._record_event("rejoin_expired", role=role, id=self.ids[role])
                 self._dead(role)
 
+    def check_silent(self) -> None:
+        """An endpoint still on the bus whose replies were all stood in for, one after
+        another, for ``policy.silent_s`` is taken for dead: hung, or another process took
+        its name on the bus (Zenoh keeps one token of a name while any holds it, so the
+        death of the one that had the run is not seen).
+
+        Raises
+        ------
+        EndpointDied
+            With ``policy.endpoint_death = "stop"``.
+        """
+        silent_s, standing = self.cfg.policy.silent_s, self.standing
+        if not silent_s or standing.state != "running":
+            return
+        for role in self.ledger.silent(time.monotonic(), silent_s):
+            if role in standing.awaited or role in self._silenced:
+                continue
+            self._silenced.add(role)
+            self._record_event("silent", role=role, id=self.ids[role], silent_s=silent_s)
+            self._dead(role, why=(
+                f"it answered none of its inputs for {silent_s:g} s though its token is on "
+                f"the bus: hung, or another process took its name; policy.silent_s"
+            ))  # fmt: skip
+
     def note_wake(self) -> None:
         """The loop's thread woke: keep the last gap in its running longer than its longest
         wait (``record.flush_s``) and a quarter lease, less than a lease lapsing takes.
@@ -164,18 +194,21 @@ class Presence:
         ended, gap_s = self._stall
         return gap_s if time.monotonic() - ended < 2 * self.cfg.bus.lease_ms / 1e3 else 0.0
 
-    def _dead(self, role: str) -> None:
-        """An endpoint is gone for good: ``policy.endpoint_death`` applies."""
+    def _dead(self, role: str, why: str = "its liveliness token vanished") -> None:
+        """An endpoint is gone for good (``why``: how it was seen): ``policy.endpoint_death``
+        applies."""
         i, k, death = self.ids[role], self.steps.k, self.cfg.policy.endpoint_death
         if death == "stop":
-            raise EndpointDied(role, i, k)  # logged once, where the run ends
-        log.error("%s/%s died at step %d; the run goes on (policy.endpoint_death = %r)",
-                  role, i, k, death)  # fmt: skip
+            raise EndpointDied(role, i, k, why)  # logged once, where the run ends
+        log.error("%s/%s died at step %d (%s); the run goes on (policy.endpoint_death = %r)",
+                  role, i, k, why, death)  # fmt: skip
 
     def _rejoin(self, role: str) -> None:
         """An endpoint that vanished is back within ``policy.rejoin_s``: described and given
         the run again (same id and key; it starts from its model's or device's start)."""
         since, gone_at = self.standing.awaited.pop(role)
+        self.ledger.silent_since.pop(role, None)  # a new start: its silence counts again
+        self._silenced.discard(role)
         i = self.ids[role]
         self._readmit(role)
         gap_s = time.monotonic() - since

@@ -7,6 +7,7 @@ import pytest
 
 from hub.config import load_config
 from hub.errors import EndpointDied, HubError
+from hub.ledger import Ledger
 from hub.presence import Presence
 from hub.steps import Standing
 
@@ -41,7 +42,7 @@ def presence(*overrides) -> tuple[Presence, Standing, str]:
     cfg = load_config(None, list(overrides))
     standing = Standing()
     events = []
-    p = Presence(cfg, standing, Steps(), None, lambda role: None,
+    p = Presence(cfg, standing, Ledger(), Steps(), None, lambda role: None,
                  lambda name, **d: events.append(name))  # fmt: skip
     body = cfg.bus.keys.alive("body", cfg.body.id)
     p.seen(body, True)
@@ -99,3 +100,67 @@ def test_with_rejoin_s_an_endpoint_is_awaited_back_even_after_a_stall(clock):
     clock.now += 1.0
     p.seen(body, True)
     assert p.rejoins[0]["gap_s"] == 1.0 and p.steps.back == "body"
+
+
+class Reply:
+    """A reply as the ledger sees it: its step."""
+
+    def __init__(self, step):
+        self.step = step
+
+
+def test_an_endpoint_whose_replies_are_all_stood_in_for_silent_s_is_dead(clock):
+    p, standing, _ = presence("policy.silent_s=30")
+    stepping(p, standing)
+    p.ledger.miss("body", 5)
+    clock.now += 29.0
+    p.check_silent()  # not yet
+    clock.now += 2.0
+    with pytest.raises(EndpointDied, match=r"body/0 died at step 7 \(it answered none of its"):
+        p.check_silent()
+
+
+def test_a_reply_that_comes_even_late_ends_the_silence(clock):
+    p, standing, _ = presence("policy.silent_s=30")
+    stepping(p, standing)
+    ledger = p.ledger
+    ledger.sent("body", 5)
+    ledger.miss("body", 5)
+    clock.now += 20.0
+    assert ledger.judge("body", Reply(5), clock.now, running=True) == "late"
+    ledger.miss("body", 6)
+    clock.now += 20.0  # 40 s since the first miss, 20 s since it answered
+    p.check_silent()
+    assert list(ledger.silent_since) == ["body"]
+
+
+def test_silence_is_judged_only_while_the_steps_run(clock):
+    p, standing, _ = presence("policy.silent_s=30")
+    stepping(p, standing)
+    p.ledger.miss("body", 5)
+    clock.now += 60.0
+    standing.state = "paused"
+    p.check_silent()  # not judged while paused
+    standing.state = "running"
+    with pytest.raises(EndpointDied):
+        p.check_silent()
+
+
+def test_with_silent_s_0_silence_is_never_judged(clock):
+    p, standing, _ = presence("policy.silent_s=0")
+    stepping(p, standing)
+    p.ledger.miss("body", 5)
+    clock.now += 3600.0
+    p.check_silent()  # does not raise
+    assert p.ledger.silent(clock.now, 1.0) == ["body"]  # silent all the same
+
+
+def test_with_endpoint_death_continue_a_silent_endpoint_is_said_once(clock, caplog):
+    p, standing, _ = presence("policy.silent_s=30", 'policy.endpoint_death="continue"')
+    stepping(p, standing)
+    p.ledger.miss("body", 5)
+    clock.now += 31.0
+    p.check_silent()
+    p.check_silent()
+    said = [r for r in caplog.records if "answered none of its inputs" in r.getMessage()]
+    assert len(said) == 1 and said[0].levelname == "ERROR"
