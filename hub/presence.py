@@ -162,8 +162,10 @@ class Presence:
         silent_s, standing = self.cfg.policy.silent_s, self.standing
         if not silent_s or standing.state != "running":
             return
+        self._silenced &= self.ledger.silent_since.keys()  # those that answered since
         for role in self.ledger.silent(time.monotonic(), silent_s):
-            if role in standing.awaited or role in self._silenced:
+            on_bus = (role, self.ids[role]) in standing.alive
+            if not on_bus or role in standing.awaited or role in self._silenced:
                 continue
             self._silenced.add(role)
             self._record_event("silent", role=role, id=self.ids[role], silent_s=silent_s)

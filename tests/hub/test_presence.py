@@ -164,3 +164,15 @@ def test_with_endpoint_death_continue_a_silent_endpoint_is_said_once(clock, capl
     p.check_silent()
     said = [r for r in caplog.records if "answered none of its inputs" in r.getMessage()]
     assert len(said) == 1 and said[0].levelname == "ERROR"
+
+
+def test_an_endpoint_whose_token_went_is_not_said_silent_as_well(clock, caplog):
+    p, standing, body = presence("policy.silent_s=30", 'policy.endpoint_death="continue"')
+    stepping(p, standing)
+    p.seen(body, False)  # dead, and the run goes on
+    p.ledger.miss("body", 5)
+    clock.now += 31.0
+    p.check_silent()
+    assert [r.getMessage()[:22] for r in caplog.records if r.levelname == "ERROR"] == [
+        "body/0 died at step 7 "
+    ]
