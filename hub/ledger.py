@@ -66,8 +66,6 @@ class Ledger:
         self.late: Counter[str] = Counter()
         self.dropped: dict[str, Counter[str]] = defaultdict(Counter)
         self.final_step = -1
-        # role -> when (monotonic) the first of its replies stood in for one after another
-        # was missed; gone once it answers (policy.silent_s)
         self.silent_since: dict[str, float] = {}
         # realtime: the step each role's reply is awaited for now, and by when (monotonic)
         self._owed: dict[str, int] = {}
